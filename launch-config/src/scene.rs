@@ -1,4 +1,9 @@
 //! `[scene]`: the physics node's scene. Owned by physics-node.
+//!
+//! SI units. A mesh spec is `default:lateral:coarse|fine|finest`, `default:medial:...`
+//! (the project's parametric meniscus), `study:lateral` / `study:medial` (the study's meshes
+//! from `ARTHROSIM_DATA`, with the study's scale and, for the lateral, its fixed nodes), or a
+//! path to a `.msh` file.
 use serde::{Deserialize, Serialize};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -6,10 +11,204 @@ use serde::{Deserialize, Serialize};
 pub struct SceneConfig {
     /// Time step, s.
     pub dt: f64,
+    /// Gravity, m/s², world frame (z up).
+    pub gravity: [f64; 3],
+    pub meniscus: MeniscusConfig,
+    pub material: MaterialConfig,
+    pub solver: SolverConfig,
+    pub contact: ContactConfig,
+    pub probe: ProbeConfig,
 }
 
 impl Default for SceneConfig {
     fn default() -> Self {
-        SceneConfig { dt: 0.01 }
+        SceneConfig {
+            dt: 0.01,
+            gravity: [0.0, 0.0, -9.81],
+            meniscus: MeniscusConfig::default(),
+            material: MaterialConfig::default(),
+            solver: SolverConfig::default(),
+            contact: ContactConfig::default(),
+            probe: ProbeConfig::default(),
+        }
+    }
+}
+
+/// A load-time transform: x' = R(rotation) · (scale · x) + translation.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TransformConfig {
+    /// Uniform scale applied to raw coordinates (e.g. 0.026 for the study's raw → m).
+    pub scale: f64,
+    /// Rotation, degrees, applied as extrinsic x then y then z.
+    pub rotation_deg: [f64; 3],
+    /// Translation after scaling and rotation, m.
+    pub translation: [f64; 3],
+}
+
+impl Default for TransformConfig {
+    fn default() -> Self {
+        TransformConfig {
+            scale: 1.0,
+            rotation_deg: [0.0; 3],
+            translation: [0.0; 3],
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MeniscusConfig {
+    /// Mesh spec (see module docs).
+    pub mesh: String,
+    /// Optional high-resolution visual surface (OBJ or STL) mapped onto the tets.
+    pub visual: Option<String>,
+    /// Transform for a `.msh` path (ignored for `default:` and `study:` specs, which carry
+    /// their own).
+    pub transform: TransformConfig,
+    /// Transform for the visual surface file.
+    pub visual_transform: TransformConfig,
+    /// Fixed set: `inferior` (nodes on the inferior surface), `none`, or a path to a file of
+    /// 0-based node indices.
+    pub fixed: String,
+    /// 0: fixed nodes are held. > 0: they are held by springs of this stiffness per node,
+    /// N/m (elastic support of the inferior surface).
+    pub support_stiffness: f64,
+}
+
+impl Default for MeniscusConfig {
+    fn default() -> Self {
+        MeniscusConfig {
+            mesh: "default:lateral:coarse".into(),
+            visual: None,
+            transform: TransformConfig::default(),
+            visual_transform: TransformConfig::default(),
+            fixed: "inferior".into(),
+            support_stiffness: 0.0,
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MaterialConfig {
+    /// `lateral` (E 3.50 MPa, ν 0.29), `medial` (E 3.84 MPa, ν 0.26) or `custom`.
+    pub preset: String,
+    /// Young's modulus, Pa; overrides the preset.
+    pub youngs_modulus: Option<f64>,
+    /// Poisson's ratio; overrides the preset.
+    pub poisson_ratio: Option<f64>,
+    /// Density, kg/m³.
+    pub density: f64,
+    /// `corotational` (linear corotational) or `neo-hookean` (stable neo-Hookean).
+    pub model: String,
+    /// Degeneration grade 0..=2: modulus × (1 − 0.205 · grade), grade 2 = −41%.
+    pub degeneration_grade: f64,
+    /// Extra global modulus scale (specimen variability).
+    pub modulus_scale: f64,
+    /// Rayleigh damping coefficients (mass, stiffness).
+    pub rayleigh_mass: f64,
+    pub rayleigh_stiffness: f64,
+}
+
+impl Default for MaterialConfig {
+    fn default() -> Self {
+        MaterialConfig {
+            preset: "lateral".into(),
+            youngs_modulus: None,
+            poisson_ratio: None,
+            density: 1090.0,
+            model: "corotational".into(),
+            degeneration_grade: 0.0,
+            modulus_scale: 1.0,
+            rayleigh_mass: 0.0,
+            rayleigh_stiffness: 0.0,
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SolverConfig {
+    /// `cg` or `direct` (faer sparse Cholesky).
+    pub kind: String,
+    pub cg_iterations: u32,
+    pub cg_tolerance: f64,
+}
+
+impl Default for SolverConfig {
+    fn default() -> Self {
+        SolverConfig {
+            kind: "cg".into(),
+            cg_iterations: 25,
+            cg_tolerance: 1e-9,
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ContactConfig {
+    /// Proximity at which a contact constraint is created, m.
+    pub alarm_distance: f64,
+    /// Target separation of an active contact, m.
+    pub contact_distance: f64,
+    /// Coulomb friction coefficient.
+    pub friction: f64,
+    pub lcp_tolerance: f64,
+    pub lcp_max_iterations: u32,
+    /// At most this many contacts per step (≤ msgs::MAX_CONTACTS).
+    pub max_contacts: u32,
+}
+
+impl Default for ContactConfig {
+    fn default() -> Self {
+        ContactConfig {
+            alarm_distance: 3.408e-3,
+            contact_distance: 1.136e-3,
+            friction: 0.0,
+            lcp_tolerance: 1e-3,
+            lcp_max_iterations: 1000,
+            max_contacts: 32,
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ProbeConfig {
+    /// `default` (built-in hook probe of capsules) or a path to an OBJ collision model.
+    pub model: String,
+    /// Transform for an OBJ collision model.
+    pub transform: TransformConfig,
+    /// Probe mass, kg (Arthrex AR-10000: 35 g).
+    pub mass: f64,
+    /// Radius of the probe tip, m.
+    pub tip_radius: f64,
+    /// Coupling spring between device proxy and probe: linear N/m, angular N·m/rad.
+    pub coupling_stiffness: f64,
+    pub coupling_angular_stiffness: f64,
+    /// Coupling damping: linear N·s/m, angular N·m·s/rad.
+    pub coupling_damping: f64,
+    pub coupling_angular_damping: f64,
+    /// Initial probe pose (position m, quaternion xyzw).
+    pub initial_position: [f64; 3],
+    pub initial_orientation: [f64; 4],
+}
+
+impl Default for ProbeConfig {
+    fn default() -> Self {
+        ProbeConfig {
+            model: "default".into(),
+            transform: TransformConfig::default(),
+            mass: 0.035,
+            tip_radius: 1.5e-3,
+            coupling_stiffness: 1.0e5,
+            coupling_angular_stiffness: 50.0,
+            coupling_damping: 50.0,
+            coupling_angular_damping: 0.05,
+            initial_position: [0.0, 0.0, 0.05],
+            initial_orientation: [0.0, 0.0, 0.0, 1.0],
+        }
     }
 }

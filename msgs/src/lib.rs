@@ -10,6 +10,7 @@
 
 pub mod clock;
 pub mod ipc;
+pub mod lifecycle;
 
 use iceoryx2::prelude::ZeroCopySend;
 

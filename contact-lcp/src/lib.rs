@@ -1,0 +1,814 @@
+//! The frictional contact LCP in constraint space, solved by projected block Gauss–Seidel.
+//!
+//! Problem (one block of 3 rows per contact: normal n, tangents t1, t2):
+//!
+//! ```text
+//!   δ = δ_free + W λ                       (λ: impulses, N·s; δ: violation, m)
+//!   0 ≤ λn  ⟂  δn ≥ 0                      (normal complementarity)
+//!   |λt| ≤ μ λn; stick (δt = 0) inside the cone, slide on its boundary opposing δt
+//! ```
+//!
+//! W is row-major with stride [`MAX_ROWS`] (the layout of `msgs::physics_to_haptic::ContactFrame`),
+//! only the leading `row_count × row_count` block is read. The solver is used both by the
+//! physics node (every step) and by the haptic node (every 1 ms tick), so it has fixed capacity,
+//! allocates nothing, warm-starts from the λ it is given, and stops at an iteration cap, a
+//! tolerance, or a deadline.
+//!
+//! Convergence measure: after each sweep, `residual = max_i |Δλ_i| / max(max_i |λ_i|, λ_floor)`,
+//! the largest change of an impulse relative to the largest impulse (dimensionless, so the
+//! same tolerance works in SI for soft and stiff tissue). An all-zero solution that does not
+//! change has residual 0.
+//!
+//! Sliding friction projects the tangential trial impulse radially onto the disc of radius
+//! μ λn and re-solves the normal with that tangential impulse (a few inner passes). This is
+//! exact for isotropic tangential compliance (W_tt = w·I), the usual case for a point contact,
+//! and the common approximation otherwise (SOFA's nlcp_gaussseidel does the same).
+
+use std::time::Instant;
+
+/// Maximum number of contacts (mirrors `msgs::MAX_CONTACTS`).
+pub const MAX_CONTACTS: usize = 32;
+/// Rows per contact: normal, tangent 1, tangent 2 (mirrors `msgs::ROWS_PER_CONTACT`).
+pub const ROWS_PER_CONTACT: usize = 3;
+/// Row stride of W (mirrors `msgs::MAX_ROWS`).
+pub const MAX_ROWS: usize = MAX_CONTACTS * ROWS_PER_CONTACT;
+
+/// Smallest |λ| used to normalise the residual, N·s (avoids dividing by zero near separation).
+const LAMBDA_FLOOR: f64 = 1e-12;
+/// Inner passes of the sliding projection within one block.
+const SLIDING_PASSES: usize = 12;
+
+/// Why a problem was rejected. On any error the λ given to [`solve`] is set to zero.
+#[derive(Debug, Clone, PartialEq)]
+pub enum LcpError {
+    /// Row count not a multiple of 3 or above [`MAX_ROWS`].
+    RowCount { rows: usize },
+    /// A slice is shorter than the layout requires.
+    SliceTooShort {
+        what: &'static str,
+        len: usize,
+        needed: usize,
+    },
+    /// μ negative or not finite.
+    Friction { mu: f64 },
+    /// A NaN or infinity in W or δ_free, found while evaluating this row.
+    NonFinite { row: usize },
+    /// The contact's 3×3 diagonal block of W is not positive definite enough to solve.
+    DegenerateBlock { contact: usize },
+    /// Settings out of range (tolerance not finite / negative).
+    Settings { detail: &'static str },
+}
+
+impl core::fmt::Display for LcpError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            LcpError::RowCount { rows } => write!(
+                f,
+                "row count {rows} is not a multiple of {ROWS_PER_CONTACT} in 0..={MAX_ROWS}"
+            ),
+            LcpError::SliceTooShort { what, len, needed } => {
+                write!(f, "{what} has {len} entries, {needed} needed")
+            }
+            LcpError::Friction { mu } => write!(f, "friction coefficient {mu} is not a finite value ≥ 0"),
+            LcpError::NonFinite { row } => {
+                write!(
+                    f,
+                    "non-finite compliance or free violation in constraint row {row}"
+                )
+            }
+            LcpError::DegenerateBlock { contact } => write!(
+                f,
+                "diagonal compliance block of contact {contact} is not positive definite"
+            ),
+            LcpError::Settings { detail } => write!(f, "solver settings: {detail}"),
+        }
+    }
+}
+
+impl std::error::Error for LcpError {}
+
+/// One contact problem, borrowed from wherever it lives (a contact frame, a scratch buffer).
+#[derive(Debug, Clone, Copy)]
+pub struct Problem<'a> {
+    /// W, row-major with stride [`MAX_ROWS`], m/(N·s); at least `(rows-1)·MAX_ROWS + rows` long.
+    pub compliance: &'a [f64],
+    /// δ_free per row, m (negative = interpenetration).
+    pub free_violation: &'a [f64],
+    /// Coulomb friction coefficient (0 = frictionless).
+    pub friction_mu: f64,
+    /// Active rows, 3 per contact.
+    pub row_count: usize,
+}
+
+/// When to stop iterating.
+#[derive(Debug, Clone, Copy)]
+pub struct Settings {
+    /// Maximum Gauss–Seidel sweeps over all contacts.
+    pub max_iterations: u32,
+    /// Stop when the relative impulse change of a sweep is at most this.
+    pub tolerance: f64,
+    /// Give up (keeping the best-so-far λ, which is always feasible) after this instant.
+    pub deadline: Option<Instant>,
+    /// Check the deadline every this many sweeps (reading the clock costs ~20 ns).
+    pub deadline_check_every: u32,
+}
+
+impl Default for Settings {
+    fn default() -> Self {
+        Settings {
+            max_iterations: 100,
+            tolerance: 1e-3,
+            deadline: None,
+            deadline_check_every: 2,
+        }
+    }
+}
+
+/// How a solve ended.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Solution {
+    /// Sweeps performed.
+    pub iterations: u32,
+    /// Relative impulse change of the last sweep (see module docs).
+    pub residual: f64,
+    /// `residual ≤ tolerance`.
+    pub converged: bool,
+    /// The deadline stopped the solve before convergence.
+    pub deadline_hit: bool,
+}
+
+/// Dot product of two equal-length slices with four independent accumulators, so the
+/// compiler can vectorise it (a single accumulator chain cannot be reordered).
+#[inline]
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    let n = a.len().min(b.len());
+    let (a, b) = (&a[..n], &b[..n]);
+    let mut acc = [0.0f64; 4];
+    let mut ca = a.chunks_exact(4);
+    let mut cb = b.chunks_exact(4);
+    for (x, y) in (&mut ca).zip(&mut cb) {
+        acc[0] += x[0] * y[0];
+        acc[1] += x[1] * y[1];
+        acc[2] += x[2] * y[2];
+        acc[3] += x[3] * y[3];
+    }
+    let mut tail = 0.0;
+    for (x, y) in ca.remainder().iter().zip(cb.remainder()) {
+        tail += x * y;
+    }
+    (acc[0] + acc[1]) + (acc[2] + acc[3]) + tail
+}
+
+/// Solves the contact LCP in place: `lambda` holds the warm start on entry (non-finite
+/// entries are reset to 0, the rest projected onto the friction cone) and the solution on
+/// exit. Only the first `row_count` entries of `lambda` are touched.
+pub fn solve(problem: &Problem<'_>, lambda: &mut [f64], settings: &Settings) -> Result<Solution, LcpError> {
+    let rows = problem.row_count;
+    if rows > MAX_ROWS || rows % ROWS_PER_CONTACT != 0 {
+        return Err(LcpError::RowCount { rows });
+    }
+    if !(settings.tolerance.is_finite() && settings.tolerance >= 0.0) {
+        return Err(LcpError::Settings {
+            detail: "tolerance must be finite and ≥ 0",
+        });
+    }
+    if rows == 0 {
+        return Ok(Solution {
+            converged: true,
+            ..Solution::default()
+        });
+    }
+    let w_needed = (rows - 1) * MAX_ROWS + rows;
+    for (what, len, needed) in [
+        ("compliance", problem.compliance.len(), w_needed),
+        ("free violation", problem.free_violation.len(), rows),
+        ("lambda", lambda.len(), rows),
+    ] {
+        if len < needed {
+            zero(lambda, rows);
+            return Err(LcpError::SliceTooShort { what, len, needed });
+        }
+    }
+    let mu = problem.friction_mu;
+    if !(mu.is_finite() && mu >= 0.0) {
+        zero(lambda, rows);
+        return Err(LcpError::Friction { mu });
+    }
+    let w = problem.compliance;
+    let dfree = problem.free_violation;
+    let contacts = rows / ROWS_PER_CONTACT;
+
+    // Warm start: must be finite and feasible, otherwise the first sweep's "others'
+    // contribution" would carry garbage.
+    for k in 0..contacts {
+        let l = &mut lambda[3 * k..3 * k + 3];
+        if !l.iter().all(|v| v.is_finite()) || l[0] <= 0.0 {
+            l.fill(0.0);
+            continue;
+        }
+        project_cone(l, mu);
+    }
+
+    let check_every = settings.deadline_check_every.max(1);
+    let mut solution = Solution::default();
+    for iteration in 1..=settings.max_iterations {
+        let mut max_change = 0.0f64;
+        let mut max_lambda = 0.0f64;
+        for k in 0..contacts {
+            let r = 3 * k;
+            // Current violation of this contact's rows with every impulse (own included).
+            let mut d = [0.0; 3];
+            for c in 0..3 {
+                d[c] = dfree[r + c] + dot(&w[(r + c) * MAX_ROWS..(r + c) * MAX_ROWS + rows], &lambda[..rows]);
+            }
+            if !(d[0].is_finite() && d[1].is_finite() && d[2].is_finite()) {
+                zero(lambda, rows);
+                return Err(LcpError::NonFinite {
+                    row: r + d.iter().position(|v| !v.is_finite()).unwrap_or(0),
+                });
+            }
+            let block = [
+                [
+                    w[r * MAX_ROWS + r],
+                    w[r * MAX_ROWS + r + 1],
+                    w[r * MAX_ROWS + r + 2],
+                ],
+                [
+                    w[(r + 1) * MAX_ROWS + r],
+                    w[(r + 1) * MAX_ROWS + r + 1],
+                    w[(r + 1) * MAX_ROWS + r + 2],
+                ],
+                [
+                    w[(r + 2) * MAX_ROWS + r],
+                    w[(r + 2) * MAX_ROWS + r + 1],
+                    w[(r + 2) * MAX_ROWS + r + 2],
+                ],
+            ];
+            let old = [lambda[r], lambda[r + 1], lambda[r + 2]];
+            // Violation this contact would have with its own impulse removed.
+            let mut others = [0.0; 3];
+            for c in 0..3 {
+                others[c] = d[c] - (block[c][0] * old[0] + block[c][1] * old[1] + block[c][2] * old[2]);
+            }
+            let new = solve_block(&block, &others, mu).ok_or(LcpError::DegenerateBlock { contact: k });
+            let new = match new {
+                Ok(v) => v,
+                Err(e) => {
+                    zero(lambda, rows);
+                    return Err(e);
+                }
+            };
+            for c in 0..3 {
+                max_change = max_change.max((new[c] - old[c]).abs());
+                max_lambda = max_lambda.max(new[c].abs());
+                lambda[r + c] = new[c];
+            }
+        }
+        solution.iterations = iteration;
+        solution.residual = if max_change == 0.0 {
+            0.0
+        } else {
+            max_change / max_lambda.max(LAMBDA_FLOOR)
+        };
+        if solution.residual <= settings.tolerance {
+            solution.converged = true;
+            return Ok(solution);
+        }
+        if let Some(deadline) = settings.deadline {
+            if iteration % check_every == 0 && Instant::now() >= deadline {
+                solution.deadline_hit = true;
+                return Ok(solution);
+            }
+        }
+    }
+    Ok(solution)
+}
+
+fn zero(lambda: &mut [f64], rows: usize) {
+    let n = rows.min(lambda.len());
+    lambda[..n].fill(0.0);
+}
+
+/// Scales the tangential impulse into the cone |λt| ≤ μ λn (λn ≥ 0 assumed).
+#[inline]
+fn project_cone(l: &mut [f64], mu: f64) {
+    let limit = mu * l[0];
+    let t = (l[1] * l[1] + l[2] * l[2]).sqrt();
+    if t > limit {
+        if t > 0.0 {
+            let s = limit / t;
+            l[1] *= s;
+            l[2] *= s;
+        }
+    }
+}
+
+/// One contact: the impulse that makes `others + B λ` satisfy the contact law.
+/// `None` when the block cannot be solved (non-positive normal compliance, singular block).
+fn solve_block(b: &[[f64; 3]; 3], others: &[f64; 3], mu: f64) -> Option<[f64; 3]> {
+    let wnn = b[0][0];
+    if !(wnn > 0.0) {
+        return None;
+    }
+    if mu == 0.0 {
+        // Frictionless: tangential impulses are zero, the normal is a scalar projection.
+        return Some([(-others[0] / wnn).max(0.0), 0.0, 0.0]);
+    }
+    // Sticking trial: all three rows satisfied, δ = 0.
+    let stick = solve3(b, &[-others[0], -others[1], -others[2]])?;
+    if stick[0] <= 0.0 {
+        // Would pull: separation. (δn = others_n ≥ 0 then, since B is positive definite.)
+        return Some([0.0; 3]);
+    }
+    if (stick[1] * stick[1] + stick[2] * stick[2]).sqrt() <= mu * stick[0] {
+        return Some(stick);
+    }
+    // Sliding: alternate normal row (with tangential fixed) and tangential 2×2 trial
+    // (with normal fixed) projected onto the disc of radius μ λn.
+    let det_t = b[1][1] * b[2][2] - b[1][2] * b[2][1];
+    if !(det_t > 0.0) {
+        return None;
+    }
+    let mut l = stick;
+    project_cone(&mut l, mu);
+    for _ in 0..SLIDING_PASSES {
+        let prev = l;
+        l[0] = (-(others[0] + b[0][1] * l[1] + b[0][2] * l[2]) / wnn).max(0.0);
+        if l[0] == 0.0 {
+            return Some([0.0; 3]);
+        }
+        let r1 = -(others[1] + b[1][0] * l[0]);
+        let r2 = -(others[2] + b[2][0] * l[0]);
+        l[1] = (b[2][2] * r1 - b[1][2] * r2) / det_t;
+        l[2] = (b[1][1] * r2 - b[2][1] * r1) / det_t;
+        project_cone(&mut l, mu);
+        // The normal–tangent coupling is weak (|W_nt| μ / W_nn ≪ 1): a few passes suffice.
+        let change = (l[0] - prev[0])
+            .abs()
+            .max((l[1] - prev[1]).abs())
+            .max((l[2] - prev[2]).abs());
+        if change <= 1e-14 * l[0] {
+            break;
+        }
+    }
+    Some(l)
+}
+
+/// Solves a 3×3 system by Cramer's rule; `None` when singular or not finite.
+fn solve3(a: &[[f64; 3]; 3], rhs: &[f64; 3]) -> Option<[f64; 3]> {
+    let det = a[0][0] * (a[1][1] * a[2][2] - a[1][2] * a[2][1])
+        - a[0][1] * (a[1][0] * a[2][2] - a[1][2] * a[2][0])
+        + a[0][2] * (a[1][0] * a[2][1] - a[1][1] * a[2][0]);
+    if !(det.abs() > 0.0) || !det.is_finite() {
+        return None;
+    }
+    let mut x = [0.0; 3];
+    for (c, xc) in x.iter_mut().enumerate() {
+        let mut m = *a;
+        for r in 0..3 {
+            m[r][c] = rhs[r];
+        }
+        let d = m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
+            - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]);
+        *xc = d / det;
+    }
+    Some(x)
+}
+
+/// Violation δ = δ_free + W λ for the first `rows` rows, written to `out` (for checks and
+/// diagnostics; not used by the solver).
+pub fn violation(problem: &Problem<'_>, lambda: &[f64], out: &mut [f64]) {
+    let rows = problem.row_count.min(out.len());
+    for (i, o) in out.iter_mut().enumerate().take(rows) {
+        *o = problem.free_violation[i]
+            + dot(
+                &problem.compliance[i * MAX_ROWS..i * MAX_ROWS + problem.row_count],
+                &lambda[..problem.row_count],
+            );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn empty_w() -> Vec<f64> {
+        vec![0.0; MAX_ROWS * MAX_ROWS]
+    }
+
+    fn set(w: &mut [f64], i: usize, j: usize, v: f64) {
+        w[i * MAX_ROWS + j] = v;
+    }
+
+    fn tight() -> Settings {
+        Settings {
+            max_iterations: 500,
+            tolerance: 1e-12,
+            ..Settings::default()
+        }
+    }
+
+    /// A diagonal single-contact block.
+    fn single(wn: f64, wt: f64) -> Vec<f64> {
+        let mut w = empty_w();
+        set(&mut w, 0, 0, wn);
+        set(&mut w, 1, 1, wt);
+        set(&mut w, 2, 2, wt);
+        w
+    }
+
+    #[test]
+    fn one_frictionless_contact_matches_closed_form() {
+        let wn = 2.5e-3;
+        let w = single(wn, 1e-3);
+        for dn in [-1e-3, -4e-4, 0.0, 3e-4] {
+            let dfree = [dn, 1e-4, -2e-4];
+            let mut lambda = [0.0; 3];
+            let p = Problem {
+                compliance: &w,
+                free_violation: &dfree,
+                friction_mu: 0.0,
+                row_count: 3,
+            };
+            let s = solve(&p, &mut lambda, &tight()).unwrap();
+            assert!(s.converged);
+            let expected = (-dn / wn).max(0.0);
+            assert!(
+                (lambda[0] - expected).abs() < 1e-12,
+                "dn {dn}: {} vs {expected}",
+                lambda[0]
+            );
+            assert_eq!(lambda[1], 0.0);
+            assert_eq!(lambda[2], 0.0);
+        }
+    }
+
+    #[test]
+    fn separation_gives_zero_impulse_even_from_a_bad_warm_start() {
+        let w = single(1e-3, 1e-3);
+        let dfree = [2e-4, 0.0, 0.0];
+        let mut lambda = [0.7, 0.3, 0.1];
+        let p = Problem {
+            compliance: &w,
+            free_violation: &dfree,
+            friction_mu: 0.5,
+            row_count: 3,
+        };
+        let s = solve(&p, &mut lambda, &tight()).unwrap();
+        assert!(s.converged);
+        assert_eq!(lambda, [0.0; 3]);
+    }
+
+    /// Two frictionless contacts coupled through W: normals rows 0 and 3,
+    /// W_n = [[a, c], [c, b]], solved by hand.
+    fn two_contacts(a: f64, b: f64, c: f64) -> Vec<f64> {
+        let mut w = empty_w();
+        for k in 0..2 {
+            for t in 1..3 {
+                set(&mut w, 3 * k + t, 3 * k + t, 1.0);
+            }
+        }
+        set(&mut w, 0, 0, a);
+        set(&mut w, 3, 3, b);
+        set(&mut w, 0, 3, c);
+        set(&mut w, 3, 0, c);
+        w
+    }
+
+    #[test]
+    fn two_coupled_contacts_both_active() {
+        // [2 1; 1 3] λ = -[-1, -2]  →  det 5, λ1 = (3·1 − 1·2)/5 = 0.2, λ2 = (2·2 − 1·1)/5 = 0.6.
+        let w = two_contacts(2.0, 3.0, 1.0);
+        let dfree = [-1.0, 0.0, 0.0, -2.0, 0.0, 0.0];
+        let mut lambda = [0.0; 6];
+        let p = Problem {
+            compliance: &w,
+            free_violation: &dfree,
+            friction_mu: 0.0,
+            row_count: 6,
+        };
+        let s = solve(&p, &mut lambda, &tight()).unwrap();
+        assert!(s.converged, "{s:?}");
+        assert!((lambda[0] - 0.2).abs() < 1e-9, "{lambda:?}");
+        assert!((lambda[3] - 0.6).abs() < 1e-9, "{lambda:?}");
+        let mut d = [0.0; 6];
+        violation(&p, &lambda, &mut d);
+        assert!(d[0].abs() < 1e-9 && d[3].abs() < 1e-9);
+    }
+
+    #[test]
+    fn two_coupled_contacts_one_lifts_off() {
+        // dfree = [-1, -5]: the unconstrained solution gives λ1 = (3·1 − 1·5)/5 < 0, so contact 1
+        // separates: λ1 = 0, λ2 = 5/3, δ1 = −1 + 5/3 = 2/3 ≥ 0.
+        let w = two_contacts(2.0, 3.0, 1.0);
+        let dfree = [-1.0, 0.0, 0.0, -5.0, 0.0, 0.0];
+        let mut lambda = [0.0; 6];
+        let p = Problem {
+            compliance: &w,
+            free_violation: &dfree,
+            friction_mu: 0.0,
+            row_count: 6,
+        };
+        let s = solve(&p, &mut lambda, &tight()).unwrap();
+        assert!(s.converged);
+        assert_eq!(lambda[0], 0.0);
+        assert!((lambda[3] - 5.0 / 3.0).abs() < 1e-9);
+        let mut d = [0.0; 6];
+        violation(&p, &lambda, &mut d);
+        assert!((d[0] - 2.0 / 3.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn friction_sticks_inside_the_cone() {
+        // λn = 1e-3/1e-3 = 1; stick λt = −2e-4/2e-3 = −0.1; |λt| = 0.1 ≤ μ λn = 0.3 → stick.
+        let w = single(1e-3, 2e-3);
+        let dfree = [-1e-3, 2e-4, 0.0];
+        let mut lambda = [0.0; 3];
+        let p = Problem {
+            compliance: &w,
+            free_violation: &dfree,
+            friction_mu: 0.3,
+            row_count: 3,
+        };
+        let s = solve(&p, &mut lambda, &tight()).unwrap();
+        assert!(s.converged);
+        assert!((lambda[0] - 1.0).abs() < 1e-12);
+        assert!((lambda[1] + 0.1).abs() < 1e-12);
+        assert!(lambda[2].abs() < 1e-15);
+        let mut d = [0.0; 3];
+        violation(&p, &lambda, &mut d);
+        assert!(d.iter().all(|v| v.abs() < 1e-15), "sticking means no slip: {d:?}");
+    }
+
+    #[test]
+    fn friction_slides_on_the_cone_boundary_opposing_slip() {
+        // λn = 1; stick would need λt = −(0.3, 0.4), |λt| = 0.5 > μ λn = 0.2 → slide.
+        let w = single(1e-3, 2e-3);
+        let dfree = [-1e-3, 6e-4, 8e-4]; // slip direction (0.6, 0.8)
+        let mut lambda = [0.0; 3];
+        let p = Problem {
+            compliance: &w,
+            free_violation: &dfree,
+            friction_mu: 0.2,
+            row_count: 3,
+        };
+        let s = solve(&p, &mut lambda, &tight()).unwrap();
+        assert!(s.converged);
+        assert!((lambda[0] - 1.0).abs() < 1e-12);
+        assert!((lambda[1] + 0.2 * 0.6).abs() < 1e-12, "{lambda:?}");
+        assert!((lambda[2] + 0.2 * 0.8).abs() < 1e-12, "{lambda:?}");
+        let mut d = [0.0; 3];
+        violation(&p, &lambda, &mut d);
+        // Still slipping in the same direction, friction opposes it.
+        assert!(d[1] > 0.0 && d[2] > 0.0);
+        assert!(
+            (d[1] * lambda[2] - d[2] * lambda[1]).abs() < 1e-15,
+            "anti-parallel"
+        );
+    }
+
+    #[test]
+    fn coupled_block_sliding_keeps_normal_satisfied_and_tangent_on_cone() {
+        // Normal–tangent coupling (an inclined compliance), isotropic tangential block.
+        let mut w = single(1e-3, 2e-3);
+        set(&mut w, 0, 1, 3e-4);
+        set(&mut w, 1, 0, 3e-4);
+        let dfree = [-1e-3, 1e-3, 0.0];
+        let mut lambda = [0.0; 3];
+        let mu = 0.25;
+        let p = Problem {
+            compliance: &w,
+            free_violation: &dfree,
+            friction_mu: mu,
+            row_count: 3,
+        };
+        let s = solve(&p, &mut lambda, &tight()).unwrap();
+        assert!(s.converged);
+        // Hand solution: λt = −μ λn, 1e-3 λn + 3e-4 λt = 1e-3 → λn = 1e-3 / (1e-3 − 0.25·3e-4).
+        let ln = 1e-3 / (1e-3 - mu * 3e-4);
+        assert!((lambda[0] - ln).abs() < 1e-9, "{lambda:?} vs {ln}");
+        assert!((lambda[1] + mu * ln).abs() < 1e-9);
+        let mut d = [0.0; 3];
+        violation(&p, &lambda, &mut d);
+        assert!(d[0].abs() < 1e-12 && d[1] > 0.0);
+    }
+
+    #[test]
+    fn warm_start_converges_in_one_sweep() {
+        let w = two_contacts(2.0, 3.0, 1.0);
+        let dfree = [-1.0, 0.0, 0.0, -2.0, 0.0, 0.0];
+        let mut lambda = [0.0; 6];
+        let p = Problem {
+            compliance: &w,
+            free_violation: &dfree,
+            friction_mu: 0.0,
+            row_count: 6,
+        };
+        solve(&p, &mut lambda, &tight()).unwrap();
+        let s = solve(&p, &mut lambda, &tight()).unwrap();
+        assert_eq!(s.iterations, 1);
+        assert!(s.converged);
+    }
+
+    #[test]
+    fn many_contacts_converge_and_respect_the_cone() {
+        // 32 contacts on a strongly coupled, symmetric positive definite W (a shared
+        // compliance plus a local one), with friction.
+        let mut w = empty_w();
+        let rows = MAX_ROWS;
+        for i in 0..rows {
+            for j in 0..rows {
+                let shared = if i % 3 == 0 && j % 3 == 0 { 2e-4 } else { 0.0 };
+                w[i * MAX_ROWS + j] = shared + if i == j { 1e-3 } else { 0.0 };
+            }
+        }
+        let mut dfree = [0.0; MAX_ROWS];
+        for k in 0..MAX_CONTACTS {
+            dfree[3 * k] = -1e-4 * (1.0 + (k % 5) as f64);
+            dfree[3 * k + 1] = 2e-5 * ((k % 3) as f64 - 1.0);
+            dfree[3 * k + 2] = 1e-5 * ((k % 4) as f64 - 1.5);
+        }
+        let mut lambda = [0.0; MAX_ROWS];
+        let p = Problem {
+            compliance: &w,
+            free_violation: &dfree,
+            friction_mu: 0.3,
+            row_count: rows,
+        };
+        let s = solve(
+            &p,
+            &mut lambda,
+            &Settings {
+                max_iterations: 2000,
+                tolerance: 1e-9,
+                ..Settings::default()
+            },
+        )
+        .unwrap();
+        assert!(s.converged, "{s:?}");
+        let mut d = [0.0; MAX_ROWS];
+        violation(&p, &lambda, &mut d);
+        for k in 0..MAX_CONTACTS {
+            let (ln, t1, t2) = (lambda[3 * k], lambda[3 * k + 1], lambda[3 * k + 2]);
+            assert!(ln >= 0.0);
+            assert!((t1 * t1 + t2 * t2).sqrt() <= 0.3 * ln + 1e-12);
+            assert!(d[3 * k] > -1e-9, "no interpenetration left");
+            // Complementarity: either separated with no force or in contact.
+            assert!(
+                ln == 0.0 || d[3 * k].abs() < 1e-8,
+                "contact {k}: λn {ln} δn {}",
+                d[3 * k]
+            );
+        }
+    }
+
+    #[test]
+    fn non_finite_and_degenerate_input_is_rejected() {
+        let p_ok = single(1e-3, 1e-3);
+        let dfree = [f64::NAN, 0.0, 0.0];
+        let mut lambda = [1.0, 0.0, 0.0];
+        let p = Problem {
+            compliance: &p_ok,
+            free_violation: &dfree,
+            friction_mu: 0.0,
+            row_count: 3,
+        };
+        assert_eq!(
+            solve(&p, &mut lambda, &tight()),
+            Err(LcpError::NonFinite { row: 0 })
+        );
+        assert_eq!(lambda, [0.0; 3], "λ is zeroed on error");
+
+        let mut w = single(1e-3, 1e-3);
+        set(&mut w, 2, 1, f64::INFINITY);
+        let dfree = [-1e-3, 0.0, 0.0];
+        let p = Problem {
+            compliance: &w,
+            free_violation: &dfree,
+            friction_mu: 0.2,
+            row_count: 3,
+        };
+        assert!(matches!(
+            solve(&p, &mut lambda, &tight()),
+            Err(LcpError::NonFinite { .. })
+        ));
+
+        let zero_w = empty_w();
+        let p = Problem {
+            compliance: &zero_w,
+            free_violation: &dfree,
+            friction_mu: 0.0,
+            row_count: 3,
+        };
+        assert_eq!(
+            solve(&p, &mut lambda, &tight()),
+            Err(LcpError::DegenerateBlock { contact: 0 })
+        );
+
+        let p = Problem {
+            compliance: &p_ok,
+            free_violation: &dfree,
+            friction_mu: f64::NAN,
+            row_count: 3,
+        };
+        assert!(matches!(
+            solve(&p, &mut lambda, &tight()),
+            Err(LcpError::Friction { .. })
+        ));
+
+        let p = Problem {
+            compliance: &p_ok,
+            free_violation: &dfree,
+            friction_mu: 0.0,
+            row_count: 4,
+        };
+        assert_eq!(
+            solve(&p, &mut lambda, &tight()),
+            Err(LcpError::RowCount { rows: 4 })
+        );
+
+        let p = Problem {
+            compliance: &p_ok[..10],
+            free_violation: &dfree,
+            friction_mu: 0.0,
+            row_count: 3,
+        };
+        assert!(matches!(
+            solve(&p, &mut lambda, &tight()),
+            Err(LcpError::SliceTooShort {
+                what: "compliance",
+                ..
+            })
+        ));
+    }
+
+    #[test]
+    fn nan_warm_start_is_discarded() {
+        let w = single(2e-3, 1e-3);
+        let dfree = [-1e-3, 0.0, 0.0];
+        let mut lambda = [f64::NAN, 0.0, 0.0];
+        let p = Problem {
+            compliance: &w,
+            free_violation: &dfree,
+            friction_mu: 0.0,
+            row_count: 3,
+        };
+        solve(&p, &mut lambda, &tight()).unwrap();
+        assert!((lambda[0] - 0.5).abs() < 1e-12);
+    }
+
+    #[test]
+    fn iteration_cap_and_deadline_stop_early_with_a_feasible_answer() {
+        let w = two_contacts(2.0, 3.0, 1.95);
+        let dfree = [-1.0, 0.0, 0.0, -2.0, 0.0, 0.0];
+        let mut lambda = [0.0; 6];
+        let p = Problem {
+            compliance: &w,
+            free_violation: &dfree,
+            friction_mu: 0.0,
+            row_count: 6,
+        };
+        let s = solve(
+            &p,
+            &mut lambda,
+            &Settings {
+                max_iterations: 2,
+                tolerance: 1e-12,
+                ..Settings::default()
+            },
+        )
+        .unwrap();
+        assert_eq!(s.iterations, 2);
+        assert!(!s.converged);
+        assert!(lambda[0] >= 0.0 && lambda[3] >= 0.0);
+
+        let mut lambda = [0.0; 6];
+        let s = solve(
+            &p,
+            &mut lambda,
+            &Settings {
+                max_iterations: 1_000_000,
+                tolerance: 0.0,
+                deadline: Some(Instant::now()),
+                deadline_check_every: 1,
+            },
+        )
+        .unwrap();
+        assert!(s.deadline_hit);
+        assert_eq!(s.iterations, 1);
+    }
+
+    #[test]
+    fn empty_problem_is_trivially_solved() {
+        let w = empty_w();
+        let p = Problem {
+            compliance: &w,
+            free_violation: &[],
+            friction_mu: 0.0,
+            row_count: 0,
+        };
+        let s = solve(&p, &mut [], &Settings::default()).unwrap();
+        assert!(s.converged && s.iterations == 0);
+    }
+}

@@ -1,0 +1,62 @@
+//! The haptic node: a 1 kHz process that owns the Touch (or its emulator, or a replayed
+//! trajectory), re-solves the newest contact frame's LCP for the device's current position
+//! (Peterlik et al. 2011; SOFA's LCPForceFeedback), renders the force within the device's
+//! limits, and publishes the device state back to the physics node.
+//!
+//! Safety: a stale frame ramps the force to zero; a restarted physics node is resumed under
+//! the rate limit; non-finite device positions, frames and forces are quarantined.
+
+pub mod config;
+pub mod device;
+pub mod node;
+pub mod render;
+pub mod servo;
+pub mod stats;
+
+use std::path::PathBuf;
+
+/// Command-line arguments of the haptic node (also used by `arthrosim node haptic`).
+#[derive(Debug, Clone, Default, clap::Args)]
+pub struct NodeArgs {
+    /// Launch file (TOML); its `[device]` section configures this node. None: defaults.
+    #[arg(long, value_name = "FILE")]
+    pub launch: Option<PathBuf>,
+    /// Session name (iceoryx2 service prefix). Default: $ARTHROSIM_SESSION or `default`.
+    #[arg(long, value_name = "NAME")]
+    pub session: Option<String>,
+    /// Directory for the run summary (`haptic-stats.json`).
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
+    /// Stop after this many seconds (default: until SIGINT/SIGTERM or the device ends).
+    #[arg(long)]
+    pub seconds: Option<f64>,
+    /// Override `[device] backend` (touch | emulated | replay).
+    #[arg(long, value_name = "BACKEND")]
+    pub device: Option<String>,
+    /// Replay this CSV trajectory (sets the backend to `replay`).
+    #[arg(long, value_name = "CSV")]
+    pub replay: Option<PathBuf>,
+    /// Do not ask for SCHED_FIFO / mlockall.
+    #[arg(long)]
+    pub no_realtime: bool,
+    /// Measure physics publish → receivable latency with a polling thread (keeps a core busy;
+    /// for the benchmark).
+    #[arg(long)]
+    pub transport_probe: bool,
+}
+
+/// Runs the node until stopped (see [`node::run`]).
+pub fn run_node(args: NodeArgs) -> anyhow::Result<()> {
+    init_tracing();
+    node::run(args)
+}
+
+/// Logs to stderr (stdout carries the READY line); `RUST_LOG` filters.
+pub fn init_tracing() {
+    let _ = tracing_subscriber::fmt()
+        .with_writer(std::io::stderr)
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
+        )
+        .try_init();
+}

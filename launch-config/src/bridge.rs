@@ -1,11 +1,34 @@
 //! `[bridge]`: the ROS 2 bridge. Owned by viz-bridge.
+//!
+//! ```toml
+//! [bridge]
+//! domain_id = 0
+//! namespace = "/arthrosim"
+//! [bridge.streams.probe_pose]
+//! reliability = "best_effort"   # or "reliable" (default)
+//! rate_hz = 0                   # 0: every sample
+//! [bridge.streams.contacts]
+//! enabled = false
+//! ```
 use serde::{Deserialize, Serialize};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct BridgeConfig {
+    /// ROS 2 / DDS domain id (0..=232).
     pub domain_id: u16,
+    /// Namespace of the session's topics (`/tf` and `/diagnostics` stay global).
     pub namespace: String,
+    /// Fixed frame of every pose, wrench, marker and transform (REP-103, z up).
+    pub world_frame: String,
+    /// Depth of the bounded queue between the shared-memory reader and the DDS writer;
+    /// when it is full (DDS stalled), messages are dropped and counted, never waited for.
+    pub queue_depth: usize,
+    /// Meniscus frame relative to the world frame (the surface stream is already in world).
+    pub meniscus_pose: FramePose,
+    /// Touch base frame relative to the world frame.
+    pub touch_base_pose: FramePose,
+    pub streams: BridgeStreams,
 }
 
 impl Default for BridgeConfig {
@@ -13,6 +36,259 @@ impl Default for BridgeConfig {
         BridgeConfig {
             domain_id: 0,
             namespace: "/arthrosim".into(),
+            world_frame: "world".into(),
+            queue_depth: 1024,
+            meniscus_pose: FramePose::default(),
+            touch_base_pose: FramePose::default(),
+            streams: BridgeStreams::default(),
         }
+    }
+}
+
+/// A fixed frame: position (m) and quaternion `[x, y, z, w]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct FramePose {
+    pub position: [f64; 3],
+    pub orientation: [f64; 4],
+}
+
+impl Default for FramePose {
+    fn default() -> Self {
+        FramePose {
+            position: [0.0; 3],
+            orientation: [0.0, 0.0, 0.0, 1.0],
+        }
+    }
+}
+
+/// DDS reliability of one stream. A reliable writer serves both reliable and best-effort
+/// readers; a best-effort writer serves only best-effort readers (RViz and `ros2 topic echo`
+/// default to reliable).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Reliability {
+    Reliable,
+    BestEffort,
+}
+
+/// DDS durability of one stream: transient-local keeps the last `depth` samples for late
+/// joiners (latched).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Durability {
+    Volatile,
+    TransientLocal,
+}
+
+/// One topic's settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct StreamConfig {
+    pub enabled: bool,
+    pub reliability: Reliability,
+    pub durability: Durability,
+    /// History depth (keep-last); also the reliable resend window.
+    pub depth: usize,
+    /// Maximum publish rate, Hz; 0 publishes every sample.
+    pub rate_hz: f64,
+}
+
+impl StreamConfig {
+    fn every(depth: usize) -> StreamConfig {
+        StreamConfig {
+            enabled: true,
+            reliability: Reliability::Reliable,
+            durability: Durability::Volatile,
+            depth,
+            rate_hz: 0.0,
+        }
+    }
+
+    fn at(rate_hz: f64, depth: usize) -> StreamConfig {
+        StreamConfig {
+            rate_hz,
+            ..StreamConfig::every(depth)
+        }
+    }
+
+    /// Minimum interval between two publications, ns (0: every sample).
+    pub fn min_interval_ns(&self) -> u64 {
+        if self.rate_hz > 0.0 && self.rate_hz.is_finite() {
+            (1e9 / self.rate_hz) as u64
+        } else {
+            0
+        }
+    }
+}
+
+impl Default for StreamConfig {
+    fn default() -> Self {
+        StreamConfig::every(10)
+    }
+}
+
+/// Per-topic settings. Topic names are fixed (see the viz-bridge docs); out = published,
+/// in = subscribed.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct BridgeStreams {
+    /// out `<ns>/probe/pose`, every physics step.
+    pub probe_pose: StreamConfig,
+    /// out `<ns>/probe/wrench`: contact force on the probe, eq. (1), world frame.
+    pub probe_wrench: StreamConfig,
+    /// out `<ns>/device/wrench`: force rendered on the Touch, 1 kHz.
+    pub device_wrench: StreamConfig,
+    /// out `<ns>/device/joint_states`.
+    pub joint_states: StreamConfig,
+    /// out `<ns>/device/buttons`.
+    pub buttons: StreamConfig,
+    /// out `<ns>/meniscus/mesh`: triangle list at viewer rate, latched.
+    pub mesh: StreamConfig,
+    /// out `<ns>/contacts`: contact points and normals.
+    pub contacts: StreamConfig,
+    /// out `/tf`.
+    pub tf: StreamConfig,
+    /// out `/diagnostics`, 1 Hz.
+    pub diagnostics: StreamConfig,
+    /// in `<ns>/probe/target_pose` → physics ProbeTarget.
+    pub target_pose: StreamConfig,
+    /// in `<ns>/material/degeneration_grade` → physics MaterialCommand.
+    pub degeneration_grade: StreamConfig,
+}
+
+impl Default for BridgeStreams {
+    fn default() -> Self {
+        BridgeStreams {
+            probe_pose: StreamConfig::every(100),
+            probe_wrench: StreamConfig::every(100),
+            device_wrench: StreamConfig::every(100),
+            joint_states: StreamConfig::at(100.0, 10),
+            buttons: StreamConfig::at(30.0, 10),
+            mesh: StreamConfig {
+                durability: Durability::TransientLocal,
+                ..StreamConfig::at(30.0, 1)
+            },
+            contacts: StreamConfig::at(30.0, 10),
+            tf: StreamConfig::at(100.0, 100),
+            diagnostics: StreamConfig::at(1.0, 10),
+            target_pose: StreamConfig::every(10),
+            // Volatile readers match volatile and transient-local writers alike.
+            degeneration_grade: StreamConfig::every(1),
+        }
+    }
+}
+
+/// A `[bridge]` setting that cannot work.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum BridgeConfigError {
+    #[error("bridge.domain_id = {0}: must be 0..=232 (DDS port mapping)")]
+    DomainId(u16),
+    #[error("bridge.namespace = {0:?}: must be absolute, like \"/arthrosim\" ([A-Za-z0-9_] segments, no trailing slash)")]
+    Namespace(String),
+    #[error("bridge.queue_depth = 0: must be at least 1")]
+    QueueDepth,
+    #[error("bridge.streams.{0}.depth = 0: must be at least 1")]
+    Depth(&'static str),
+    #[error("bridge.streams.{0}.rate_hz = {1}: must be finite and >= 0")]
+    Rate(&'static str, f64),
+    #[error("bridge.{0}: orientation must be a finite unit quaternion [x, y, z, w]")]
+    Frame(&'static str),
+}
+
+impl BridgeConfig {
+    /// Checks the values serde cannot (ranges, name syntax).
+    pub fn validate(&self) -> Result<(), BridgeConfigError> {
+        if self.domain_id > 232 {
+            return Err(BridgeConfigError::DomainId(self.domain_id));
+        }
+        let ns_ok = self.namespace == "/"
+            || (self.namespace.starts_with('/')
+                && self.namespace[1..].split('/').all(|seg| {
+                    !seg.is_empty()
+                        && seg.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
+                        && !seg.starts_with(|c: char| c.is_ascii_digit())
+                }));
+        if !ns_ok {
+            return Err(BridgeConfigError::Namespace(self.namespace.clone()));
+        }
+        if self.queue_depth == 0 {
+            return Err(BridgeConfigError::QueueDepth);
+        }
+        for (name, frame) in [
+            ("meniscus_pose", &self.meniscus_pose),
+            ("touch_base_pose", &self.touch_base_pose),
+        ] {
+            let norm: f64 = frame.orientation.iter().map(|v| v * v).sum::<f64>().sqrt();
+            if !(frame.position.iter().all(|v| v.is_finite()) && (norm - 1.0).abs() < 1e-6) {
+                return Err(BridgeConfigError::Frame(name));
+            }
+        }
+        for (name, stream) in self.streams.named() {
+            if stream.depth == 0 {
+                return Err(BridgeConfigError::Depth(name));
+            }
+            if !(stream.rate_hz.is_finite() && stream.rate_hz >= 0.0) {
+                return Err(BridgeConfigError::Rate(name, stream.rate_hz));
+            }
+        }
+        Ok(())
+    }
+}
+
+impl BridgeStreams {
+    /// Every stream with its key name.
+    pub fn named(&self) -> [(&'static str, &StreamConfig); 11] {
+        [
+            ("probe_pose", &self.probe_pose),
+            ("probe_wrench", &self.probe_wrench),
+            ("device_wrench", &self.device_wrench),
+            ("joint_states", &self.joint_states),
+            ("buttons", &self.buttons),
+            ("mesh", &self.mesh),
+            ("contacts", &self.contacts),
+            ("tf", &self.tf),
+            ("diagnostics", &self.diagnostics),
+            ("target_pose", &self.target_pose),
+            ("degeneration_grade", &self.degeneration_grade),
+        ]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn empty_section_gives_defaults_and_streams_parse() {
+        let cfg: BridgeConfig = toml::from_str("").unwrap();
+        assert_eq!(cfg, BridgeConfig::default());
+        cfg.validate().unwrap();
+        let cfg: BridgeConfig = toml::from_str(
+            "domain_id = 7\n[streams.probe_pose]\nreliability = \"best_effort\"\nrate_hz = 500\n\
+             [streams.contacts]\nenabled = false\n",
+        )
+        .unwrap();
+        assert_eq!(cfg.streams.probe_pose.reliability, Reliability::BestEffort);
+        assert_eq!(cfg.streams.probe_pose.min_interval_ns(), 2_000_000);
+        assert!(!cfg.streams.contacts.enabled);
+        assert_eq!(cfg.streams.mesh.durability, Durability::TransientLocal);
+    }
+
+    #[test]
+    fn bad_values_are_named() {
+        assert!(toml::from_str::<BridgeConfig>("[streams.pose]\n").is_err());
+        let mut cfg = BridgeConfig {
+            namespace: "arthrosim/".into(),
+            ..Default::default()
+        };
+        assert!(matches!(
+            cfg.validate(),
+            Err(BridgeConfigError::Namespace(_))
+        ));
+        cfg.namespace = "/lab_1/arthrosim".into();
+        cfg.validate().unwrap();
+        cfg.streams.tf.rate_hz = -1.0;
+        assert_eq!(cfg.validate(), Err(BridgeConfigError::Rate("tf", -1.0)));
     }
 }

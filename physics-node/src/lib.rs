@@ -2,3 +2,11 @@
 //! contact compliance published to the haptic node.
 
 pub mod mesh;
+pub mod fem;
+pub mod geometry;
+pub mod compliance;
+pub mod contact;
+pub mod error;
+pub mod node;
+pub mod probe;
+pub mod sim;

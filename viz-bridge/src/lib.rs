@@ -1,0 +1,85 @@
+//! viz-bridge: puts an arthrosim session on ROS 2 (pure Rust DDS through ros2-client), so
+//! RViz2, Foxglove or any ROS 2 node on the lab network sees it and can drive the probe.
+//!
+//! Topics (namespace from `[bridge] namespace`, default `/arthrosim`):
+//! out `probe/pose` (PoseStamped), `probe/wrench` (WrenchStamped, contact force on the probe,
+//! eq. (1), world frame), `device/wrench`, `device/joint_states`, `device/buttons` (Joy),
+//! `meniscus/mesh` (Marker TRIANGLE_LIST, transient-local), `contacts` (MarkerArray), `/tf`,
+//! `/diagnostics`; in `probe/target_pose` (PoseStamped → physics ProbeTarget) and
+//! `material/degeneration_grade` (Float64 → physics MaterialCommand).
+//!
+//! Two threads: the shared-memory thread (iceoryx2 ports are not `Send`) converts samples
+//! and hands them to the DDS thread through a bounded queue; when DDS stalls the queue fills
+//! and samples are dropped and counted (reported on `/diagnostics`), so the physics and
+//! haptic loops never notice the network.
+
+pub mod bridge;
+pub mod convert;
+pub mod dds;
+pub mod stats;
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Context as _;
+use launch_config::BridgeConfig;
+
+pub use bridge::{Bridge, BridgeError};
+
+/// Command-line arguments of the bridge node (also `arthrosim node bridge`).
+#[derive(Debug, Clone, clap::Args)]
+pub struct NodeArgs {
+    /// Launch file (TOML); its `[bridge]` section configures this node. No file: defaults.
+    #[arg(long, value_name = "FILE")]
+    pub launch: Option<PathBuf>,
+    /// Session name (shared-memory prefix); default `$ARTHROSIM_SESSION` or `default`.
+    #[arg(long, value_name = "NAME")]
+    pub session: Option<String>,
+    /// Output directory (the bridge writes no files; accepted for a uniform node CLI).
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
+}
+
+#[derive(serde::Deserialize)]
+struct BridgeSection {
+    #[serde(default)]
+    bridge: BridgeConfig,
+}
+
+/// Reads the `[bridge]` section of a launch file (other sections are their nodes' business)
+/// and checks it.
+pub fn load_config(path: Option<&Path>) -> anyhow::Result<BridgeConfig> {
+    let config = match path {
+        None => BridgeConfig::default(),
+        Some(path) => {
+            let text = std::fs::read_to_string(path)
+                .with_context(|| format!("cannot read launch file {}", path.display()))?;
+            toml::from_str::<BridgeSection>(&text)
+                .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?
+                .bridge
+        }
+    };
+    config.validate().map_err(|e| match path {
+        Some(p) => anyhow::anyhow!("{}: {e}", p.display()),
+        None => anyhow::anyhow!("{e}"),
+    })?;
+    Ok(config)
+}
+
+/// Runs the bridge node until SIGINT / SIGTERM.
+pub fn run_node(args: NodeArgs) -> anyhow::Result<()> {
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
+        )
+        .with_writer(std::io::stderr)
+        .try_init();
+    let stop = msgs::lifecycle::install_stop_flag();
+    let config = load_config(args.launch.as_deref())?;
+    let session = msgs::ipc::session_name(args.session.as_deref())?;
+    let mut bridge = Bridge::new(config, &session)?;
+    bridge.start().context("starting the bridge")?;
+    msgs::lifecycle::announce_ready("bridge");
+    bridge.run(stop)?;
+    Ok(())
+}

@@ -3,6 +3,22 @@
 //!
 //! All positions are in metres once loaded (the scene transform converts authored units).
 
+mod error;
+mod fixed;
+mod msh;
+mod scene;
+mod surface_io;
+pub mod topology;
+mod transform;
+
+pub use error::MeshError;
+pub use fixed::{parse_fixed_nodes, read_fixed_nodes};
+pub use msh::{parse_msh, read_msh, MshMesh};
+pub use scene::{load_scene_mesh, resolve_data_dir, LoadedMeniscus};
+pub use surface_io::{parse_obj, parse_stl, read_obj, read_stl, read_surface};
+pub use topology::{Sliver, SLIVER_QUALITY, ZERO_VOLUME_RELATIVE};
+pub use transform::Transform;
+
 use nalgebra::Point3;
 
 /// A tetrahedral mesh, every tet positively oriented (det[x1−x0, x2−x0, x3−x0] > 0).
@@ -21,3 +37,6 @@ pub struct SurfaceMesh {
     /// Counter-clockwise seen from outside (normals point out).
     pub triangles: Vec<[usize; 3]>,
 }
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,122 @@
+//! The command line (clap derive).
+
+use clap::{Args, Parser, Subcommand};
+use std::path::PathBuf;
+
+#[derive(Debug, Parser)]
+#[command(
+    name = "arthrosim",
+    version,
+    about = "Reality-based haptic simulation of arthroscopic meniscus examination"
+)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Run a session: start every enabled node as its own process, show live status, stop
+    /// them cleanly, print the summary in the study's terms.
+    Run(RunArgs),
+    /// Check launch files without starting anything (exit 1 if any is invalid).
+    Validate(ValidateArgs),
+    /// Re-drive a new session from a recording (the proxy follows the recorded device).
+    Replay(ReplayArgs),
+    /// Inspect, export and repair MCAP recordings.
+    #[command(subcommand)]
+    Recordings(RecordingsCommand),
+    /// Run one node in this process (used by `run`).
+    #[command(subcommand, hide = true)]
+    Node(NodeCommand),
+}
+
+#[derive(Debug, Args)]
+pub struct RunArgs {
+    /// Launch file (TOML). Without one, the embedded default session.
+    pub file: Option<PathBuf>,
+    /// Stop after this many seconds (default: `[session] seconds`, 0 = until Ctrl-C).
+    #[arg(long, value_name = "N")]
+    pub seconds: Option<f64>,
+    /// Session folder for the resolved launch file, summary.json, node logs and the
+    /// recording (default: sessions/<UTC timestamp>).
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
+    /// iceoryx2 session name (default: $ARTHROSIM_SESSION, else `[session] name`).
+    #[arg(long, value_name = "NAME")]
+    pub session: Option<String>,
+    /// Plain status lines even on a terminal.
+    #[arg(long, conflicts_with = "quiet")]
+    pub plain: bool,
+    /// No live status and no node output (logs are still written).
+    #[arg(long)]
+    pub quiet: bool,
+    /// Print the summary as JSON instead of a table.
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct ValidateArgs {
+    /// Launch files to check.
+    #[arg(required = true, value_name = "FILE")]
+    pub files: Vec<PathBuf>,
+}
+
+#[derive(Debug, Args)]
+pub struct ReplayArgs {
+    /// The recording (MCAP) to replay.
+    pub file: PathBuf,
+    /// Pace the replay at the recorded simulation time (default: as fast as possible).
+    #[arg(long)]
+    pub realtime: bool,
+    /// Write the replayed session to this MCAP file.
+    #[arg(long, value_name = "FILE")]
+    pub out: Option<PathBuf>,
+    /// Re-publish on this iceoryx2 session so a running bridge puts the replay on ROS 2.
+    #[arg(long, value_name = "NAME")]
+    pub publish_session: Option<String>,
+    /// Stop after this many physics steps.
+    #[arg(long, value_name = "N")]
+    pub max_steps: Option<u64>,
+    /// Print the report as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum RecordingsCommand {
+    /// Topics, counts, rates, duration and gaps of a recording.
+    Info {
+        file: PathBuf,
+        #[arg(long)]
+        json: bool,
+    },
+    /// Export the study's CSV (time, contact force, contact flag, probe pose; per region and
+    /// per probing).
+    Export {
+        file: PathBuf,
+        /// Folder for the CSV files.
+        #[arg(long, value_name = "DIR")]
+        csv: PathBuf,
+    },
+    /// Rewrite a truncated recording (e.g. after `kill -9`) with a summary and index.
+    Repair {
+        file: PathBuf,
+        /// Output file (default: FILE with `.repaired.mcap`).
+        #[arg(long, value_name = "FILE")]
+        out: Option<PathBuf>,
+    },
+}
+
+#[derive(Debug, Subcommand)]
+pub enum NodeCommand {
+    /// The physics node (FEM, contact, compliance).
+    Physics(physics_node::node::NodeArgs),
+    /// The 1 kHz haptic node (Touch, emulator, replay).
+    Haptic(haptic_node::NodeArgs),
+    /// The ROS 2 bridge.
+    Bridge(viz_bridge::NodeArgs),
+    /// The MCAP recorder.
+    Recorder(recordings::recorder::NodeArgs),
+}

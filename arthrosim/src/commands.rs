@@ -1,0 +1,201 @@
+//! What each subcommand does. Returns the process exit code.
+
+use crate::cli::{Cli, Command, NodeCommand, RecordingsCommand, ReplayArgs, RunArgs, ValidateArgs};
+use anyhow::{bail, Context, Result};
+use launch_config::launcher::{self, EndReason, LiveMode, RunOptions};
+use std::path::{Path, PathBuf};
+
+pub fn dispatch(cli: Cli) -> Result<i32> {
+    match cli.command {
+        Command::Run(args) => run(args),
+        Command::Validate(args) => Ok(validate(&args)),
+        Command::Replay(args) => replay(args),
+        Command::Recordings(cmd) => recordings(cmd),
+        Command::Node(node) => {
+            match node {
+                NodeCommand::Physics(a) => physics_node::node::run_node(a),
+                NodeCommand::Haptic(a) => haptic_node::run_node(a),
+                NodeCommand::Bridge(a) => viz_bridge::run_node(a),
+                NodeCommand::Recorder(a) => recordings::recorder::run_node(a),
+            }?;
+            Ok(0)
+        }
+    }
+}
+
+/// `arthrosim validate FILE...`: every file's problems, exit 1 when any file is invalid.
+fn validate(args: &ValidateArgs) -> i32 {
+    let mut failed = 0;
+    for file in &args.files {
+        match launch_config::load(file) {
+            Ok(_) => println!("{}: ok", file.display()),
+            Err(e) => {
+                failed += 1;
+                eprintln!("{e}");
+            }
+        }
+    }
+    if failed > 0 {
+        eprintln!("{failed} of {} launch file(s) invalid", args.files.len());
+        1
+    } else {
+        0
+    }
+}
+
+/// `arthrosim run [FILE]`.
+fn run(args: RunArgs) -> Result<i32> {
+    let (mut launch, origin) = match &args.file {
+        Some(path) => (launch_config::load(path)?, path.display().to_string()),
+        None => (
+            launch_config::load_str(launch_config::DEFAULT_LAUNCH, launch_config::DEFAULT_LAUNCH_ORIGIN)?,
+            launch_config::DEFAULT_LAUNCH_ORIGIN.to_string(),
+        ),
+    };
+    // Flag, then environment, then the launch file.
+    let session = match (&args.session, std::env::var(msgs::ipc::SESSION_ENV)) {
+        (Some(s), _) => s.clone(),
+        (None, Ok(s)) => s,
+        (None, Err(_)) => launch.session.name.clone(),
+    };
+    let session = msgs::ipc::session_name(Some(&session))?;
+    launch.session.name = session.clone();
+    let seconds = match args.seconds {
+        Some(s) if !(s.is_finite() && s >= 0.0) => bail!("--seconds {s}: must be a finite number ≥ 0"),
+        Some(s) => s,
+        None => launch.session.seconds,
+    };
+    launch.session.seconds = seconds;
+    let seconds = (seconds > 0.0).then_some(seconds);
+    let out_dir = args.out.clone().unwrap_or_else(launcher::default_out_dir);
+
+    let mut opts = RunOptions::for_current_exe(launch, origin, session, out_dir, seconds)?;
+    opts.live = if args.quiet {
+        LiveMode::Quiet
+    } else if args.plain {
+        LiveMode::Plain
+    } else {
+        LiveMode::Auto
+    };
+    let report = launcher::run(&opts)?;
+
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        println!();
+        println!(
+            "session {:?}: {:.1} s, {}",
+            report.session,
+            report.wall_seconds,
+            match &report.end {
+                EndReason::Completed => "completed".to_string(),
+                EndReason::Interrupted => "stopped by signal".to_string(),
+                EndReason::NodeFinished { node } => format!("{} finished", node_name(node)),
+                EndReason::NodeFailed { node, exit } => format!("{} failed ({exit})", node_name(node)),
+            }
+        );
+        println!("{}", report.summary);
+        for n in &report.nodes {
+            let restarts = if n.restarts > 0 { format!(", {} restart(s)", n.restarts) } else { String::new() };
+            let killed = if n.killed { ", killed after the grace period" } else { "" };
+            println!("  {:<8} {}{restarts}{killed}", node_name(&n.node), n.exit);
+        }
+        if report.frames_missed > 0 {
+            println!("  launcher missed {} physics steps (summary is partial)", report.frames_missed);
+        }
+        println!("files: {}", report.out_dir);
+    }
+    if report.success() {
+        Ok(0)
+    } else {
+        eprintln!("error: the session did not end cleanly (see the node lines above and the logs)");
+        Ok(1)
+    }
+}
+
+fn node_name(n: &launcher::NodeKind) -> &'static str {
+    n.name()
+}
+
+/// `arthrosim replay FILE`.
+fn replay(args: ReplayArgs) -> Result<i32> {
+    let options = recordings::replay::ReplayOptions {
+        out: args.out.clone(),
+        realtime: args.realtime,
+        data_dir: None,
+        scene: None,
+        publish_session: args.publish_session.clone(),
+        max_steps: args.max_steps,
+        recording: launch_config::RecordingConfig::default(),
+    };
+    let report = recordings::replay::replay(&args.file, &options)
+        .with_context(|| format!("replaying {}", args.file.display()))?;
+    if args.json {
+        println!("{}", serde_json::to_string(&report)?);
+    } else {
+        println!(
+            "replayed {} of {} recorded steps in {:.2} s ({:.0} steps/s); {} bit-identical, max |Δf| {:.3e} N{}",
+            report.steps,
+            report.recorded_steps,
+            report.wall_s,
+            report.steps_per_s,
+            report.identical_steps,
+            report.max_force_difference_n,
+            if report.bit_identical() { " — contact forces bit-identical" } else { "" }
+        );
+        if let Some(m) = &report.first_mismatch {
+            println!(
+                "first mismatch at step {}: recorded {:?}, replayed {:?}",
+                m.sequence, m.recorded, m.replayed
+            );
+        }
+        if let Some(out) = &report.output {
+            println!("written: {} ({} messages)", out.path.display(), out.messages);
+        }
+    }
+    Ok(0)
+}
+
+/// `arthrosim recordings info|export|repair`.
+fn recordings(cmd: RecordingsCommand) -> Result<i32> {
+    match cmd {
+        RecordingsCommand::Info { file, json } => {
+            let info = recordings::info(&file)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&info)?);
+            } else {
+                println!("{info}");
+            }
+        }
+        RecordingsCommand::Export { file, csv } => {
+            let summary = recordings::export_csv(&file, &csv)?;
+            for f in &summary.files {
+                println!("{} ({} rows)", f.path.display(), f.rows);
+            }
+            if summary.unannotated_steps > 0 {
+                println!("{} steps without region annotation", summary.unannotated_steps);
+            }
+        }
+        RecordingsCommand::Repair { file, out } => {
+            let out = out.unwrap_or_else(|| repaired_name(&file));
+            let report = recordings::repair(&file, &out)?;
+            println!(
+                "{} → {}: {} messages, {} channels{}",
+                report.input.display(),
+                report.output.display(),
+                report.messages,
+                report.channels,
+                match &report.input_stopped_early {
+                    Some(why) => format!(" (input ended early: {why})"),
+                    None => String::new(),
+                }
+            );
+        }
+    }
+    Ok(0)
+}
+
+fn repaired_name(file: &Path) -> PathBuf {
+    let stem = file.file_stem().and_then(|s| s.to_str()).unwrap_or("recording");
+    file.with_file_name(format!("{stem}.repaired.mcap"))
+}

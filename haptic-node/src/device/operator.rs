@@ -1,0 +1,254 @@
+//! The operator model of the emulator: where the trainee's hand is over time, following the
+//! study's protocol — five probings in each of the posterior, mid and anterior regions,
+//! each with approach, press, hold and release.
+
+use super::DeviceError;
+use launch_config::device::EmulatedConfig;
+
+/// Protocol phase codes as published in `DeviceState.phase`.
+#[repr(u32)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Phase {
+    Idle = 0,
+    /// Moving to the site's hover point and down to the surface.
+    Approach = 1,
+    /// Pushing past the undeformed surface.
+    Press = 2,
+    /// Holding the pressed position.
+    Hold = 3,
+    /// Withdrawing to the hover point.
+    Release = 4,
+}
+
+/// A probing site: a point on the superior surface with its outward normal (scene frame).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Site {
+    pub point: [f64; 3],
+    pub normal: [f64; 3],
+    /// 1 posterior, 2 mid, 3 anterior.
+    pub region: u32,
+}
+
+/// Sites on the plane z = `height`, normal +z: one row per region (posterior at −x,
+/// anterior at +x), `per_region` sites 4 mm apart in y. For runs against an analytic
+/// half-space.
+pub fn plane_sites(height: f64, per_region: u32) -> Vec<Site> {
+    let mut sites = Vec::new();
+    for region in 1..=3u32 {
+        for j in 0..per_region {
+            sites.push(Site {
+                point: [
+                    (region as f64 - 2.0) * 0.010,
+                    (j as f64 - (per_region as f64 - 1.0) / 2.0) * 0.004,
+                    height,
+                ],
+                normal: [0.0, 0.0, 1.0],
+                region,
+            });
+        }
+    }
+    sites
+}
+
+/// Picks `per_region` sites of each region, in protocol order (posterior, mid, anterior).
+pub fn protocol_sites(all: &[Site], per_region: u32) -> Vec<Site> {
+    let mut out = Vec::new();
+    for region in 1..=3u32 {
+        out.extend(all.iter().filter(|s| s.region == region).take(per_region as usize).copied());
+    }
+    out
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Segment {
+    from: [f64; 3],
+    to: [f64; 3],
+    t0: f64,
+    duration: f64,
+    phase: Phase,
+    probing: u32,
+    region: u32,
+}
+
+/// The hand trajectory, precomputed as straight segments (no allocation when sampled).
+#[derive(Debug, Clone)]
+pub struct Protocol {
+    segments: Vec<Segment>,
+    total_s: f64,
+    repeat: bool,
+    cursor: usize,
+}
+
+/// Where the hand is and what it is doing.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct HandState {
+    pub position: [f64; 3],
+    pub velocity: [f64; 3],
+    pub phase: Phase,
+    pub probing: u32,
+    pub region: u32,
+    pub finished: bool,
+}
+
+fn add(a: [f64; 3], b: [f64; 3], s: f64) -> [f64; 3] {
+    [a[0] + b[0] * s, a[1] + b[1] * s, a[2] + b[2] * s]
+}
+
+fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+}
+
+impl Protocol {
+    pub fn new(c: &EmulatedConfig, sites: &[Site]) -> Result<Protocol, DeviceError> {
+        let bad = |what: &str| DeviceError::Emulated(format!("[device.emulated] {what}"));
+        for (v, name) in [
+            (c.approach_speed_m_per_s, "approach_speed_m_per_s"),
+            (c.press_speed_m_per_s, "press_speed_m_per_s"),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(bad(&format!("{name} = {v} must be > 0")));
+            }
+        }
+        for (v, name) in [(c.hover_m, "hover_m"), (c.press_depth_m, "press_depth_m"), (c.hold_s, "hold_s")] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(bad(&format!("{name} = {v} must be ≥ 0")));
+            }
+        }
+        let sites = protocol_sites(sites, c.probings_per_region);
+        if sites.is_empty() {
+            return Err(bad("no probing sites: the scene gave none and none were configured"));
+        }
+        let mut segments = Vec::new();
+        let mut t = 0.0;
+        let mut push = |from: [f64; 3], to: [f64; 3], duration: f64, phase, probing, region| {
+            segments.push(Segment {
+                from,
+                to,
+                t0: t,
+                duration,
+                phase,
+                probing,
+                region,
+            });
+            t += duration;
+        };
+        let mut at = add(sites[0].point, sites[0].normal, c.hover_m);
+        for (i, s) in sites.iter().enumerate() {
+            let (k, r) = (i as u32 + 1, s.region);
+            let n = s.normal;
+            let norm = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+            if !(norm.is_finite() && norm > 0.0) || !s.point.iter().all(|v| v.is_finite()) {
+                return Err(bad(&format!("probing site {k} has a non-finite point or zero normal")));
+            }
+            let n = [n[0] / norm, n[1] / norm, n[2] / norm];
+            let hover = add(s.point, n, c.hover_m);
+            let pressed = add(s.point, n, -c.press_depth_m);
+            let fast = c.approach_speed_m_per_s;
+            push(at, hover, dist(at, hover) / fast, Phase::Approach, k, r);
+            push(hover, s.point, c.hover_m / fast, Phase::Approach, k, r);
+            push(s.point, pressed, c.press_depth_m / c.press_speed_m_per_s, Phase::Press, k, r);
+            push(pressed, pressed, c.hold_s, Phase::Hold, k, r);
+            push(pressed, hover, dist(pressed, hover) / fast, Phase::Release, k, r);
+            at = hover;
+        }
+        Ok(Protocol {
+            segments,
+            total_s: t,
+            repeat: c.repeat,
+            cursor: 0,
+        })
+    }
+
+    /// Duration of one pass through the protocol, s.
+    pub fn duration_s(&self) -> f64 {
+        self.total_s
+    }
+
+    /// Start position of the hand.
+    pub fn start(&self) -> [f64; 3] {
+        self.segments[0].from
+    }
+
+    /// The hand at protocol time `t` (s since start). Times are expected to grow; a repeat
+    /// wraps around.
+    pub fn hand(&mut self, t: f64) -> HandState {
+        let last = *self.segments.last().expect("protocol has segments");
+        if t >= self.total_s && !self.repeat {
+            return HandState {
+                position: last.to,
+                velocity: [0.0; 3],
+                phase: Phase::Idle,
+                probing: 0,
+                region: 0,
+                finished: true,
+            };
+        }
+        let t = if self.total_s > 0.0 { t.max(0.0) % self.total_s } else { 0.0 };
+        if t < self.segments[self.cursor].t0 {
+            self.cursor = 0;
+        }
+        while self.cursor + 1 < self.segments.len() && t >= self.segments[self.cursor].t0 + self.segments[self.cursor].duration {
+            self.cursor += 1;
+        }
+        let s = self.segments[self.cursor];
+        let (u, rate) = if s.duration > 0.0 {
+            (((t - s.t0) / s.duration).clamp(0.0, 1.0), 1.0 / s.duration)
+        } else {
+            (1.0, 0.0)
+        };
+        let d = [s.to[0] - s.from[0], s.to[1] - s.from[1], s.to[2] - s.from[2]];
+        HandState {
+            position: add(s.from, d, u),
+            velocity: [d[0] * rate, d[1] * rate, d[2] * rate],
+            phase: s.phase,
+            probing: s.probing,
+            region: s.region,
+            finished: false,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn protocol_visits_five_sites_per_region_with_all_phases() {
+        let c = EmulatedConfig {
+            repeat: false,
+            ..EmulatedConfig::default()
+        };
+        let mut p = Protocol::new(&c, &plane_sites(0.0, 5)).unwrap();
+        let mut seen = Vec::new();
+        let mut deepest: f64 = 1.0;
+        let mut t = 0.0;
+        while t < p.duration_s() + 1.0 {
+            let h = p.hand(t);
+            if !h.finished && seen.last() != Some(&(h.probing, h.region, h.phase)) {
+                seen.push((h.probing, h.region, h.phase));
+            }
+            deepest = deepest.min(h.position[2]);
+            t += 0.001;
+        }
+        assert!(p.hand(t).finished);
+        let probings: std::collections::BTreeSet<_> = seen.iter().map(|s| (s.0, s.1)).collect();
+        assert_eq!(probings.len(), 15);
+        for region in 1..=3 {
+            assert_eq!(probings.iter().filter(|s| s.1 == region).count(), 5);
+        }
+        for phase in [Phase::Approach, Phase::Press, Phase::Hold, Phase::Release] {
+            assert_eq!(seen.iter().filter(|s| s.2 == phase).count(), 15, "{phase:?}");
+        }
+        assert!((deepest + c.press_depth_m).abs() < 1e-9);
+    }
+
+    #[test]
+    fn bad_protocol_settings_are_rejected() {
+        let c = EmulatedConfig {
+            press_speed_m_per_s: 0.0,
+            ..EmulatedConfig::default()
+        };
+        assert!(Protocol::new(&c, &plane_sites(0.0, 5)).is_err());
+        assert!(Protocol::new(&EmulatedConfig::default(), &[]).is_err());
+    }
+}

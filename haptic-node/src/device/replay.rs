@@ -1,0 +1,254 @@
+//! Replay of a recorded proxy trajectory from CSV (`t_s,px_m,py_m,pz_m,qx,qy,qz,qw`, scene
+//! frame). Poses are interpolated linearly (normalised-lerp for the orientation). Non-finite
+//! values are kept as recorded, so a recording with a dropped-out sensor exercises the
+//! node's quarantine exactly like a live device would.
+
+use super::{Device, DeviceError, DeviceSample};
+use launch_config::device::ReplayConfig;
+use msgs::haptic_to_physics::DeviceKind;
+use msgs::Pose;
+use std::path::Path;
+
+const HEADER: [&str; 8] = ["t_s", "px_m", "py_m", "pz_m", "qx", "qy", "qz", "qw"];
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TimedPose {
+    pub t_s: f64,
+    pub pose: Pose,
+}
+
+/// Parses the CSV text; `path` names the file in errors.
+pub fn parse_trajectory(text: &str, path: &str) -> Result<Vec<TimedPose>, DeviceError> {
+    let mut lines = text.lines().enumerate();
+    let header = loop {
+        match lines.next() {
+            Some((_, l)) if l.trim().is_empty() || l.trim_start().starts_with('#') => continue,
+            Some((i, l)) => break (i + 1, l),
+            None => {
+                return Err(DeviceError::Replay {
+                    path: path.into(),
+                    problem: "empty file (expected header t_s,px_m,py_m,pz_m,qx,qy,qz,qw)".into(),
+                })
+            }
+        }
+    };
+    let cols: Vec<&str> = header.1.split(',').map(|s| s.trim()).collect();
+    if cols != HEADER {
+        return Err(DeviceError::ReplayLine {
+            path: path.into(),
+            line: header.0,
+            problem: format!("header {:?}, expected {}", header.1, HEADER.join(",")),
+        });
+    }
+    let mut out: Vec<TimedPose> = Vec::new();
+    for (i, l) in lines {
+        let line = i + 1;
+        if l.trim().is_empty() || l.trim_start().starts_with('#') {
+            continue;
+        }
+        let fields: Vec<&str> = l.split(',').map(|s| s.trim()).collect();
+        if fields.len() != 8 {
+            return Err(DeviceError::ReplayLine {
+                path: path.into(),
+                line,
+                problem: format!("{} columns, expected 8", fields.len()),
+            });
+        }
+        let mut v = [0.0; 8];
+        for (k, f) in fields.iter().enumerate() {
+            v[k] = f.parse::<f64>().map_err(|_| DeviceError::ReplayLine {
+                path: path.into(),
+                line,
+                problem: format!("column {} ({}) = {f:?} is not a number", k + 1, HEADER[k]),
+            })?;
+        }
+        if !v[0].is_finite() {
+            return Err(DeviceError::ReplayLine {
+                path: path.into(),
+                line,
+                problem: "time t_s is not finite".into(),
+            });
+        }
+        if let Some(prev) = out.last() {
+            if v[0] <= prev.t_s {
+                return Err(DeviceError::ReplayLine {
+                    path: path.into(),
+                    line,
+                    problem: format!("time {} does not increase (previous {})", v[0], prev.t_s),
+                });
+            }
+        }
+        out.push(TimedPose {
+            t_s: v[0],
+            pose: Pose {
+                position: [v[1], v[2], v[3]],
+                orientation: [v[4], v[5], v[6], v[7]],
+            },
+        });
+    }
+    if out.is_empty() {
+        return Err(DeviceError::Replay {
+            path: path.into(),
+            problem: "no poses after the header".into(),
+        });
+    }
+    Ok(out)
+}
+
+pub struct Replay {
+    poses: Vec<TimedPose>,
+    looped: bool,
+    time_scale: f64,
+    start_ns: u64,
+    cursor: usize,
+    finished: bool,
+}
+
+impl Replay {
+    pub fn open(c: &ReplayConfig, start_ns: u64) -> Result<Replay, DeviceError> {
+        if c.path.is_empty() {
+            return Err(DeviceError::Replay {
+                path: "<none>".into(),
+                problem: "[device.replay] path is not set".into(),
+            });
+        }
+        let text = std::fs::read_to_string(Path::new(&c.path)).map_err(|e| DeviceError::Replay {
+            path: c.path.clone(),
+            problem: e.to_string(),
+        })?;
+        let poses = parse_trajectory(&text, &c.path)?;
+        Replay::new(poses, c, start_ns)
+    }
+
+    pub fn new(poses: Vec<TimedPose>, c: &ReplayConfig, start_ns: u64) -> Result<Replay, DeviceError> {
+        if !(c.time_scale.is_finite() && c.time_scale > 0.0) {
+            return Err(DeviceError::Replay {
+                path: c.path.clone(),
+                problem: format!("[device.replay] time_scale = {} must be > 0", c.time_scale),
+            });
+        }
+        if poses.iter().any(|p| !p.pose.is_finite()) {
+            tracing::warn!(path = %c.path, "replay trajectory has non-finite poses: they will be quarantined");
+        }
+        Ok(Replay {
+            poses,
+            looped: c.looped,
+            time_scale: c.time_scale,
+            start_ns,
+            cursor: 0,
+            finished: false,
+        })
+    }
+}
+
+fn lerp(a: f64, b: f64, u: f64) -> f64 {
+    a + (b - a) * u
+}
+
+impl Device for Replay {
+    fn kind(&self) -> DeviceKind {
+        DeviceKind::Replay
+    }
+
+    fn sample(&mut self, now_ns: u64, out: &mut DeviceSample) -> Result<(), DeviceError> {
+        let first = self.poses[0].t_s;
+        let last = self.poses[self.poses.len() - 1].t_s;
+        let mut t = first + now_ns.saturating_sub(self.start_ns) as f64 * 1e-9 * self.time_scale;
+        if t > last {
+            if self.looped && last > first {
+                t = first + (t - first) % (last - first);
+            } else {
+                self.finished = true;
+                t = last;
+            }
+        }
+        if t < self.poses[self.cursor].t_s {
+            self.cursor = 0;
+        }
+        while self.cursor + 1 < self.poses.len() && self.poses[self.cursor + 1].t_s <= t {
+            self.cursor += 1;
+        }
+        let a = self.poses[self.cursor];
+        let b = self.poses[(self.cursor + 1).min(self.poses.len() - 1)];
+        let span = b.t_s - a.t_s;
+        let u = if span > 0.0 { ((t - a.t_s) / span).clamp(0.0, 1.0) } else { 0.0 };
+        let mut q = [0.0; 4];
+        // Shortest-arc nlerp.
+        let dot: f64 = (0..4).map(|k| a.pose.orientation[k] * b.pose.orientation[k]).sum();
+        let sign = if dot < 0.0 { -1.0 } else { 1.0 };
+        for k in 0..4 {
+            q[k] = lerp(a.pose.orientation[k], sign * b.pose.orientation[k], u);
+        }
+        let n = (q.iter().map(|v| v * v).sum::<f64>()).sqrt();
+        if n > 0.0 {
+            q.iter_mut().for_each(|v| *v /= n);
+        }
+        out.pose = Pose {
+            position: [
+                lerp(a.pose.position[0], b.pose.position[0], u),
+                lerp(a.pose.position[1], b.pose.position[1], u),
+                lerp(a.pose.position[2], b.pose.position[2], u),
+            ],
+            orientation: q,
+        };
+        let inv = if span > 0.0 && !self.finished { self.time_scale / span } else { 0.0 };
+        for k in 0..3 {
+            out.velocity[k] = (b.pose.position[k] - a.pose.position[k]) * inv;
+        }
+        out.velocity[3..].fill(0.0);
+        Ok(())
+    }
+
+    fn command_force(&mut self, _now_ns: u64, _force: [f64; 3]) -> Result<(), DeviceError> {
+        // A replayed trajectory is prescribed: the force is published, not applied.
+        Ok(())
+    }
+
+    fn zero_force(&mut self) {}
+
+    fn finished(&self) -> bool {
+        self.finished
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const CSV: &str = "t_s,px_m,py_m,pz_m,qx,qy,qz,qw\n0,0,0,0.01,0,0,0,1\n1,0,0,0,0,0,0,1\n2,0.01,0,0,0,0,0,1\n";
+
+    #[test]
+    fn interpolates_and_finishes() {
+        let poses = parse_trajectory(CSV, "t.csv").unwrap();
+        let mut r = Replay::new(poses, &ReplayConfig::default(), 0).unwrap();
+        let mut s = DeviceSample::default();
+        r.sample(500_000_000, &mut s).unwrap();
+        assert!((s.pose.position[2] - 0.005).abs() < 1e-12);
+        assert!((s.velocity[2] + 0.01).abs() < 1e-12);
+        r.sample(1_500_000_000, &mut s).unwrap();
+        assert!((s.pose.position[0] - 0.005).abs() < 1e-12);
+        assert!(!r.finished());
+        r.sample(3_000_000_000, &mut s).unwrap();
+        assert!(r.finished());
+        assert_eq!(s.pose.position, [0.01, 0.0, 0.0]);
+    }
+
+    #[test]
+    fn errors_name_file_and_line() {
+        let e = parse_trajectory("t_s,px_m,py_m,pz_m,qx,qy,qz,qw\n0,0,0,0,0,0,0,1\n1,0,x,0,0,0,0,1\n", "a.csv")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("a.csv") && e.contains("line 3") && e.contains("py_m"), "{e}");
+        let e = parse_trajectory("t,x\n", "b.csv").unwrap_err().to_string();
+        assert!(e.contains("b.csv") && e.contains("line 1"), "{e}");
+        let e = parse_trajectory("t_s,px_m,py_m,pz_m,qx,qy,qz,qw\n1,0,0,0,0,0,0,1\n1,0,0,0,0,0,0,1\n", "c.csv")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("line 3") && e.contains("does not increase"), "{e}");
+        let e = parse_trajectory("t_s,px_m,py_m,pz_m,qx,qy,qz,qw\n0,0,0\n", "d.csv").unwrap_err().to_string();
+        assert!(e.contains("line 2") && e.contains("3 columns"), "{e}");
+        // NaN positions parse (they are quarantined at the tick).
+        let p = parse_trajectory("t_s,px_m,py_m,pz_m,qx,qy,qz,qw\n0,NaN,0,0,0,0,0,1\n", "e.csv").unwrap();
+        assert!(p[0].pose.position[0].is_nan());
+    }
+}

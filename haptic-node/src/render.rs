@@ -1,0 +1,667 @@
+//! The force rendering of one servo tick, independent of clocks, devices and transport so
+//! that its safety logic is tested with an explicit (fake) time: the local LCP re-solve of
+//! the newest contact frame for the device's current position (Peterlik et al. 2011), and
+//! the limiter that stands between it and the motors.
+
+use crate::config::Limits;
+use contact_lcp::{Problem, Settings};
+use msgs::haptic_to_physics::fault;
+use msgs::physics_to_haptic::ContactFrame;
+use msgs::{Pose, MAX_ROWS};
+use std::time::{Duration, Instant};
+
+/// Norm of a 3-vector.
+#[inline]
+pub fn norm(v: [f64; 3]) -> f64 {
+    (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
+}
+
+/// Peak, continuous and rate limits, and the stale-frame ramp. Keeps the last rendered
+/// force; every output is within the peak clamp, whatever the input.
+#[derive(Debug)]
+pub struct ForceLimiter {
+    peak: f64,
+    continuous_sq: f64,
+    max_step_per_ns: f64,
+    period_ns: u64,
+    ramp_ns: u64,
+    /// Continuous limit: exponential average of |F|² with the window as time constant (a
+    /// first-order model of motor coil heating), and its per-tick weight.
+    heat: f64,
+    alpha: f64,
+    last: [f64; 3],
+    last_ns: Option<u64>,
+    /// Stale ramp in progress: force and time at its start.
+    ramp_from: Option<([f64; 3], u64)>,
+}
+
+impl ForceLimiter {
+    pub fn new(limits: &Limits) -> ForceLimiter {
+        let ticks = ((limits.continuous_window_s * limits.rate_hz).round() as usize).max(1);
+        ForceLimiter {
+            peak: limits.peak_force_n,
+            continuous_sq: limits.continuous_force_n * limits.continuous_force_n,
+            max_step_per_ns: limits.max_force_rate_n_per_s * 1e-9,
+            period_ns: (1e9 / limits.rate_hz) as u64,
+            ramp_ns: (limits.stale_ramp_s * 1e9) as u64,
+            heat: 0.0,
+            alpha: 1.0 / ticks as f64,
+            last: [0.0; 3],
+            last_ns: None,
+            ramp_from: None,
+        }
+    }
+
+    /// The force rendered last.
+    pub fn last(&self) -> [f64; 3] {
+        self.last
+    }
+
+    /// Rate-, peak- and continuous-limited step toward `target`. Returns the force to render
+    /// and the fault bits that applied.
+    pub fn limit(&mut self, now_ns: u64, target: [f64; 3]) -> ([f64; 3], u32) {
+        self.ramp_from = None;
+        let mut faults = 0;
+        let mut f = target;
+        let n = norm(f);
+        if n > self.peak {
+            let s = self.peak / n;
+            f = [f[0] * s, f[1] * s, f[2] * s];
+            faults |= fault::FORCE_CLAMPED;
+        }
+        // Rate limit: at most rate × (elapsed, capped at one period) per tick, so a late tick
+        // does not license a bigger jump.
+        let elapsed = match self.last_ns {
+            Some(t) => now_ns.saturating_sub(t).min(self.period_ns),
+            None => self.period_ns,
+        };
+        let max_step = self.max_step_per_ns * elapsed as f64;
+        let step = [f[0] - self.last[0], f[1] - self.last[1], f[2] - self.last[2]];
+        let sn = norm(step);
+        if sn > max_step {
+            let s = max_step / sn;
+            f = [
+                self.last[0] + step[0] * s,
+                self.last[1] + step[1] * s,
+                self.last[2] + step[2] * s,
+            ];
+            faults |= fault::RATE_LIMITED;
+        }
+        faults |= self.continuous_clamp(&mut f);
+        self.commit(now_ns, f);
+        (f, faults)
+    }
+
+    /// Scales `f` down so the averaged squared force (see `heat`) stays ≤ continuous².
+    /// Reducing the magnitude is always safe, so this wins over the rate limit.
+    ///
+    /// The budget B (the largest |F|² this tick may add without the average exceeding c²)
+    /// is only spent in part, c² + α·(B − c²): a long hard press fades smoothly to the
+    /// continuous level instead of burning the budget at peak force and dropping to zero
+    /// (an on–off cycle the hand would feel as a loss of contact).
+    fn continuous_clamp(&mut self, f: &mut [f64; 3]) -> u32 {
+        const SPEND: f64 = 0.05;
+        let budget = ((self.continuous_sq - (1.0 - self.alpha) * self.heat) / self.alpha).max(0.0);
+        let allowed_sq = if budget > self.continuous_sq {
+            self.continuous_sq + SPEND * (budget - self.continuous_sq)
+        } else {
+            budget
+        };
+        let sq = f[0] * f[0] + f[1] * f[1] + f[2] * f[2];
+        if sq > allowed_sq {
+            let s = (allowed_sq / sq).sqrt();
+            for v in f.iter_mut() {
+                *v *= s;
+            }
+            return fault::FORCE_CLAMPED;
+        }
+        0
+    }
+
+    fn commit(&mut self, now_ns: u64, f: [f64; 3]) {
+        // Final guard: whatever path produced f, never above the peak, never non-finite.
+        let mut f = if f.iter().all(|v| v.is_finite()) { f } else { [0.0; 3] };
+        let n = norm(f);
+        if n > self.peak {
+            let s = self.peak / n;
+            f = [f[0] * s, f[1] * s, f[2] * s];
+        }
+        let sq = f[0] * f[0] + f[1] * f[1] + f[2] * f[2];
+        self.heat = (1.0 - self.alpha) * self.heat + self.alpha * sq;
+        self.last = f;
+        self.last_ns = Some(now_ns);
+    }
+
+    /// Stale input: ramp linearly from the force at the ramp's start to zero over the ramp
+    /// time, then hold zero.
+    pub fn ramp_down(&mut self, now_ns: u64) -> [f64; 3] {
+        let (from, t0) = *self.ramp_from.get_or_insert((self.last, now_ns));
+        let s = if self.ramp_ns == 0 {
+            0.0
+        } else {
+            1.0 - now_ns.saturating_sub(t0) as f64 / self.ramp_ns as f64
+        };
+        let s = s.clamp(0.0, 1.0);
+        let f = [from[0] * s, from[1] * s, from[2] * s];
+        self.commit(now_ns, f);
+        // Keep the ramp state (commit does not touch it).
+        self.last
+    }
+
+    /// Quarantine: zero at once (the input that would set a force cannot be trusted).
+    pub fn zero(&mut self, now_ns: u64) -> [f64; 3] {
+        self.ramp_from = None;
+        self.commit(now_ns, [0.0; 3]);
+        self.last
+    }
+}
+
+/// What one tick computed.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct TickOutput {
+    /// Hᵀλ/dt × scale, world, N (before limits; zero when no usable frame).
+    pub commanded: [f64; 3],
+    /// Force to send to the device, world, N.
+    pub rendered: [f64; 3],
+    pub faults: u32,
+    pub lcp_iterations: u32,
+    /// LCP wall time, ns (0 when not solved).
+    pub lcp_ns: u64,
+    /// Age of the frame used, ns (0 when none).
+    pub frame_age_ns: u64,
+    pub frame_sequence: u64,
+    pub frame_instance: u64,
+    pub contact_count: u32,
+}
+
+/// Which fault kinds were already logged (log once each).
+#[derive(Debug, Default)]
+struct Logged(u32);
+
+impl Logged {
+    fn first(&mut self, bit: u32) -> bool {
+        let first = self.0 & bit == 0;
+        self.0 |= bit;
+        first
+    }
+}
+
+/// The per-tick contact force renderer.
+pub struct Renderer {
+    limits: Limits,
+    limiter: ForceLimiter,
+    /// The newest valid frame (boxed: ~80 kB).
+    current: Box<ContactFrame>,
+    have_frame: bool,
+    /// Per-tick violation δ = δ_free + H·Δx and the warm-started impulses.
+    violation: Box<[f64; MAX_ROWS]>,
+    lambda: Box<[f64; MAX_ROWS]>,
+    logged: Logged,
+    /// Count of physics restarts seen (new instance or sequence going back).
+    pub restarts: u64,
+    /// Count of frames rejected by validation.
+    pub invalid_frames: u64,
+    /// Faults raised on frame acceptance, reported with the next tick.
+    pending_faults: u32,
+}
+
+/// A zeroed boxed frame without a large stack temporary.
+pub fn boxed_frame() -> Box<ContactFrame> {
+    use msgs::Topic;
+    let mut slot = Box::new(core::mem::MaybeUninit::<ContactFrame>::uninit());
+    ContactFrame::zeroed_in(&mut slot);
+    // SAFETY: zeroed_in initialised every byte with a valid (all-zero) value.
+    unsafe { Box::from_raw(Box::into_raw(slot) as *mut ContactFrame) }
+}
+
+impl Renderer {
+    pub fn new(limits: Limits) -> Renderer {
+        Renderer {
+            limiter: ForceLimiter::new(&limits),
+            limits,
+            current: boxed_frame(),
+            have_frame: false,
+            violation: Box::new([0.0; MAX_ROWS]),
+            lambda: Box::new([0.0; MAX_ROWS]),
+            logged: Logged::default(),
+            restarts: 0,
+            invalid_frames: 0,
+            pending_faults: 0,
+        }
+    }
+
+    pub fn limits(&self) -> &Limits {
+        &self.limits
+    }
+
+    /// The frame in use (valid when `has_frame`).
+    pub fn frame(&self) -> &ContactFrame {
+        &self.current
+    }
+
+    pub fn has_frame(&self) -> bool {
+        self.have_frame
+    }
+
+    pub fn last_force(&self) -> [f64; 3] {
+        self.limiter.last()
+    }
+
+    /// Stopping: ramp the force to zero over the stale-ramp time (then hold zero).
+    pub fn shutdown_tick(&mut self, now_ns: u64) -> [f64; 3] {
+        self.limiter.ramp_down(now_ns)
+    }
+
+    /// Offers a newly received frame. `incoming` is swapped with the current frame when it
+    /// is valid (no copy, no allocation); an invalid frame is quarantined and the previous
+    /// one kept (it will age out and ramp the force down if nothing valid follows).
+    pub fn accept_frame(&mut self, incoming: &mut Box<ContactFrame>) {
+        if !incoming.is_valid() {
+            self.invalid_frames += 1;
+            self.pending_faults |= fault::INVALID_FRAME;
+            if self.logged.first(fault::INVALID_FRAME) {
+                tracing::warn!(
+                    sequence = incoming.sequence,
+                    "contact frame with non-finite or out-of-range content quarantined (logged once)"
+                );
+            }
+            return;
+        }
+        let restart = self.have_frame
+            && (incoming.instance_id != self.current.instance_id || incoming.sequence < self.current.sequence);
+        if restart {
+            self.restarts += 1;
+            tracing::info!(
+                instance = incoming.instance_id,
+                sequence = incoming.sequence,
+                "new physics instance: resuming under the rate limit"
+            );
+        }
+        core::mem::swap(incoming, &mut self.current);
+        self.have_frame = true;
+        // Warm start from the physics solution of this frame (same rows, solved at δ_free);
+        // the solver discards non-finite entries.
+        let rows = self.current.row_count as usize;
+        self.lambda[..rows].copy_from_slice(&self.current.lambda[..rows]);
+    }
+
+    /// One tick at time `now_ns` (CLOCK_MONOTONIC) with the device's proxy pose (scene frame).
+    pub fn tick(&mut self, now_ns: u64, proxy: &Pose, velocity_finite: bool) -> TickOutput {
+        let mut out = TickOutput {
+            faults: core::mem::take(&mut self.pending_faults),
+            ..TickOutput::default()
+        };
+        if !proxy.is_finite() || !velocity_finite {
+            out.faults |= fault::NONFINITE_DEVICE;
+            if self.logged.first(fault::NONFINITE_DEVICE) {
+                tracing::warn!("non-finite device position quarantined: zero force (logged once)");
+            }
+            out.rendered = self.limiter.zero(now_ns);
+            return out;
+        }
+        if !self.have_frame {
+            let (f, faults) = self.limiter.limit(now_ns, [0.0; 3]);
+            out.rendered = f;
+            out.faults |= faults;
+            return out;
+        }
+        let frame = &*self.current;
+        out.frame_age_ns = now_ns.saturating_sub(frame.publish_ns);
+        out.frame_sequence = frame.sequence;
+        out.frame_instance = frame.instance_id;
+        out.contact_count = frame.contact_count;
+        if out.frame_age_ns > self.limits.stale_frame_ns {
+            out.faults |= fault::STALE_FRAME;
+            if self.logged.first(fault::STALE_FRAME) {
+                tracing::warn!(
+                    age_ms = out.frame_age_ns as f64 / 1e6,
+                    "contact frame stale: ramping force to zero (logged once)"
+                );
+            }
+            out.rendered = self.limiter.ramp_down(now_ns);
+            return out;
+        }
+        let rows = frame.row_count as usize;
+        let mut force = [0.0; 3];
+        if rows > 0 {
+            let dx = self.displacement(proxy);
+            for i in 0..rows {
+                let h = &frame.constraint_directions[i];
+                self.violation[i] = frame.free_violation[i]
+                    + h[0] * dx[0]
+                    + h[1] * dx[1]
+                    + h[2] * dx[2]
+                    + h[3] * dx[3]
+                    + h[4] * dx[4]
+                    + h[5] * dx[5];
+            }
+            let started = Instant::now();
+            let settings = Settings {
+                max_iterations: self.limits.lcp_max_iterations,
+                tolerance: self.limits.lcp_tolerance,
+                deadline: Some(started + Duration::from_nanos(self.limits.lcp_budget_ns)),
+                deadline_check_every: 2,
+            };
+            let problem = Problem {
+                compliance: &frame.compliance,
+                free_violation: &self.violation[..rows],
+                friction_mu: frame.friction_mu,
+                row_count: rows,
+            };
+            let solved = contact_lcp::solve(&problem, &mut self.lambda[..rows], &settings);
+            out.lcp_ns = started.elapsed().as_nanos() as u64;
+            match solved {
+                Ok(s) => out.lcp_iterations = s.iterations,
+                Err(e) => {
+                    out.faults |= fault::INVALID_FRAME;
+                    if self.logged.first(fault::INVALID_FRAME) {
+                        tracing::warn!("contact LCP rejected the frame: {e} (logged once)");
+                    }
+                    out.rendered = self.limiter.zero(now_ns);
+                    return out;
+                }
+            }
+            let scale = self.limits.force_scale / frame.dt_s;
+            for i in 0..rows {
+                let h = &frame.constraint_directions[i];
+                let l = self.lambda[i] * scale;
+                force[0] += h[0] * l;
+                force[1] += h[1] * l;
+                force[2] += h[2] * l;
+            }
+        }
+        out.commanded = force;
+        if !force.iter().all(|v| v.is_finite()) {
+            out.faults |= fault::NONFINITE_FORCE;
+            if self.logged.first(fault::NONFINITE_FORCE) {
+                tracing::warn!("non-finite contact force quarantined: zero force (logged once)");
+            }
+            out.rendered = self.limiter.zero(now_ns);
+            return out;
+        }
+        let (f, faults) = self.limiter.limit(now_ns, force);
+        out.rendered = f;
+        out.faults |= faults;
+        out
+    }
+
+    /// Δx = [translation, rotation vector] of the proxy since the frame's reference pose.
+    fn displacement(&self, proxy: &Pose) -> [f64; 6] {
+        let frame = &*self.current;
+        let reference = if self.limits.reference_is_probe_free {
+            &frame.probe_free_pose
+        } else {
+            &frame.proxy_pose
+        };
+        let mut dx = [0.0; 6];
+        for k in 0..3 {
+            dx[k] = proxy.position[k] - reference.position[k];
+        }
+        if self.limits.use_rotation {
+            let r = rotation_vector_between(&reference.orientation, &proxy.orientation);
+            dx[3..6].copy_from_slice(&r);
+        }
+        dx
+    }
+}
+
+/// Rotation vector (axis × angle, world frame) of q_to · q_from⁻¹, quaternions [x, y, z, w].
+pub fn rotation_vector_between(q_from: &[f64; 4], q_to: &[f64; 4]) -> [f64; 3] {
+    // q = q_to ⊗ conj(q_from)
+    let (ax, ay, az, aw) = (q_to[0], q_to[1], q_to[2], q_to[3]);
+    let (bx, by, bz, bw) = (-q_from[0], -q_from[1], -q_from[2], q_from[3]);
+    let mut x = aw * bx + ax * bw + ay * bz - az * by;
+    let mut y = aw * by - ax * bz + ay * bw + az * bx;
+    let mut z = aw * bz + ax * by - ay * bx + az * bw;
+    let mut w = aw * bw - ax * bx - ay * by - az * bz;
+    if w < 0.0 {
+        x = -x;
+        y = -y;
+        z = -z;
+        w = -w;
+    }
+    let s = (x * x + y * y + z * z).sqrt();
+    if s < 1e-12 {
+        return [2.0 * x, 2.0 * y, 2.0 * z];
+    }
+    let angle = 2.0 * s.atan2(w);
+    [x / s * angle, y / s * angle, z / s * angle]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::Limits;
+
+    const MS: u64 = 1_000_000;
+
+    fn limits() -> Limits {
+        Limits::from_config(&launch_config::DeviceConfig::default()).unwrap()
+    }
+
+    /// A flat elastic half-space z = 0 of stiffness k under a point probe at `proxy_z`:
+    /// one contact, normal +z, W = 1/(k dt) on every row (so F = k · depth).
+    fn halfspace_frame(frame: &mut ContactFrame, k: f64, proxy_z: f64, publish_ns: u64, instance: u64, seq: u64) {
+        let dt = 0.01;
+        frame.instance_id = instance;
+        frame.sequence = seq;
+        frame.publish_ns = publish_ns;
+        frame.dt_s = dt;
+        frame.contact_count = 1;
+        frame.row_count = 3;
+        frame.friction_mu = 0.0;
+        frame.proxy_pose = Pose {
+            position: [0.0, 0.0, proxy_z],
+            ..Pose::IDENTITY
+        };
+        frame.probe_free_pose = frame.proxy_pose;
+        frame.probe_pose = frame.proxy_pose;
+        frame.constraint_directions[0] = [0.0, 0.0, 1.0, 0.0, 0.0, 0.0];
+        frame.constraint_directions[1] = [1.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+        frame.constraint_directions[2] = [0.0, 1.0, 0.0, 0.0, 0.0, 0.0];
+        frame.free_violation[0] = proxy_z;
+        for r in 0..3 {
+            frame.compliance[r * MAX_ROWS + r] = 1.0 / (k * dt);
+        }
+    }
+
+    fn at(z: f64) -> Pose {
+        Pose {
+            position: [0.0, 0.0, z],
+            ..Pose::IDENTITY
+        }
+    }
+
+    /// Runs ticks at 1 kHz from `t0` for `n` ticks at proxy height z; returns the forces.
+    fn run(r: &mut Renderer, t0: u64, n: u64, z: f64) -> Vec<TickOutput> {
+        (0..n).map(|i| r.tick(t0 + i * MS, &at(z), true)).collect()
+    }
+
+    /// Re-publishes the current frame content as fresh (new sequence, publish time `t`).
+    fn refresh(r: &mut Renderer, f: &mut Box<ContactFrame>, t: u64) {
+        **f = *r.frame();
+        f.sequence += 1;
+        f.publish_ns = t;
+        r.accept_frame(f);
+    }
+
+    #[test]
+    fn renders_the_physics_force_at_the_frame_proxy_and_updates_with_displacement() {
+        let mut r = Renderer::new(limits());
+        let mut f = boxed_frame();
+        halfspace_frame(&mut f, 500.0, -1e-3, 0, 7, 1);
+        r.accept_frame(&mut f);
+        // Rate limit 300 N/s → 0.3 N per tick: after 10 ticks the 0.5 N target is reached.
+        let out = run(&mut r, MS, 10, -1e-3);
+        let last = out.last().unwrap();
+        assert!((last.commanded[2] - 0.5).abs() < 1e-9, "{:?}", last.commanded);
+        assert!((last.rendered[2] - 0.5).abs() < 1e-9);
+        // 1 mm deeper than the frame's proxy: δ = δ_free + H·Δx → 1 N.
+        refresh(&mut r, &mut f, 10 * MS);
+        let out = run(&mut r, 11 * MS, 10, -2e-3);
+        assert!((out.last().unwrap().rendered[2] - 1.0).abs() < 1e-9);
+        assert!((out.last().unwrap().commanded[2] - 1.0).abs() < 1e-9);
+        // Lifted above the surface: no force.
+        refresh(&mut r, &mut f, 20 * MS);
+        let out = run(&mut r, 21 * MS, 10, 1e-3);
+        assert_eq!(out.last().unwrap().commanded, [0.0; 3]);
+        assert_eq!(out.last().unwrap().rendered, [0.0; 3]);
+    }
+
+    #[test]
+    fn stale_frame_ramps_to_zero_within_the_ramp_time_and_holds_zero() {
+        let mut r = Renderer::new(limits());
+        let mut f = boxed_frame();
+        halfspace_frame(&mut f, 2000.0, -1e-3, 0, 7, 1); // 2 N target
+        r.accept_frame(&mut f);
+        // Let the force build up (rate limit) but stay fresh: ticks at 1..=15 ms.
+        let built = run(&mut r, MS, 15, -1e-3);
+        let before = norm(built.last().unwrap().rendered);
+        assert!(before > 1.0, "{before}");
+        // From 21 ms on the frame (published at 0) is stale (> 20 ms).
+        let mut t_stale = None;
+        for i in 16..100u64 {
+            let t = i * MS + MS / 3;
+            let o = r.tick(t, &at(-1e-3), true);
+            assert!(norm(o.rendered) <= 3.3 + 1e-12);
+            if o.faults & fault::STALE_FRAME != 0 {
+                let t0 = *t_stale.get_or_insert(t);
+                if t >= t0 + 10 * MS {
+                    assert_eq!(o.rendered, [0.0; 3], "zero within 10 ms of staleness, at {t}");
+                }
+                // Monotone ramp, never a step up.
+                assert!(norm(o.rendered) <= before + 1e-12);
+            }
+        }
+        assert!(t_stale.unwrap() <= 21 * MS + MS);
+    }
+
+    #[test]
+    fn clamp_is_never_exceeded_whatever_arrives() {
+        let mut r = Renderer::new(limits());
+        let mut f = boxed_frame();
+        let mut t = 0;
+        let mut seq = 0;
+        for k in [1e3, 1e5, 1e7, 1e9, 1e12] {
+            for _ in 0..200 {
+                t += MS;
+                seq += 1;
+                halfspace_frame(&mut f, k, -5e-3, t - MS / 2, 3, seq);
+                r.accept_frame(&mut f);
+                let o = r.tick(t, &at(-8e-3), true);
+                assert!(o.faults & fault::STALE_FRAME == 0);
+                assert!(norm(o.rendered) <= 3.3 + 1e-12, "{:?}", o.rendered);
+            }
+        }
+        // Continuous limit: the 1 s average of |F|² ≤ 0.88² N², recomputed independently.
+        let mut lim = ForceLimiter::new(&limits());
+        let mut avg = 0.0;
+        let mut peak_ticks = 0;
+        for i in 0..5000u64 {
+            let (f, _) = lim.limit(i * MS, [0.0, 0.0, 3.3]);
+            avg = 0.999 * avg + 0.001 * f[2] * f[2];
+            if f[2] > 3.0 {
+                peak_ticks += 1;
+            }
+            assert!(f[2] <= 3.3);
+            assert!(avg <= 0.88 * 0.88 + 1e-9, "tick {i}: rms {}", avg.sqrt());
+            if i > 3000 {
+                // Settles smoothly at the continuous level, no on–off duty cycle.
+                assert!(f[2] > 0.8 && f[2] <= 0.88 + 1e-9, "tick {i}: {}", f[2]);
+            }
+        }
+        assert!(peak_ticks > 20, "a short hard press gets the peak force: {peak_ticks} ticks");
+    }
+
+    #[test]
+    fn physics_restart_resumes_without_a_step_above_the_rate_limit() {
+        let lim = limits();
+        let max_step = lim.max_force_rate_n_per_s * 1e-3 + 1e-12;
+        let mut r = Renderer::new(lim);
+        let mut f = boxed_frame();
+        halfspace_frame(&mut f, 1500.0, -1e-3, 0, 11, 500);
+        r.accept_frame(&mut f);
+        let mut prev = [0.0; 3];
+        let mut t = 0;
+        let check = |o: &TickOutput, prev: &mut [f64; 3]| {
+            let step = norm([o.rendered[0] - prev[0], o.rendered[1] - prev[1], o.rendered[2] - prev[2]]);
+            *prev = o.rendered;
+            step
+        };
+        for _ in 0..15 {
+            t += MS;
+            let o = r.tick(t, &at(-1e-3), true);
+            assert!(check(&o, &mut prev) <= max_step);
+        }
+        // Physics dies: stale → ramp to zero.
+        for _ in 0..40 {
+            t += MS;
+            r.tick(t, &at(-1e-3), true);
+        }
+        assert_eq!(r.last_force(), [0.0; 3]);
+        prev = r.last_force();
+        // A new instance with sequence 1 and a larger force.
+        halfspace_frame(&mut f, 3000.0, -1e-3, t, 12, 1);
+        r.accept_frame(&mut f);
+        assert_eq!(r.restarts, 1);
+        for _ in 0..15 {
+            t += MS;
+            let o = r.tick(t, &at(-1e-3), true);
+            assert_eq!(o.frame_instance, 12);
+            assert!(check(&o, &mut prev) <= max_step, "step above the rate limit after restart");
+        }
+        assert!(norm(r.last_force()) > 0.8, "resumed: {:?}", r.last_force());
+        // Same instance, sequence going back also counts as a restart.
+        halfspace_frame(&mut f, 3000.0, -1e-3, t, 12, 0);
+        r.accept_frame(&mut f);
+        assert_eq!(r.restarts, 2);
+    }
+
+    #[test]
+    fn non_finite_inputs_are_quarantined_with_zero_force() {
+        let mut r = Renderer::new(limits());
+        let mut f = boxed_frame();
+        halfspace_frame(&mut f, 500.0, -1e-3, 0, 7, 1);
+        r.accept_frame(&mut f);
+        run(&mut r, MS, 5, -1e-3);
+        assert!(norm(r.last_force()) > 0.0);
+        // NaN proxy position → zero now.
+        let nan = Pose {
+            position: [0.0, f64::NAN, -1e-3],
+            ..Pose::IDENTITY
+        };
+        let o = r.tick(6 * MS, &nan, true);
+        assert_eq!(o.rendered, [0.0; 3]);
+        assert!(o.faults & fault::NONFINITE_DEVICE != 0);
+        let o = r.tick(7 * MS, &at(-1e-3), false);
+        assert_eq!(o.rendered, [0.0; 3], "non-finite velocity too");
+        // Recovers (under the rate limit) once the position is finite again.
+        let o = r.tick(8 * MS, &at(-1e-3), true);
+        assert!(o.faults & fault::NONFINITE_DEVICE == 0 && norm(o.rendered) > 0.0);
+        // NaN frame content → frame rejected, previous kept.
+        halfspace_frame(&mut f, 500.0, -1e-3, 8 * MS, 7, 2);
+        f.compliance[0] = f64::NAN;
+        r.accept_frame(&mut f);
+        assert_eq!(r.invalid_frames, 1);
+        assert_eq!(r.frame().sequence, 1);
+        let o = r.tick(9 * MS, &at(-1e-3), true);
+        assert!(o.faults & fault::INVALID_FRAME != 0);
+        assert!(o.rendered.iter().all(|v| v.is_finite()));
+        // A frame whose impulse overflows to infinity is zeroed or clamped, never rendered.
+        halfspace_frame(&mut f, 1e300, -1e10, 9 * MS, 7, 3);
+        r.accept_frame(&mut f);
+        for i in 10..20 {
+            let o = r.tick(i * MS, &at(-1e10), true);
+            assert!(o.rendered.iter().all(|v| v.is_finite()));
+            assert!(norm(o.rendered) <= 3.3 + 1e-12);
+        }
+    }
+
+    #[test]
+    fn rotation_vector_of_a_small_rotation_about_z() {
+        let a: f64 = 0.1;
+        let q = [0.0, 0.0, (a / 2.0).sin(), (a / 2.0).cos()];
+        let r = rotation_vector_between(&[0.0, 0.0, 0.0, 1.0], &q);
+        assert!((r[2] - a).abs() < 1e-12 && r[0].abs() < 1e-15);
+    }
+}

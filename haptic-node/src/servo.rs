@@ -1,0 +1,59 @@
+//! Timing of the servo loop: absolute deadlines on CLOCK_MONOTONIC, and real-time
+//! scheduling with locked memory when the OS grants it.
+
+/// Sleeps until the absolute CLOCK_MONOTONIC time `deadline_ns` (immune to drift: the next
+/// deadline is computed from the previous one, not from the wake-up time).
+pub fn sleep_until(deadline_ns: u64) {
+    let ts = libc::timespec {
+        tv_sec: (deadline_ns / 1_000_000_000) as libc::time_t,
+        tv_nsec: (deadline_ns % 1_000_000_000) as libc::c_long,
+    };
+    loop {
+        // SAFETY: valid timespec, null remainder (absolute sleeps need none).
+        let r = unsafe {
+            libc::clock_nanosleep(libc::CLOCK_MONOTONIC, libc::TIMER_ABSTIME, &ts, std::ptr::null_mut())
+        };
+        if r != libc::EINTR {
+            return;
+        }
+        // A signal (SIGTERM raising the stop flag) interrupted the sleep: the caller checks.
+        if msgs::lifecycle::stop_flag().load(std::sync::atomic::Ordering::SeqCst) {
+            return;
+        }
+    }
+}
+
+/// What the OS granted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Realtime {
+    pub fifo: bool,
+    pub locked: bool,
+}
+
+/// Asks for SCHED_FIFO at `priority` for the calling thread and locks current and future
+/// memory (no page faults in the loop). Logs what was not granted.
+pub fn request_realtime(priority: i32) -> Realtime {
+    let param = libc::sched_param {
+        sched_priority: priority.clamp(1, 99),
+    };
+    // SAFETY: plain syscalls on the calling thread/process.
+    let fifo = unsafe { libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &param) } == 0;
+    let locked = unsafe { libc::mlockall(libc::MCL_CURRENT | libc::MCL_FUTURE) } == 0;
+    if !fifo {
+        tracing::warn!(
+            "SCHED_FIFO priority {} not granted ({}): the servo loop runs with normal scheduling",
+            param.sched_priority,
+            std::io::Error::last_os_error()
+        );
+    }
+    if !locked {
+        tracing::warn!(
+            "mlockall not granted ({}): page faults may delay ticks",
+            std::io::Error::last_os_error()
+        );
+    }
+    if fifo && locked {
+        tracing::info!(priority = param.sched_priority, "real-time scheduling and locked memory granted");
+    }
+    Realtime { fifo, locked }
+}

@@ -1,0 +1,382 @@
+//! Semantic checks of a parsed launch file: values in range, specs well formed, files present.
+//! Each problem is an [`Issue`] naming the dotted key and what is allowed; [`crate::load`]
+//! adds the line and column.
+//!
+//! Paths are checked as they are in the given [`LaunchFile`]; after [`crate::load`] they are
+//! absolute (resolved against the launch file's folder).
+
+use crate::load::{is_builtin_spec, Issue};
+use crate::scene::TransformConfig;
+use crate::LaunchFile;
+use std::path::Path;
+
+/// Files a `study:` mesh spec needs in the data folder.
+pub fn study_files(side: &str) -> Option<&'static [&'static str]> {
+    match side {
+        "lateral" => Some(&[
+            "meniscus/lateral_meniscus_computation.msh",
+            "meniscus/lateral_meniscus_fixed_nodes.txt",
+        ]),
+        "medial" => Some(&["meniscus/medial_meniscus_computation.msh"]),
+        _ => None,
+    }
+}
+
+/// Collects every semantic problem of `file` (empty: valid).
+pub fn validate(file: &LaunchFile) -> Vec<Issue> {
+    let mut v = Checks::default();
+
+    // [session]
+    if msgs::ipc::session_name(Some(&file.session.name)).is_err() {
+        v.push(
+            "session.name",
+            format!(
+                "{:?} is not a valid session name; allowed: 1–64 characters of A–Z, a–z, 0–9, `_`, `-`",
+                file.session.name
+            ),
+        );
+    }
+    v.non_negative("session.seconds", file.session.seconds, "s; 0 runs until Ctrl-C");
+
+    // [nodes]
+    let n = &file.nodes;
+    if !(n.physics || n.haptic || n.bridge || n.recorder) {
+        v.push(
+            "nodes",
+            "no node is enabled; enable at least one of physics, haptic, bridge, recorder",
+        );
+    }
+
+    // [launcher]
+    let l = &file.launcher;
+    v.non_negative("launcher.restart_backoff_s", l.restart_backoff_s, "s");
+    v.positive("launcher.ready_timeout_s", l.ready_timeout_s, "s");
+    v.positive("launcher.stop_grace_s", l.stop_grace_s, "s");
+    v.positive("launcher.status_period_s", l.status_period_s, "s");
+
+    // [scene]
+    let s = &file.scene;
+    v.positive("scene.dt", s.dt, "s (the study uses 0.01)");
+    v.finite_array("scene.gravity", &s.gravity, "m/s²");
+
+    let m = &s.meniscus;
+    check_mesh_spec(&mut v, "scene.meniscus.mesh", &m.mesh);
+    v.transform("scene.meniscus.transform", &m.transform);
+    v.transform("scene.meniscus.visual_transform", &m.visual_transform);
+    if let Some(visual) = &m.visual {
+        v.existing_file(
+            "scene.meniscus.visual",
+            visual,
+            &["obj", "stl"],
+            "a path to an OBJ or STL surface (relative to the launch file's folder)",
+        );
+    }
+    if !matches!(m.fixed.as_str(), "inferior" | "none") {
+        v.existing_file(
+            "scene.meniscus.fixed",
+            &m.fixed,
+            &[],
+            "`inferior`, `none`, or a path to a file of 0-based node indices",
+        );
+    }
+    v.non_negative(
+        "scene.meniscus.support_stiffness",
+        m.support_stiffness,
+        "N/m per node; 0 holds the fixed nodes rigidly",
+    );
+
+    let mat = &s.material;
+    v.one_of("scene.material.preset", &mat.preset, &["lateral", "medial", "custom"]);
+    if mat.preset == "custom" {
+        if mat.youngs_modulus.is_none() {
+            v.push(
+                "scene.material.youngs_modulus",
+                "preset `custom` needs youngs_modulus (Pa, > 0)",
+            );
+        }
+        if mat.poisson_ratio.is_none() {
+            v.push(
+                "scene.material.poisson_ratio",
+                "preset `custom` needs poisson_ratio (0 ≤ ν < 0.5)",
+            );
+        }
+    }
+    if let Some(e) = mat.youngs_modulus {
+        v.positive("scene.material.youngs_modulus", e, "Pa (lateral meniscus 3.5e6)");
+    }
+    if let Some(nu) = mat.poisson_ratio {
+        if !(nu.is_finite() && (0.0..0.5).contains(&nu)) {
+            v.push(
+                "scene.material.poisson_ratio",
+                format!("{nu} is out of range; allowed: 0 ≤ ν < 0.5"),
+            );
+        }
+    }
+    v.positive("scene.material.density", mat.density, "kg/m³ (meniscus 1090)");
+    v.one_of("scene.material.model", &mat.model, &["corotational", "neo-hookean"]);
+    if !(mat.degeneration_grade.is_finite() && (0.0..=2.0).contains(&mat.degeneration_grade)) {
+        v.push(
+            "scene.material.degeneration_grade",
+            format!("{} is out of range; allowed: 0 ≤ grade ≤ 2", mat.degeneration_grade),
+        );
+    }
+    v.positive("scene.material.modulus_scale", mat.modulus_scale, "(1 = nominal)");
+    v.non_negative("scene.material.rayleigh_mass", mat.rayleigh_mass, "1/s");
+    v.non_negative("scene.material.rayleigh_stiffness", mat.rayleigh_stiffness, "s");
+
+    let sol = &s.solver;
+    v.one_of("scene.solver.kind", &sol.kind, &["cg", "direct"]);
+    if sol.cg_iterations == 0 {
+        v.push("scene.solver.cg_iterations", "must be > 0 (the study uses 25)");
+    }
+    v.positive("scene.solver.cg_tolerance", sol.cg_tolerance, "");
+
+    let c = &s.contact;
+    v.positive("scene.contact.alarm_distance", c.alarm_distance, "m");
+    v.non_negative("scene.contact.contact_distance", c.contact_distance, "m");
+    if c.contact_distance.is_finite()
+        && c.alarm_distance.is_finite()
+        && c.contact_distance >= c.alarm_distance
+    {
+        v.push(
+            "scene.contact.contact_distance",
+            format!(
+                "{} m is not below alarm_distance {} m; allowed: 0 ≤ contact_distance < alarm_distance",
+                c.contact_distance, c.alarm_distance
+            ),
+        );
+    }
+    v.non_negative("scene.contact.friction", c.friction, "(Coulomb μ)");
+    v.positive("scene.contact.lcp_tolerance", c.lcp_tolerance, "");
+    if c.lcp_max_iterations == 0 {
+        v.push("scene.contact.lcp_max_iterations", "must be > 0");
+    }
+    if c.max_contacts == 0 || c.max_contacts as usize > msgs::MAX_CONTACTS {
+        v.push(
+            "scene.contact.max_contacts",
+            format!(
+                "{} is out of range; allowed: 1..={}",
+                c.max_contacts,
+                msgs::MAX_CONTACTS
+            ),
+        );
+    }
+
+    let p = &s.probe;
+    if p.model != "default" {
+        v.existing_file(
+            "scene.probe.model",
+            &p.model,
+            &["obj"],
+            "`default` or a path to an OBJ collision model",
+        );
+    }
+    v.transform("scene.probe.transform", &p.transform);
+    v.positive("scene.probe.mass", p.mass, "kg (the study's probe: 0.035)");
+    v.positive("scene.probe.tip_radius", p.tip_radius, "m");
+    v.positive("scene.probe.coupling_stiffness", p.coupling_stiffness, "N/m");
+    v.positive(
+        "scene.probe.coupling_angular_stiffness",
+        p.coupling_angular_stiffness,
+        "N·m/rad",
+    );
+    v.non_negative("scene.probe.coupling_damping", p.coupling_damping, "N·s/m");
+    v.non_negative(
+        "scene.probe.coupling_angular_damping",
+        p.coupling_angular_damping,
+        "N·m·s/rad",
+    );
+    v.finite_array("scene.probe.initial_position", &p.initial_position, "m");
+    v.unit_quaternion("scene.probe.initial_orientation", &p.initial_orientation);
+
+    // [device]
+    let d = &file.device;
+    v.one_of("device.backend", &d.backend, &["touch", "emulated", "replay"]);
+    v.positive("device.rate_hz", d.rate_hz, "Hz (the Touch servo loop runs at 1000)");
+    v.positive("device.force_scale", d.force_scale, "(1 = physical)");
+    v.positive("device.peak_force_n", d.peak_force_n, "N (Touch: 3.3)");
+    v.positive("device.continuous_force_n", d.continuous_force_n, "N (Touch: 0.88)");
+    v.positive("device.continuous_window_s", d.continuous_window_s, "s");
+    v.positive("device.max_force_rate_n_per_s", d.max_force_rate_n_per_s, "N/s");
+    v.positive("device.stale_frame_s", d.stale_frame_s, "s");
+    v.non_negative("device.stale_ramp_s", d.stale_ramp_s, "s");
+    v.positive("device.stats_rate_hz", d.stats_rate_hz, "Hz");
+    v.positive("device.workspace_scale", d.workspace_scale, "");
+    v.finite_array("device.workspace_offset_m", &d.workspace_offset_m, "m");
+    v.one_of(
+        "device.displacement_reference",
+        &d.displacement_reference,
+        &["proxy", "probe_free"],
+    );
+    let e = &d.emulated;
+    v.one_of("device.emulated.sites", &e.sites, &["scene", "plane"]);
+    if e.probings_per_region == 0 {
+        v.push("device.emulated.probings_per_region", "must be ≥ 1 (the study: 5)");
+    }
+    v.positive("device.emulated.approach_speed_m_per_s", e.approach_speed_m_per_s, "m/s");
+    v.positive("device.emulated.press_speed_m_per_s", e.press_speed_m_per_s, "m/s");
+    v.non_negative("device.emulated.hover_m", e.hover_m, "m");
+    v.non_negative("device.emulated.press_depth_m", e.press_depth_m, "m");
+    v.non_negative("device.emulated.hold_s", e.hold_s, "s");
+    if d.backend == "replay" {
+        if d.replay.path.is_empty() {
+            v.push(
+                "device.replay.path",
+                "backend `replay` needs a CSV trajectory (header t_s,px_m,py_m,pz_m,qx,qy,qz,qw)",
+            );
+        } else {
+            v.existing_file(
+                "device.replay.path",
+                &d.replay.path,
+                &["csv"],
+                "a path to a CSV trajectory (relative to the launch file's folder)",
+            );
+        }
+    }
+    v.positive("device.replay.time_scale", d.replay.time_scale, "(1 = recorded speed)");
+
+    // [bridge] and [recording]: their owners' checks; the key leads each message.
+    if let Err(e) = file.bridge.validate() {
+        v.push_owned("bridge", e.to_string());
+    }
+    if let Err(e) = file.recording.validate() {
+        v.push_owned("recording", e.to_string());
+    }
+
+    v.issues
+}
+
+fn check_mesh_spec(v: &mut Checks, key: &str, spec: &str) {
+    const ALLOWED: &str = "allowed: `default:lateral|medial:coarse|fine|finest`, \
+        `study:lateral|medial` (from ARTHROSIM_DATA), or a path to a Gmsh 4.1 `.msh` file \
+        (relative to the launch file's folder)";
+    if let Some(rest) = spec.strip_prefix("default:") {
+        let parts: Vec<&str> = rest.split(':').collect();
+        let ok = parts.len() == 2
+            && matches!(parts[0], "lateral" | "medial")
+            && matches!(parts[1], "coarse" | "fine" | "finest");
+        if !ok {
+            v.push(key, format!("{spec:?} is not a mesh spec; {ALLOWED}"));
+        }
+    } else if let Some(side) = spec.strip_prefix("study:") {
+        match study_files(side) {
+            None => v.push(key, format!("{spec:?} is not a mesh spec; {ALLOWED}")),
+            Some(files) => {
+                let dir = crate::data_dir();
+                let missing: Vec<String> = files
+                    .iter()
+                    .map(|f| dir.join(f))
+                    .filter(|p| !p.is_file())
+                    .map(|p| p.display().to_string())
+                    .collect();
+                if !missing.is_empty() {
+                    v.push(
+                        key,
+                        format!(
+                            "{spec:?} needs the study's data, but {} is missing; set \
+                             ARTHROSIM_DATA to the folder holding meniscus/ (default ../shared/data)",
+                            missing.join(", ")
+                        ),
+                    );
+                }
+            }
+        }
+    } else {
+        v.existing_file(key, spec, &["msh"], ALLOWED);
+    }
+}
+
+#[derive(Default)]
+struct Checks {
+    issues: Vec<Issue>,
+}
+
+impl Checks {
+    fn push(&mut self, key: &str, message: impl Into<String>) {
+        self.issues.push(Issue::at_key(key, message));
+    }
+
+    /// A section owner's message that starts with its dotted key (`bridge.domain_id = 300:
+    /// …`): the key is taken from the message, else the section.
+    fn push_owned(&mut self, section: &str, message: String) {
+        let lead: String = message
+            .chars()
+            .take_while(|c| c.is_ascii_alphanumeric() || matches!(c, '_' | '.' | '[' | ']'))
+            .collect();
+        let key = if lead.starts_with(&format!("{section}.")) {
+            lead
+        } else {
+            section.to_string()
+        };
+        self.issues.push(Issue::at_key(key, message));
+    }
+
+    fn positive(&mut self, key: &str, value: f64, unit: &str) {
+        if !(value.is_finite() && value > 0.0) {
+            self.push(key, format!("{value} is not allowed; must be finite and > 0 {unit}"));
+        }
+    }
+
+    fn non_negative(&mut self, key: &str, value: f64, unit: &str) {
+        if !(value.is_finite() && value >= 0.0) {
+            self.push(key, format!("{value} is not allowed; must be finite and ≥ 0 {unit}"));
+        }
+    }
+
+    fn finite_array(&mut self, key: &str, values: &[f64], unit: &str) {
+        for (i, x) in values.iter().enumerate() {
+            if !x.is_finite() {
+                self.push(&format!("{key}[{i}]"), format!("{x} is not allowed; must be finite ({unit})"));
+            }
+        }
+    }
+
+    fn one_of(&mut self, key: &str, value: &str, allowed: &[&str]) {
+        if !allowed.contains(&value) {
+            let list: Vec<String> = allowed.iter().map(|a| format!("`{a}`")).collect();
+            self.push(key, format!("{value:?} is not allowed; allowed: {}", list.join(", ")));
+        }
+    }
+
+    fn transform(&mut self, key: &str, t: &TransformConfig) {
+        self.positive(&format!("{key}.scale"), t.scale, "");
+        self.finite_array(&format!("{key}.rotation_deg"), &t.rotation_deg, "degrees");
+        self.finite_array(&format!("{key}.translation"), &t.translation, "m");
+    }
+
+    fn unit_quaternion(&mut self, key: &str, q: &[f64; 4]) {
+        let norm = q.iter().map(|x| x * x).sum::<f64>().sqrt();
+        if !(norm.is_finite() && (norm - 1.0).abs() < 1e-3) {
+            self.push(
+                key,
+                format!("{q:?} is not a unit quaternion [x, y, z, w] (norm {norm:.4}); allowed: norm 1 ± 1e-3"),
+            );
+        }
+    }
+
+    fn existing_file(&mut self, key: &str, path: &str, extensions: &[&str], allowed: &str) {
+        if is_builtin_spec(path) && !extensions.contains(&"msh") {
+            self.push(key, format!("{path:?} is not a file path; {allowed}"));
+            return;
+        }
+        let p = Path::new(path);
+        if !extensions.is_empty() {
+            let ext = p
+                .extension()
+                .and_then(|e| e.to_str())
+                .map(str::to_ascii_lowercase)
+                .unwrap_or_default();
+            if !extensions.contains(&ext.as_str()) {
+                let list: Vec<String> = extensions.iter().map(|e| format!(".{e}")).collect();
+                self.push(
+                    key,
+                    format!("{path:?} does not end in {}; {allowed}", list.join(" or ")),
+                );
+                return;
+            }
+        }
+        if !p.is_file() {
+            self.push(key, format!("file {} does not exist; {allowed}", p.display()));
+        }
+    }
+}

@@ -1,0 +1,135 @@
+//! Physics step benchmark: the probe indents a probing site and slides around it on the
+//! surface with contact active the whole time; prints ONE JSON line.
+//!
+//! `cargo run --release -p physics-node --bin physics-bench -- --mesh SPEC --seconds 5`
+//! SPEC: default:coarse | default:fine | default:finest | study:lateral | study:medial | FILE.msh
+use anyhow::{bail, Context};
+use clap::Parser;
+use nalgebra::{Point3, UnitQuaternion, Vector3};
+use physics_node::sim::Simulation;
+use std::path::PathBuf;
+use std::time::Instant;
+
+#[derive(Parser, Debug)]
+#[command(name = "physics-bench")]
+struct Args {
+    /// Mesh spec (see module docs).
+    #[arg(long, default_value = "default:coarse")]
+    mesh: String,
+    /// Wall-clock seconds of timed stepping.
+    #[arg(long, default_value_t = 5.0)]
+    seconds: f64,
+    /// Coulomb friction of the contact.
+    #[arg(long, default_value_t = 0.0)]
+    friction: f64,
+    /// FEM linear solver (`cg`, `cg-jacobi`, `cg-cholesky`, `cg-warped-cholesky`, `direct`).
+    #[arg(long, default_value = "cg")]
+    solver: String,
+    /// Study data folder (default: $ARTHROSIM_DATA, else ../shared/data).
+    #[arg(long)]
+    data: Option<PathBuf>,
+    /// Indentation of the proxy below the surface, m.
+    #[arg(long, default_value_t = 1.5e-3)]
+    depth: f64,
+}
+
+fn main() -> anyhow::Result<()> {
+    let args = Args::parse();
+    if !(args.seconds.is_finite() && args.seconds > 0.0) {
+        bail!("--seconds must be > 0");
+    }
+    let data_dir = args.data.clone().unwrap_or_else(launch_config::data_dir);
+    let mut scene = launch_config::SceneConfig::default();
+    scene.meniscus.mesh = args.mesh.clone();
+    if args.mesh.starts_with("study:") {
+        // The study's mesh carries its own fixed set (lateral) — the loader decides.
+        scene.meniscus.fixed = "inferior".into();
+    }
+    scene.contact.friction = args.friction;
+    scene.solver.kind = args.solver.clone();
+    let t_build = Instant::now();
+    let mut sim = Simulation::new(&scene, &data_dir).with_context(|| format!("building scene for {}", args.mesh))?;
+    let build_s = t_build.elapsed().as_secs_f64();
+
+    let (site, normal) = probing_site(&sim);
+    let r = scene.probe.tip_radius;
+    let q = UnitQuaternion::rotation_between(&Vector3::z(), &normal).unwrap_or_else(UnitQuaternion::identity);
+    let (t1, t2) = physics_node::contact::tangents(&normal);
+    let start = site + normal * (r + 0.2e-3);
+    sim.teleport_probe(&physics_node::probe::pose(start, q));
+
+    // Indent, then circle: radius 2.5 mm at 0.5 Hz, depth oscillating ±0.5 mm at 0.7 Hz.
+    let path = |t: f64| -> Point3<f64> {
+        let ramp = (t / 0.3).min(1.0);
+        let depth = ramp * (args.depth + 0.5e-3 * (2.0 * std::f64::consts::PI * 0.7 * t).sin());
+        let a = 2.5e-3 * ramp;
+        let w = 2.0 * std::f64::consts::PI * 0.5 * t;
+        site + normal * (r - depth) + t1 * (a * w.cos()) + t2 * (a * w.sin())
+    };
+    // Warm-up: get into contact (not timed).
+    for _ in 0..40 {
+        sim.set_proxy_pose(&physics_node::probe::pose(path(sim.time()), q));
+        sim.step()?;
+    }
+    let mut durations: Vec<u64> = Vec::with_capacity(1 << 20);
+    let mut contacts_sum = 0u64;
+    let mut in_contact = 0u64;
+    let mut force_sum = 0.0;
+    let misses_before = sim.compliance_misses();
+    let t0 = Instant::now();
+    while t0.elapsed().as_secs_f64() < args.seconds {
+        sim.set_proxy_pose(&physics_node::probe::pose(path(sim.time()), q));
+        let s = Instant::now();
+        sim.step()?;
+        durations.push(s.elapsed().as_nanos() as u64);
+        let c = sim.contact_count() as u64;
+        contacts_sum += c;
+        in_contact += (c > 0) as u64;
+        let f = sim.contact_force();
+        force_sum += (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt();
+    }
+    let wall = t0.elapsed().as_secs_f64();
+    let steps = durations.len().max(1);
+    let total_step_s: f64 = durations.iter().map(|&d| d as f64 * 1e-9).sum();
+    durations.sort_unstable();
+    let pct = |p: f64| durations[((p * (steps - 1) as f64).round() as usize).min(steps - 1)] as f64 / 1e3;
+    let (slots, complete) = sim.compliance_cache_info();
+    let json = serde_json::json!({
+        "mesh": args.mesh,
+        "nodes": sim.node_count(),
+        "tets": sim.tet_count(),
+        "steps": steps,
+        "steps_per_s": steps as f64 / total_step_s,
+        "wall_steps_per_s": steps as f64 / wall,
+        "step_p50_us": pct(0.5),
+        "step_p99_us": pct(0.99),
+        "step_max_us": pct(1.0),
+        "contacts_mean": contacts_sum as f64 / steps as f64,
+        "contact_fraction": in_contact as f64 / steps as f64,
+        "force_mean_n": force_sum / steps as f64,
+        "solver": args.solver,
+        "friction": args.friction,
+        "compliance_slots": slots,
+        "compliance_complete": complete,
+        "compliance_misses": sim.compliance_misses() - misses_before,
+        "build_s": build_s,
+    });
+    println!("{json}");
+    Ok(())
+}
+
+/// The mid-body probing site (region 2) if the mesh has sites, else the highest surface vertex
+/// with an upward normal.
+fn probing_site(sim: &Simulation) -> (Point3<f64>, Vector3<f64>) {
+    let sites = sim.probing_sites();
+    if let Some(s) = sites.iter().find(|s| s.region == 2).or_else(|| sites.first()) {
+        return (s.point, s.normal.normalize());
+    }
+    let top = sim
+        .surface_positions()
+        .iter()
+        .copied()
+        .max_by(|a, b| a.z.total_cmp(&b.z))
+        .unwrap_or_else(Point3::origin);
+    (top, Vector3::z())
+}

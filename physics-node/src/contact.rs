@@ -1,0 +1,482 @@
+//! Proximity queries between the probe's collision spheres and the deforming boundary surface
+//! of the tet mesh, with the side of the surface tracked so that a probe pressed deep into
+//! the tissue keeps an outward normal (parry's point projection on a TriMesh treats the mesh
+//! as a shell; see `shared/notes/crates.md`).
+//!
+//! Detection runs on the start-of-step (already corrected, hence non-penetrating) positions,
+//! the way a god-object sits on the surface: the closest feature of the last valid probe
+//! position gives the contact point (barycentric on a triangle) and the outward normal; the
+//! violation is then evaluated at the free-motion positions along that normal. A probe point
+//! that is found inside the closed surface (angle-weighted pseudo-normal test, Bærentzen &
+//! Aanæs 2005) keeps the triangle it was tracked on (or a neighbour of it) instead of jumping
+//! to the nearest — possibly opposite — side of a thin meniscus.
+
+use crate::probe::Probe;
+use nalgebra::{Point3, Vector3};
+use parry3d_f64::math::Vector as GVec;
+use parry3d_f64::query::PointQueryWithLocation;
+use parry3d_f64::shape::{Triangle, TriMesh, TriMeshFlags, TrianglePointLocation};
+
+const NO_TRIANGLE: u32 = u32::MAX;
+
+#[inline]
+fn to_g(v: &Vector3<f64>) -> GVec {
+    GVec::new(v.x, v.y, v.z)
+}
+
+#[inline]
+fn from_g(v: GVec) -> Vector3<f64> {
+    Vector3::new(v.x, v.y, v.z)
+}
+
+/// Outward boundary triangles of a positively oriented tet mesh (faces used by one tet only),
+/// in a deterministic order (by tet, then local face).
+pub fn boundary_triangles(tets: &[[usize; 4]]) -> Vec<[usize; 3]> {
+    // Outward faces of a positive tet [0,1,2,3].
+    const FACES: [[usize; 3]; 4] = [[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]];
+    let mut keyed: Vec<([usize; 3], usize, usize)> = Vec::with_capacity(tets.len() * 4);
+    for (t, tet) in tets.iter().enumerate() {
+        for (f, face) in FACES.iter().enumerate() {
+            let mut key = [tet[face[0]], tet[face[1]], tet[face[2]]];
+            key.sort_unstable();
+            keyed.push((key, t, f));
+        }
+    }
+    keyed.sort_unstable();
+    let mut out = Vec::new();
+    let mut i = 0;
+    while i < keyed.len() {
+        let mut j = i + 1;
+        while j < keyed.len() && keyed[j].0 == keyed[i].0 {
+            j += 1;
+        }
+        if j - i == 1 {
+            let (_, t, f) = keyed[i];
+            let face = FACES[f];
+            out.push((t, f, [tets[t][face[0]], tets[t][face[1]], tets[t][face[2]]]));
+        }
+        i = j;
+    }
+    let mut out: Vec<_> = out;
+    out.sort_unstable_by_key(|&(t, f, _)| (t, f));
+    out.into_iter().map(|(_, _, tri)| tri).collect()
+}
+
+/// The deforming boundary surface used for collision: a deformable parry TriMesh refitted each
+/// step, plus face normals and adjacency for pseudo-normals.
+pub struct TissueSurface {
+    /// Triangles in mesh node indices, outward.
+    pub triangles: Vec<[usize; 3]>,
+    /// Surface vertex → mesh node.
+    pub nodes: Vec<usize>,
+    trimesh: TriMesh,
+    /// Unit face normals at the current refit.
+    face_normals: Vec<Vector3<f64>>,
+    /// Triangle across local edge k (parry's order: 0 = AB, 1 = BC, 2 = AC).
+    neighbors: Vec<[u32; 3]>,
+    /// Incident triangles per surface vertex (CSR).
+    vertex_tri_start: Vec<u32>,
+    vertex_tris: Vec<u32>,
+    /// Bounding box of the refitted surface.
+    pub lo: Vector3<f64>,
+    pub hi: Vector3<f64>,
+}
+
+impl TissueSurface {
+    /// Builds the collision surface from the mesh's boundary triangles and rest positions.
+    pub fn new(triangles: Vec<[usize; 3]>, positions: &[Point3<f64>]) -> Option<TissueSurface> {
+        if triangles.is_empty() {
+            return None;
+        }
+        let mut node_to_vertex = vec![u32::MAX; positions.len()];
+        let mut nodes = Vec::new();
+        let mut local = Vec::with_capacity(triangles.len());
+        for tri in &triangles {
+            let mut l = [0u32; 3];
+            for k in 0..3 {
+                let n = tri[k];
+                if node_to_vertex[n] == u32::MAX {
+                    node_to_vertex[n] = nodes.len() as u32;
+                    nodes.push(n);
+                }
+                l[k] = node_to_vertex[n];
+            }
+            local.push(l);
+        }
+        let verts: Vec<GVec> = nodes.iter().map(|&n| to_g(&positions[n].coords)).collect();
+
+        // Edge adjacency through a sorted edge list (deterministic, no hashing).
+        let mut edges: Vec<((u32, u32), u32, u8)> = Vec::with_capacity(local.len() * 3);
+        for (t, l) in local.iter().enumerate() {
+            for (k, (a, b)) in [(l[0], l[1]), (l[1], l[2]), (l[0], l[2])].into_iter().enumerate() {
+                edges.push(((a.min(b), a.max(b)), t as u32, k as u8));
+            }
+        }
+        edges.sort_unstable();
+        let mut neighbors = vec![[NO_TRIANGLE; 3]; local.len()];
+        let mut i = 0;
+        while i < edges.len() {
+            let mut j = i + 1;
+            while j < edges.len() && edges[j].0 == edges[i].0 {
+                j += 1;
+            }
+            if j - i == 2 {
+                let (_, ta, ka) = edges[i];
+                let (_, tb, kb) = edges[i + 1];
+                neighbors[ta as usize][ka as usize] = tb;
+                neighbors[tb as usize][kb as usize] = ta;
+            }
+            i = j;
+        }
+        let mut counts = vec![0u32; nodes.len() + 1];
+        for l in &local {
+            for &v in l {
+                counts[v as usize + 1] += 1;
+            }
+        }
+        for k in 0..nodes.len() {
+            counts[k + 1] += counts[k];
+        }
+        let mut fill = counts.clone();
+        let mut vertex_tris = vec![0u32; local.len() * 3];
+        for (t, l) in local.iter().enumerate() {
+            for &v in l {
+                vertex_tris[fill[v as usize] as usize] = t as u32;
+                fill[v as usize] += 1;
+            }
+        }
+        let trimesh = TriMesh::with_flags(verts, local, TriMeshFlags::DEFORMABLE).ok()?;
+        let mut s = TissueSurface {
+            face_normals: vec![Vector3::zeros(); triangles.len()],
+            triangles,
+            nodes,
+            trimesh,
+            neighbors,
+            vertex_tri_start: counts,
+            vertex_tris,
+            lo: Vector3::zeros(),
+            hi: Vector3::zeros(),
+        };
+        s.refit(positions);
+        Some(s)
+    }
+
+    /// Moves the surface to `positions` (mesh nodes): BVH refit, face normals, bounding box.
+    pub fn refit(&mut self, positions: &[Point3<f64>]) {
+        let nodes = &self.nodes;
+        self.trimesh.update_vertices(|v| {
+            for (dst, &n) in v.iter_mut().zip(nodes.iter()) {
+                *dst = to_g(&positions[n].coords);
+            }
+        });
+        let mut lo = Vector3::repeat(f64::INFINITY);
+        let mut hi = Vector3::repeat(f64::NEG_INFINITY);
+        for &n in &self.nodes {
+            lo = lo.inf(&positions[n].coords);
+            hi = hi.sup(&positions[n].coords);
+        }
+        self.lo = lo;
+        self.hi = hi;
+        for (t, tri) in self.triangles.iter().enumerate() {
+            let a = positions[tri[0]].coords;
+            let n = (positions[tri[1]].coords - a).cross(&(positions[tri[2]].coords - a));
+            let len = n.norm();
+            self.face_normals[t] = if len > 0.0 { n / len } else { Vector3::zeros() };
+        }
+    }
+
+    pub fn face_normal(&self, t: u32) -> Vector3<f64> {
+        self.face_normals[t as usize]
+    }
+
+    /// Angle-weighted pseudo-normal of the feature a projection landed on (unnormalised).
+    fn pseudo_normal(&self, t: u32, location: &TrianglePointLocation) -> Vector3<f64> {
+        match *location {
+            TrianglePointLocation::OnFace(..) | TrianglePointLocation::OnSolid => self.face_normals[t as usize],
+            TrianglePointLocation::OnEdge(k, _) => {
+                let other = self.neighbors[t as usize][k as usize];
+                let mut n = self.face_normals[t as usize];
+                if other != NO_TRIANGLE {
+                    n += self.face_normals[other as usize];
+                }
+                n
+            }
+            TrianglePointLocation::OnVertex(k) => {
+                let v = self.trimesh.indices()[t as usize][k as usize] as usize;
+                let verts = self.trimesh.vertices();
+                let mut n = Vector3::zeros();
+                for &tt in &self.vertex_tris[self.vertex_tri_start[v] as usize..self.vertex_tri_start[v + 1] as usize] {
+                    let l = self.trimesh.indices()[tt as usize];
+                    let j = (0..3).find(|&j| l[j] as usize == v).unwrap_or(0);
+                    let p = from_g(verts[l[j] as usize]);
+                    let e1 = (from_g(verts[l[(j + 1) % 3] as usize]) - p).normalize();
+                    let e2 = (from_g(verts[l[(j + 2) % 3] as usize]) - p).normalize();
+                    let angle = e1.dot(&e2).clamp(-1.0, 1.0).acos();
+                    if angle.is_finite() {
+                        n += self.face_normals[tt as usize] * angle;
+                    }
+                }
+                n
+            }
+        }
+    }
+
+    /// Closest point of `p` on triangle `t`: (point, barycentric weights).
+    fn project_on_triangle(&self, t: u32, p: &Vector3<f64>) -> (Vector3<f64>, [f64; 3]) {
+        let tri = self.trimesh.triangle(t);
+        let (proj, loc) = tri.project_local_point_and_get_location(to_g(p), false);
+        let w = loc.barycentric_coordinates().unwrap_or([1.0 / 3.0; 3]);
+        (from_g(proj.point), w)
+    }
+
+    fn triangle_nodes(&self, t: u32) -> [usize; 3] {
+        self.triangles[t as usize]
+    }
+
+    /// Number of triangles.
+    pub fn len(&self) -> usize {
+        self.triangles.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.triangles.is_empty()
+    }
+
+    #[allow(dead_code)]
+    fn triangle_shape(&self, t: u32) -> Triangle {
+        self.trimesh.triangle(t)
+    }
+}
+
+/// Distances of the contact model, m.
+#[derive(Debug, Clone, Copy)]
+pub struct ContactParams {
+    pub alarm_distance: f64,
+    pub contact_distance: f64,
+    pub max_contacts: usize,
+}
+
+/// One probe point – tissue triangle contact, linearised at the start-of-step geometry.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Contact {
+    /// Probe collision sphere.
+    pub sphere: usize,
+    /// Tissue triangle (collision surface index) and its mesh nodes with barycentric weights.
+    pub triangle: u32,
+    pub nodes: [usize; 3],
+    pub weights: [f64; 3],
+    /// Outward normal (out of the tissue, onto the probe) and two tangents.
+    pub normal: Vector3<f64>,
+    pub t1: Vector3<f64>,
+    pub t2: Vector3<f64>,
+    /// Sphere radius used for the gap (radius, or the contact distance for points).
+    pub radius: f64,
+    /// Contact point on the tissue at the start of the step, world m.
+    pub point: Vector3<f64>,
+    /// Probe sphere centre at the start of the step.
+    pub probe_point: Vector3<f64>,
+    /// Gap at the start of the step (≥ 0 separated).
+    pub gap_start: f64,
+    /// Free-motion violation per row: normal gap, tangential free slip.
+    pub free_violation: [f64; 3],
+}
+
+/// Two unit tangents orthogonal to `n`, chosen deterministically from the smallest axis of n.
+pub fn tangents(n: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
+    let a = if n.x.abs() <= n.y.abs() && n.x.abs() <= n.z.abs() {
+        Vector3::x()
+    } else if n.y.abs() <= n.z.abs() {
+        Vector3::y()
+    } else {
+        Vector3::z()
+    };
+    let t1 = n.cross(&a).normalize();
+    let t2 = n.cross(&t1);
+    (t1, t2)
+}
+
+/// The proximity query stage with the per-sphere side tracking.
+pub struct ContactDetector {
+    pub params: ContactParams,
+    /// Triangle each sphere was last in contact with (NO_TRIANGLE: none).
+    tracked: Vec<u32>,
+    /// Candidates of this step (capacity: one per sphere, reserved once).
+    candidates: Vec<Contact>,
+    /// Selected contacts, at most max_contacts, ordered by free gap then sphere index.
+    pub contacts: Vec<Contact>,
+}
+
+impl ContactDetector {
+    pub fn new(params: ContactParams, spheres: usize) -> ContactDetector {
+        ContactDetector {
+            params,
+            tracked: vec![NO_TRIANGLE; spheres],
+            candidates: Vec::with_capacity(spheres),
+            contacts: Vec::with_capacity(params.max_contacts.min(spheres).max(1)),
+        }
+    }
+
+    /// Forget the side history (after a teleport of the probe).
+    pub fn reset_tracking(&mut self) {
+        self.tracked.iter_mut().for_each(|t| *t = NO_TRIANGLE);
+    }
+
+    /// Finds the contacts of this step. `surface` must be refitted to `positions` (start of
+    /// step); `free_positions` are the tissue nodes after free motion; `tissue_motion` bounds
+    /// how far any surface node moved in the free motion.
+    pub fn detect(
+        &mut self,
+        probe: &Probe,
+        surface: &TissueSurface,
+        positions: &[Point3<f64>],
+        free_positions: &[Point3<f64>],
+        tissue_motion: f64,
+    ) {
+        self.candidates.clear();
+        self.contacts.clear();
+        let margin = (self.params.alarm_distance - self.params.contact_distance).max(0.0);
+        for i in 0..probe.spheres.len() {
+            let radius = if probe.spheres[i].radius > 0.0 {
+                probe.spheres[i].radius
+            } else {
+                self.params.contact_distance
+            };
+            let p0 = probe.sphere_world(i);
+            let pf = probe.sphere_world_free(i);
+            let reach = radius + margin + (pf - p0).norm() + tissue_motion;
+            // Cheap box rejection before the BVH query.
+            let outside_box = (0..3).any(|k| p0[k] < surface.lo[k] - reach || p0[k] > surface.hi[k] + reach);
+            if outside_box {
+                self.tracked[i] = NO_TRIANGLE;
+                continue;
+            }
+            let Some((proj, (tri, location))) =
+                surface
+                    .trimesh
+                    .project_local_point_and_get_location_with_max_dist(to_g(&p0), false, reach)
+            else {
+                if self.tracked[i] == NO_TRIANGLE {
+                    continue;
+                }
+                // Nothing within reach of a point that was tracked: it is far outside
+                // (lifted off), unless it went through; the tracked side decides.
+                let t = self.tracked[i];
+                let (c, _) = surface.project_on_triangle(t, &p0);
+                if surface.face_normal(t).dot(&(p0 - c)) >= 0.0 {
+                    self.tracked[i] = NO_TRIANGLE;
+                    continue;
+                }
+                self.push_tracked(i, t, radius, &p0, &pf, surface, positions, free_positions);
+                continue;
+            };
+            let c = from_g(proj.point);
+            let to_point = p0 - c;
+            let pseudo = surface.pseudo_normal(tri, &location);
+            let inside = pseudo.dot(&to_point) < 0.0;
+            if inside && self.tracked[i] != NO_TRIANGLE {
+                let t = self.tracked[i];
+                self.push_tracked(i, t, radius, &p0, &pf, surface, positions, free_positions);
+                continue;
+            }
+            let dist = to_point.norm();
+            let normal = match location {
+                TrianglePointLocation::OnFace(..) | TrianglePointLocation::OnSolid => surface.face_normal(tri),
+                _ if dist > 1e-9 && !inside => to_point / dist,
+                _ => pseudo.try_normalize(0.0).unwrap_or_else(|| surface.face_normal(tri)),
+            };
+            let weights = location.barycentric_coordinates().unwrap_or([1.0 / 3.0; 3]);
+            self.push(i, tri, weights, normal, radius, &c, &p0, &pf, surface, positions, free_positions);
+        }
+        // Keep the most violated ones (deterministic: gap, then sphere index).
+        self.candidates.sort_unstable_by(|a, b| {
+            a.free_violation[0]
+                .total_cmp(&b.free_violation[0])
+                .then(a.sphere.cmp(&b.sphere))
+        });
+        let n = self.candidates.len().min(self.params.max_contacts);
+        self.contacts.extend_from_slice(&self.candidates[..n]);
+    }
+
+    /// Sphere `i` is inside the surface at the start of the step: keep it on its tracked
+    /// triangle or the neighbour across the edge it slid over.
+    #[allow(clippy::too_many_arguments)]
+    fn push_tracked(
+        &mut self,
+        i: usize,
+        t: u32,
+        radius: f64,
+        p0: &Vector3<f64>,
+        pf: &Vector3<f64>,
+        surface: &TissueSurface,
+        positions: &[Point3<f64>],
+        free_positions: &[Point3<f64>],
+    ) {
+        // Best of the triangle and its edge neighbours: smallest in-plane clamp distance.
+        let mut best = (t, f64::INFINITY);
+        for cand in core::iter::once(t).chain(surface.neighbors[t as usize].iter().copied()) {
+            if cand == NO_TRIANGLE {
+                continue;
+            }
+            let n = surface.face_normal(cand);
+            let (c, _) = surface.project_on_triangle(cand, p0);
+            let d = p0 - c;
+            let in_plane = (d - n * n.dot(&d)).norm();
+            if in_plane < best.1 {
+                best = (cand, in_plane);
+            }
+        }
+        let t = best.0;
+        let (c, w) = surface.project_on_triangle(t, p0);
+        let n = surface.face_normal(t);
+        self.push(i, t, w, n, radius, &c, p0, pf, surface, positions, free_positions);
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn push(
+        &mut self,
+        i: usize,
+        tri: u32,
+        weights: [f64; 3],
+        normal: Vector3<f64>,
+        radius: f64,
+        c: &Vector3<f64>,
+        p0: &Vector3<f64>,
+        pf: &Vector3<f64>,
+        surface: &TissueSurface,
+        positions: &[Point3<f64>],
+        free_positions: &[Point3<f64>],
+    ) {
+        let nodes = surface.triangle_nodes(tri);
+        let gap_start = normal.dot(&(p0 - c)) - radius;
+        // Contact point moved with the free motion of the tissue.
+        let mut c_free = *c;
+        for k in 0..3 {
+            c_free += weights[k] * (free_positions[nodes[k]].coords - positions[nodes[k]].coords);
+        }
+        let gap_free = normal.dot(&(pf - c_free)) - radius;
+        let alarm = (self.params.alarm_distance - self.params.contact_distance).max(0.0);
+        if gap_start.min(gap_free) > alarm {
+            if gap_start > 0.0 {
+                self.tracked[i] = NO_TRIANGLE;
+            }
+            return;
+        }
+        self.tracked[i] = tri;
+        let (t1, t2) = tangents(&normal);
+        let slip = (pf - p0) - (c_free - c);
+        self.candidates.push(Contact {
+            sphere: i,
+            triangle: tri,
+            nodes,
+            weights,
+            normal,
+            t1,
+            t2,
+            radius,
+            point: *c,
+            probe_point: *p0,
+            gap_start,
+            free_violation: [gap_free, t1.dot(&slip), t2.dot(&slip)],
+        });
+    }
+}

@@ -1,0 +1,213 @@
+//! Tetrahedron kernels: rest shape, rotation extraction, the linear corotational element and
+//! the stable neo-Hookean element. Each kernel returns the elastic nodal forces and the 4×4
+//! grid of 3×3 stiffness blocks (K = −∂f/∂x), so both materials share one assembly.
+
+use nalgebra::{Matrix3, SMatrix, SymmetricEigen, UnitQuaternion, Vector3};
+
+/// Rest data of one tet: shape-function gradients g_a (F = Σ x_a g_aᵀ) and volume.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct TetRest {
+    pub grad: [Vector3<f64>; 4],
+    pub volume: f64,
+}
+
+impl TetRest {
+    /// None when the rest tet is degenerate or inverted (volume ≤ 0 or not finite).
+    pub fn new(x: [&nalgebra::Point3<f64>; 4]) -> Option<TetRest> {
+        let dm = Matrix3::from_columns(&[x[1] - x[0], x[2] - x[0], x[3] - x[0]]);
+        let det = dm.determinant();
+        if !det.is_finite() || det <= 0.0 {
+            return None;
+        }
+        let inv = dm.try_inverse()?;
+        // Rows of Dm⁻¹ are the gradients of the shape functions of nodes 1..3.
+        let g1 = inv.row(0).transpose();
+        let g2 = inv.row(1).transpose();
+        let g3 = inv.row(2).transpose();
+        Some(TetRest {
+            grad: [-(g1 + g2 + g3), g1, g2, g3],
+            volume: det / 6.0,
+        })
+    }
+
+    /// Deformation gradient F = Σ x_a g_aᵀ.
+    #[inline]
+    pub fn deformation_gradient(&self, x: [Vector3<f64>; 4]) -> Matrix3<f64> {
+        // Differences keep translation out of the sum (better rounding far from the origin).
+        let g = &self.grad;
+        (x[1] - x[0]) * g[1].transpose()
+            + (x[2] - x[0]) * g[2].transpose()
+            + (x[3] - x[0]) * g[3].transpose()
+    }
+}
+
+/// Rotation closest to `a` (Müller et al. 2016, "A robust method to extract the rotational
+/// part of deformations"), warm-started from `q`. Always a proper rotation, also for
+/// inverted elements (where polar decomposition would give a reflection); converges in one
+/// or two iterations when `q` is last step's rotation.
+#[inline]
+pub(crate) fn extract_rotation(a: &Matrix3<f64>, q: &mut UnitQuaternion<f64>, max_iter: usize) {
+    for _ in 0..max_iter {
+        let r = q.to_rotation_matrix();
+        let r = r.matrix();
+        let num = r.column(0).cross(&a.column(0))
+            + r.column(1).cross(&a.column(1))
+            + r.column(2).cross(&a.column(2));
+        let den = (r.column(0).dot(&a.column(0))
+            + r.column(1).dot(&a.column(1))
+            + r.column(2).dot(&a.column(2)))
+        .abs()
+            + 1.0e-9;
+        let omega = num / den;
+        let w = omega.norm();
+        if !w.is_finite() || w < 1.0e-12 {
+            break;
+        }
+        *q = UnitQuaternion::from_scaled_axis(omega) * *q;
+        q.renormalize();
+    }
+}
+
+/// Forces on the 4 nodes and stiffness blocks K[a][b] (only a ≤ b filled; K[b][a] = K[a][b]ᵀ).
+pub(crate) struct ElementOutput {
+    pub force: [Vector3<f64>; 4],
+    pub k: [[Matrix3<f64>; 4]; 4],
+    pub energy: f64,
+}
+
+impl ElementOutput {
+    pub fn zero() -> Self {
+        ElementOutput {
+            force: [Vector3::zeros(); 4],
+            k: [[Matrix3::zeros(); 4]; 4],
+            energy: 0.0,
+        }
+    }
+}
+
+/// Linear corotational element: u = Rᵀx − X in the element frame R, f = −R K0 u,
+/// K = R K0 Rᵀ (∂R/∂x neglected, as SOFA). `rot` is the rotation (already extracted).
+#[inline]
+pub(crate) fn corotational(
+    rest: &TetRest,
+    f: &Matrix3<f64>,
+    rot: &Matrix3<f64>,
+    mu: f64,
+    lambda: f64,
+    want_k: bool,
+    out: &mut ElementOutput,
+) {
+    let v = rest.volume;
+    // Small strain in the rotated frame.
+    let fr = rot.transpose() * f;
+    let mut eps = (fr + fr.transpose()) * 0.5;
+    eps[(0, 0)] -= 1.0;
+    eps[(1, 1)] -= 1.0;
+    eps[(2, 2)] -= 1.0;
+    let tr = eps.trace();
+    let mut sigma = eps * (2.0 * mu);
+    sigma[(0, 0)] += lambda * tr;
+    sigma[(1, 1)] += lambda * tr;
+    sigma[(2, 2)] += lambda * tr;
+    out.energy = v * (mu * eps.norm_squared() + 0.5 * lambda * tr * tr);
+    let p = rot * sigma * (-v);
+    // Rotated gradients: R K0_ab Rᵀ = V[μ (g_a·g_b) I + μ ĝ_b ĝ_aᵀ + λ ĝ_a ĝ_bᵀ], ĝ = R g.
+    let mut gh = [Vector3::zeros(); 4];
+    for a in 0..4 {
+        out.force[a] = p * rest.grad[a];
+        gh[a] = rot * rest.grad[a];
+    }
+    if !want_k {
+        return;
+    }
+    for a in 0..4 {
+        for b in a..4 {
+            let d = v * mu * rest.grad[a].dot(&rest.grad[b]);
+            let mut m = gh[b] * gh[a].transpose() * (v * mu) + gh[a] * gh[b].transpose() * (v * lambda);
+            m[(0, 0)] += d;
+            m[(1, 1)] += d;
+            m[(2, 2)] += d;
+            out.k[a][b] = m;
+        }
+    }
+}
+
+/// Skew matrix [v]× (v × w = [v]× w).
+#[inline]
+fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
+    Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
+}
+
+/// Stable neo-Hookean element (Smith et al. 2018; energy in the form of Kim & Eberle 2022):
+/// Ψ = μ/2 (I_C − 3) − μ (J − 1) + λ'/2 (J − 1)² with λ' = λ + μ so that it linearizes to
+/// the same Lamé parameters as linear elasticity. Rest-stable and finite for J ≤ 0, so
+/// inverted elements are pushed back. `project` clamps the 9×9 Hessian's negative
+/// eigenvalues (PSD tangent, safe for CG); otherwise the consistent tangent is returned.
+pub(crate) fn stable_neo_hookean(
+    rest: &TetRest,
+    f: &Matrix3<f64>,
+    mu: f64,
+    lambda: f64,
+    project: bool,
+    want_k: bool,
+    out: &mut ElementOutput,
+) {
+    let v = rest.volume;
+    let lam = lambda + mu;
+    let j = f.determinant();
+    let (f0, f1, f2) = (f.column(0).into_owned(), f.column(1).into_owned(), f.column(2).into_owned());
+    let cof = Matrix3::from_columns(&[f1.cross(&f2), f2.cross(&f0), f0.cross(&f1)]);
+    let ic = f.norm_squared();
+    out.energy = v * (0.5 * mu * (ic - 3.0) - mu * (j - 1.0) + 0.5 * lam * (j - 1.0) * (j - 1.0));
+    let s = lam * (j - 1.0) - mu;
+    let p = f * mu + cof * s;
+    for a in 0..4 {
+        out.force[a] = -(p * rest.grad[a]) * v;
+    }
+    if !want_k {
+        return;
+    }
+    // dP/dF in column-major vec(F) ordering: μ I + λ' g gᵀ + s H_J.
+    let mut h = SMatrix::<f64, 9, 9>::identity() * mu;
+    let g = SMatrix::<f64, 9, 1>::from_column_slice(cof.as_slice());
+    h += g * g.transpose() * lam;
+    let blocks = [
+        (0, 1, -skew(&f2)),
+        (0, 2, skew(&f1)),
+        (1, 0, skew(&f2)),
+        (1, 2, -skew(&f0)),
+        (2, 0, -skew(&f1)),
+        (2, 1, skew(&f0)),
+    ];
+    for (pi, qi, m) in blocks.iter() {
+        let mut view = h.fixed_view_mut::<3, 3>(3 * pi, 3 * qi);
+        view += m * s;
+    }
+    if project {
+        let eig = SymmetricEigen::new(h);
+        if eig.eigenvalues.iter().any(|&e| e < 0.0) {
+            let mut d = eig.eigenvalues;
+            for e in d.iter_mut() {
+                *e = e.max(0.0);
+            }
+            h = eig.eigenvectors * SMatrix::<f64, 9, 9>::from_diagonal(&d) * eig.eigenvectors.transpose();
+        }
+    }
+    // K_ab[k][l] = V Σ_{j,m} g_a[j] H[(j,k),(m,l)] g_b[m]; vec index of F_kj is 3j + k.
+    for a in 0..4 {
+        let ga = rest.grad[a];
+        // T_b = Σ_j g_a[j] H[3j.., :] → 3×9.
+        let mut t = SMatrix::<f64, 3, 9>::zeros();
+        for jj in 0..3 {
+            t += h.fixed_view::<3, 9>(3 * jj, 0) * ga[jj];
+        }
+        for b in a..4 {
+            let gb = rest.grad[b];
+            let mut m = Matrix3::zeros();
+            for mm in 0..3 {
+                m += t.fixed_view::<3, 3>(0, 3 * mm) * gb[mm];
+            }
+            out.k[a][b] = m * v;
+        }
+    }
+}

@@ -1,0 +1,230 @@
+//! Tissue materials: the study's meniscus presets, degeneration grades and the two
+//! constitutive models (linear corotational, stable neo-Hookean).
+
+use launch_config::scene::MaterialConfig;
+
+use super::FemError;
+
+/// Lateral meniscus (study): E = 3.50 MPa, ν = 0.29.
+pub const LATERAL_YOUNGS_MODULUS: f64 = 3.50e6;
+pub const LATERAL_POISSON_RATIO: f64 = 0.29;
+/// Medial meniscus (study): E = 3.84 MPa, ν = 0.26.
+pub const MEDIAL_YOUNGS_MODULUS: f64 = 3.84e6;
+pub const MEDIAL_POISSON_RATIO: f64 = 0.26;
+/// Meniscus density, kg/m³.
+pub const MENISCUS_DENSITY: f64 = 1090.0;
+/// Modulus loss per degeneration grade: grade 2 = −41% (Fischenich et al. 2015), linear in grade.
+pub const MODULUS_LOSS_PER_GRADE: f64 = 0.205;
+
+/// Constitutive model of the tetrahedra.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MaterialModel {
+    /// Linear elasticity in a per-element rotated frame (small strain, large rotation).
+    Corotational,
+    /// Stable neo-Hookean (Smith et al. 2018, in the Kim & Eberle form without the log term):
+    /// hyperelastic, stiffens in large compression, rest-stable, defined for inverted elements.
+    StableNeoHookean,
+}
+
+impl MaterialModel {
+    /// Parses the launch-file spelling (`corotational`, `neo-hookean`).
+    pub fn parse(name: &str) -> Result<Self, FemError> {
+        match name.trim().to_ascii_lowercase().as_str() {
+            "corotational" | "linear-corotational" => Ok(MaterialModel::Corotational),
+            "neo-hookean" | "neohookean" | "stable-neo-hookean" | "stable_neo_hookean" => {
+                Ok(MaterialModel::StableNeoHookean)
+            }
+            other => Err(FemError::Material(format!(
+                "unknown material model `{other}` (expected `corotational` or `neo-hookean`)"
+            ))),
+        }
+    }
+}
+
+/// An isotropic elastic material. SI units.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Material {
+    /// Young's modulus, Pa.
+    pub youngs_modulus: f64,
+    /// Poisson's ratio, in (−1, 0.5).
+    pub poisson_ratio: f64,
+    /// Density, kg/m³.
+    pub density: f64,
+    pub model: MaterialModel,
+}
+
+impl Material {
+    /// Lateral meniscus preset (corotational).
+    pub fn lateral() -> Self {
+        Material {
+            youngs_modulus: LATERAL_YOUNGS_MODULUS,
+            poisson_ratio: LATERAL_POISSON_RATIO,
+            density: MENISCUS_DENSITY,
+            model: MaterialModel::Corotational,
+        }
+    }
+
+    /// Medial meniscus preset (corotational).
+    pub fn medial() -> Self {
+        Material {
+            youngs_modulus: MEDIAL_YOUNGS_MODULUS,
+            poisson_ratio: MEDIAL_POISSON_RATIO,
+            density: MENISCUS_DENSITY,
+            model: MaterialModel::Corotational,
+        }
+    }
+
+    /// Preset by name: `lateral` or `medial`.
+    pub fn preset(name: &str) -> Result<Self, FemError> {
+        match name.trim().to_ascii_lowercase().as_str() {
+            "lateral" => Ok(Self::lateral()),
+            "medial" => Ok(Self::medial()),
+            other => Err(FemError::Material(format!(
+                "unknown material preset `{other}` (expected `lateral`, `medial` or `custom`)"
+            ))),
+        }
+    }
+
+    pub fn with_model(mut self, model: MaterialModel) -> Self {
+        self.model = model;
+        self
+    }
+
+    /// Modulus factor of a degeneration grade in 0..=2: 1 − 0.205·grade (grade 2 = −41%).
+    pub fn degeneration_factor(grade: f64) -> Result<f64, FemError> {
+        if !grade.is_finite() || !(0.0..=2.0).contains(&grade) {
+            return Err(FemError::Material(format!(
+                "degeneration grade {grade} outside 0..=2"
+            )));
+        }
+        Ok(1.0 - MODULUS_LOSS_PER_GRADE * grade)
+    }
+
+    /// This material with its modulus scaled for a degeneration grade (0, 1, 2 or between).
+    pub fn degenerated(mut self, grade: f64) -> Result<Self, FemError> {
+        self.youngs_modulus *= Self::degeneration_factor(grade)?;
+        Ok(self)
+    }
+
+    /// Builds the material of a scene's `[scene.material]` section: preset, then by-hand
+    /// overrides of E and ν, then degeneration grade and modulus scale.
+    pub fn from_config(cfg: &MaterialConfig) -> Result<Self, FemError> {
+        let model = MaterialModel::parse(&cfg.model)?;
+        let preset = cfg.preset.trim().to_ascii_lowercase();
+        let mut m = if preset == "custom" {
+            let (Some(e), Some(nu)) = (cfg.youngs_modulus, cfg.poisson_ratio) else {
+                return Err(FemError::Material(
+                    "preset `custom` needs both youngs_modulus and poisson_ratio".into(),
+                ));
+            };
+            Material {
+                youngs_modulus: e,
+                poisson_ratio: nu,
+                density: cfg.density,
+                model,
+            }
+        } else {
+            Self::preset(&preset)?
+        };
+        if let Some(e) = cfg.youngs_modulus {
+            m.youngs_modulus = e;
+        }
+        if let Some(nu) = cfg.poisson_ratio {
+            m.poisson_ratio = nu;
+        }
+        m.density = cfg.density;
+        m.model = model;
+        if !cfg.modulus_scale.is_finite() || cfg.modulus_scale <= 0.0 {
+            return Err(FemError::Material(format!(
+                "modulus_scale must be > 0, got {}",
+                cfg.modulus_scale
+            )));
+        }
+        m.youngs_modulus *= cfg.modulus_scale;
+        let m = m.degenerated(cfg.degeneration_grade)?;
+        m.validate()?;
+        Ok(m)
+    }
+
+    /// Checks E > 0, −1 < ν < 0.5, density > 0, all finite.
+    pub fn validate(&self) -> Result<(), FemError> {
+        if !self.youngs_modulus.is_finite() || self.youngs_modulus <= 0.0 {
+            return Err(FemError::Material(format!(
+                "Young's modulus must be > 0 Pa, got {}",
+                self.youngs_modulus
+            )));
+        }
+        if !self.poisson_ratio.is_finite() || self.poisson_ratio >= 0.5 || self.poisson_ratio <= -1.0
+        {
+            return Err(FemError::Material(format!(
+                "Poisson's ratio must be in (-1, 0.5), got {}",
+                self.poisson_ratio
+            )));
+        }
+        if !self.density.is_finite() || self.density <= 0.0 {
+            return Err(FemError::Material(format!(
+                "density must be > 0 kg/m³, got {}",
+                self.density
+            )));
+        }
+        Ok(())
+    }
+
+    /// Lamé parameters (μ, λ).
+    pub fn lame(&self) -> (f64, f64) {
+        let e = self.youngs_modulus;
+        let nu = self.poisson_ratio;
+        let mu = e / (2.0 * (1.0 + nu));
+        let lambda = e * nu / ((1.0 + nu) * (1.0 - 2.0 * nu));
+        (mu, lambda)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn presets_and_grades() {
+        let l = Material::lateral();
+        assert_eq!(l.youngs_modulus, 3.50e6);
+        assert_eq!(l.poisson_ratio, 0.29);
+        assert_eq!(l.density, 1090.0);
+        let m = Material::medial();
+        assert_eq!((m.youngs_modulus, m.poisson_ratio), (3.84e6, 0.26));
+        let g2 = l.degenerated(2.0).unwrap();
+        assert!((g2.youngs_modulus - 3.50e6 * 0.59).abs() < 1e-6);
+        let g1 = l.degenerated(1.0).unwrap();
+        assert!((g1.youngs_modulus - 3.50e6 * 0.795).abs() < 1e-6);
+        assert!(l.degenerated(3.0).is_err());
+    }
+
+    #[test]
+    fn config_errors_are_clear() {
+        let mut cfg = MaterialConfig::default();
+        assert_eq!(Material::from_config(&cfg).unwrap(), Material::lateral());
+        cfg.preset = "tibial".into();
+        let e = Material::from_config(&cfg).unwrap_err().to_string();
+        assert!(e.contains("tibial"), "{e}");
+        cfg.preset = "medial".into();
+        cfg.model = "mooney".into();
+        let e = Material::from_config(&cfg).unwrap_err().to_string();
+        assert!(e.contains("mooney"), "{e}");
+        cfg.model = "neo-hookean".into();
+        cfg.poisson_ratio = Some(0.5);
+        let e = Material::from_config(&cfg).unwrap_err().to_string();
+        assert!(e.contains("Poisson"), "{e}");
+        cfg.poisson_ratio = None;
+        cfg.youngs_modulus = Some(0.0);
+        let e = Material::from_config(&cfg).unwrap_err().to_string();
+        assert!(e.contains("Young"), "{e}");
+        cfg.youngs_modulus = Some(1e6);
+        cfg.degeneration_grade = 2.0;
+        let m = Material::from_config(&cfg).unwrap();
+        assert_eq!(m.model, MaterialModel::StableNeoHookean);
+        assert!((m.youngs_modulus - 0.59e6).abs() < 1e-6);
+        assert_eq!(m.poisson_ratio, 0.26);
+        cfg.preset = "custom".into();
+        assert!(Material::from_config(&cfg).is_err());
+    }
+}

@@ -1,0 +1,494 @@
+//! Closed-form and consistency tests of the FEM model.
+
+use nalgebra::{Matrix3, Point3, Rotation3, Vector3};
+
+use super::test_meshes::{box_mesh, nodes_where};
+use super::*;
+use crate::mesh::TetMesh;
+
+fn settings(solver: LinearSolver) -> FemSettings {
+    FemSettings {
+        solver,
+        ..FemSettings::default()
+    }
+}
+
+fn tight_cg(pc: Preconditioner) -> LinearSolver {
+    LinearSolver::Cg {
+        max_iterations: 2000,
+        tolerance: 1e-13,
+        preconditioner: pc,
+    }
+}
+
+fn cube_model(solver: LinearSolver) -> FemModel {
+    let mesh = box_mesh(0.01, 0.01, 0.01, 3, 3, 3);
+    let fixed = nodes_where(&mesh, |p| p.z < 1e-9);
+    FemModel::new(&mesh, Material::lateral(), &fixed, settings(solver)).unwrap()
+}
+
+fn zero_forces(m: &FemModel) -> Vec<Vector3<f64>> {
+    vec![Vector3::zeros(); m.node_count()]
+}
+
+/// Deterministic pseudo-random numbers in [-1, 1] (no rand dependency).
+fn lcg(seed: &mut u64) -> f64 {
+    *seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+    ((*seed >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
+}
+
+fn signed_volume(p: &[Point3<f64>], t: &[usize; 4]) -> f64 {
+    (p[t[1]] - p[t[0]]).cross(&(p[t[2]] - p[t[0]])).dot(&(p[t[3]] - p[t[0]])) / 6.0
+}
+
+#[test]
+fn rejects_bad_meshes_and_inputs() {
+    let mut mesh = box_mesh(1.0, 1.0, 1.0, 1, 1, 1);
+    let m = Material::lateral();
+    let s = FemSettings::default();
+    let mut bad = mesh.clone();
+    bad.tets[2].swap(0, 1);
+    let e = FemModel::new(&bad, m, &[], s).unwrap_err().to_string();
+    assert!(e.contains("tet 2"), "{e}");
+    let mut bad = mesh.clone();
+    bad.tets[0][3] = 99;
+    let e = FemModel::new(&bad, m, &[], s).unwrap_err().to_string();
+    assert!(e.contains("node 99"), "{e}");
+    mesh.nodes[0].x = f64::NAN;
+    assert!(FemModel::new(&mesh, m, &[], s).is_err());
+    let mesh = box_mesh(1.0, 1.0, 1.0, 1, 1, 1);
+    assert!(FemModel::new(&mesh, m, &[100], s).is_err());
+    let mut model = FemModel::new(&mesh, m, &[], s).unwrap();
+    assert!(model.free_motion(0.01, &[Vector3::zeros(); 3]).is_err());
+    assert!(model.free_motion(0.0, &zero_forces(&model)).is_err());
+}
+
+#[test]
+fn settles_under_gravity_with_every_solver() {
+    let mut tops = Vec::new();
+    for solver in [
+        LinearSolver::sofa_cg(),
+        tight_cg(Preconditioner::BlockJacobi),
+        tight_cg(Preconditioner::RestCholesky),
+        tight_cg(Preconditioner::WarpedRestCholesky),
+        LinearSolver::Direct,
+    ] {
+        let mut m = cube_model(solver);
+        let f = zero_forces(&m);
+        for _ in 0..50 {
+            m.step(0.01, &f).unwrap();
+        }
+        let top = m.positions().iter().map(|p| p.z).fold(f64::MIN, f64::max);
+        assert!(top < 0.01 && top > 0.0099, "top {top}");
+        tops.push(top);
+    }
+    // Static sag of a 1 cm cube of E = 3.5 MPa under its own weight: ρ g L² / (2E) ≈ 1.5e-7 m.
+    let sag = 0.01 - tops[4];
+    assert!(sag > 0.5e-7 && sag < 5e-7, "sag {sag}");
+}
+
+#[test]
+fn cg_and_direct_agree() {
+    let mut cg = cube_model(tight_cg(Preconditioner::None));
+    let mut pcg = cube_model(tight_cg(Preconditioner::RestCholesky));
+    let mut direct = cube_model(LinearSolver::Direct);
+    let mut f = zero_forces(&direct);
+    // A sideways pull on a top corner: large enough to rotate elements.
+    let corner = direct.positions().iter().position(|p| (p - Point3::new(0.01, 0.01, 0.01)).norm() < 1e-9).unwrap();
+    f[corner] = Vector3::new(2.0, -1.0, 0.5);
+    for _ in 0..20 {
+        cg.step(0.01, &f).unwrap();
+        pcg.step(0.01, &f).unwrap();
+        direct.step(0.01, &f).unwrap();
+    }
+    let disp = (direct.positions()[corner] - direct.rest_positions()[corner]).norm();
+    assert!(disp > 1e-4, "corner moved {disp}");
+    for i in 0..direct.node_count() {
+        assert!((cg.positions()[i] - direct.positions()[i]).norm() < 1e-9 * 1e3 * disp);
+        assert!((pcg.positions()[i] - direct.positions()[i]).norm() < 1e-9 * 1e3 * disp);
+    }
+    // The rest-Cholesky preconditioner needs few iterations.
+    assert!(pcg.last_solve().iterations <= 15, "{:?}", pcg.last_solve());
+}
+
+#[test]
+fn rigid_rotation_produces_no_elastic_force() {
+    let mesh = box_mesh(0.02, 0.01, 0.005, 4, 2, 2);
+    let s = FemSettings {
+        gravity: Vector3::zeros(),
+        ..settings(LinearSolver::Direct)
+    };
+    for model_kind in [MaterialModel::Corotational, MaterialModel::StableNeoHookean] {
+        let mut m = FemModel::new(&mesh, Material::lateral().with_model(model_kind), &[], s).unwrap();
+        let rot = Rotation3::from_axis_angle(&nalgebra::Unit::new_normalize(Vector3::new(1.0, 2.0, -0.5)), 2.3);
+        let shift = Vector3::new(0.3, -0.1, 0.05);
+        let rotated: Vec<Point3<f64>> = mesh.nodes.iter().map(|p| rot * p + shift).collect();
+        for (i, p) in rotated.iter().enumerate() {
+            m.set_position(i, *p).unwrap();
+        }
+        let mut f = zero_forces(&m);
+        m.elastic_forces(&mut f).unwrap();
+        let fmax = f.iter().map(|v| v.norm()).fold(0.0, f64::max);
+        // Reference: the force scale of a 1% strain on this mesh, E·A·ε/n ≈ 3.5e6·5e-5·0.01.
+        assert!(fmax < 1e-9, "{model_kind:?}: elastic force {fmax} N after a rigid rotation");
+        assert!(m.elastic_energy() < 1e-15);
+        // Stepping keeps it still.
+        for _ in 0..5 {
+            m.step(0.01, &zero_forces(&m)).unwrap();
+        }
+        for (p, q) in m.positions().iter().zip(&rotated) {
+            assert!((p - q).norm() < 1e-12);
+        }
+        // A linear (non-corotated) element would not: check the test can fail by comparing
+        // to the small-strain energy of the same displacement field.
+        let lin_strain: f64 = {
+            let g = rot.matrix() - Matrix3::identity();
+            let eps = (g + g.transpose()) * 0.5;
+            eps.norm()
+        };
+        assert!(lin_strain > 0.5);
+    }
+}
+
+/// Builds an irregular patch: a 3×3×3 box with interior nodes moved randomly.
+fn irregular_patch() -> (TetMesh, Vec<usize>) {
+    let mut mesh = box_mesh(1.0, 1.0, 1.0, 3, 3, 3);
+    let boundary = nodes_where(&mesh, |p| {
+        p.iter().any(|c| c.abs() < 1e-9 || (c - 1.0).abs() < 1e-9)
+    });
+    let mut seed = 7;
+    for i in 0..mesh.nodes.len() {
+        if !boundary.contains(&i) {
+            for c in 0..3 {
+                mesh.nodes[i][c] += 0.08 * lcg(&mut seed);
+            }
+        }
+    }
+    for t in &mesh.tets {
+        assert!(signed_volume(&mesh.nodes, t) > 0.0);
+    }
+    (mesh, boundary)
+}
+
+#[test]
+fn patch_test_reproduces_linear_field() {
+    let (mesh, boundary) = irregular_patch();
+    let interior = mesh.nodes.len() - boundary.len();
+    assert!(interior == 8);
+    let g = Matrix3::new(0.010, 0.004, -0.002, 0.001, -0.006, 0.003, 0.002, 0.005, 0.008);
+    let c = Vector3::new(0.1, -0.2, 0.3);
+    let field = |p: &Point3<f64>| p + g * p.coords + c;
+    for model_kind in [MaterialModel::Corotational, MaterialModel::StableNeoHookean] {
+        let s = FemSettings {
+            gravity: Vector3::zeros(),
+            ..settings(LinearSolver::Direct)
+        };
+        let mut m =
+            FemModel::new(&mesh, Material::lateral().with_model(model_kind), &boundary, s).unwrap();
+        for &b in &boundary {
+            m.set_position(b, field(&mesh.nodes[b])).unwrap();
+        }
+        let it = m.solve_static(&zero_forces(&m), false, 30, 1e-12).unwrap();
+        assert!(it >= 1);
+        for i in 0..mesh.nodes.len() {
+            let err = (m.positions()[i] - field(&mesh.nodes[i])).norm();
+            assert!(err < 1e-10, "{model_kind:?}: node {i} off the linear field by {err}");
+        }
+        // Constant stress: every element has the same deformation gradient I + G.
+        let mut f = zero_forces(&m);
+        m.elastic_forces(&mut f).unwrap();
+        for (i, fi) in f.iter().enumerate() {
+            if !boundary.contains(&i) {
+                assert!(fi.norm() < 1e-6, "interior node {i} unbalanced by {}", fi.norm());
+            }
+        }
+    }
+}
+
+/// Cantilever (L × h × h) clamped at x = 0, tip load P in −z: Euler–Bernoulli δ = PL³/(3EI).
+fn cantilever_deflection(nx: usize, nyz: usize, solver: LinearSolver) -> (f64, f64) {
+    let (l, h) = (1.0, 0.1);
+    let mesh = box_mesh(l, h, h, nx, nyz, nyz);
+    let fixed = nodes_where(&mesh, |p| p.x < 1e-9);
+    let tip = nodes_where(&mesh, |p| (p.x - l).abs() < 1e-9);
+    let mat = Material {
+        youngs_modulus: 1.0e6,
+        poisson_ratio: 0.3,
+        density: 1000.0,
+        model: MaterialModel::Corotational,
+    };
+    let s = FemSettings {
+        gravity: Vector3::zeros(),
+        ..settings(solver)
+    };
+    let mut m = FemModel::new(&mesh, mat, &fixed, s).unwrap();
+    let p_total = 0.1; // N: δ ≈ 4 mm ≪ L, linear regime
+    let mut f = zero_forces(&m);
+    // Consistent-ish distribution over the tip face: equal shares (resultant is what counts).
+    for &i in &tip {
+        f[i] = Vector3::new(0.0, 0.0, -p_total / tip.len() as f64);
+    }
+    m.solve_static(&f, false, 20, 1e-10).unwrap();
+    let deflection = -tip
+        .iter()
+        .map(|&i| m.positions()[i].z - mesh.nodes[i].z)
+        .sum::<f64>()
+        / tip.len() as f64;
+    let inertia = h * h * h * h / 12.0;
+    let eb = p_total * l * l * l / (3.0 * mat.youngs_modulus * inertia);
+    (deflection, eb)
+}
+
+#[test]
+#[ignore]
+fn cantilever_convergence_table() {
+    for (nx, n) in [(20, 2), (40, 4), (80, 8), (120, 12)] {
+        let t = std::time::Instant::now();
+        let (d, eb) = cantilever_deflection(nx, n, LinearSolver::Direct);
+        println!("{nx}x{n}x{n}: {:.4} ({:?})", d / eb, t.elapsed());
+    }
+}
+
+#[test]
+fn cantilever_matches_euler_bernoulli() {
+    let (coarse, eb) = cantilever_deflection(20, 2, LinearSolver::Direct);
+    let (fine, _) = cantilever_deflection(80, 8, LinearSolver::Direct);
+    let err = (fine - eb).abs() / eb;
+    assert!(err < 0.05, "fine mesh δ = {fine:.6e} m vs Euler–Bernoulli {eb:.6e} m ({:.1}%)", err * 100.0);
+    // Linear tets are too stiff on coarse meshes and converge from below.
+    assert!(coarse < fine, "coarse {coarse} fine {fine}");
+}
+
+#[test]
+fn energy_does_not_grow_in_free_vibration() {
+    let mesh = box_mesh(0.04, 0.01, 0.01, 8, 2, 2);
+    let fixed = nodes_where(&mesh, |p| p.x < 1e-9);
+    let s = FemSettings {
+        gravity: Vector3::zeros(),
+        ..settings(LinearSolver::Direct)
+    };
+    for model_kind in [MaterialModel::Corotational, MaterialModel::StableNeoHookean] {
+        let mut m =
+            FemModel::new(&mesh, Material::lateral().with_model(model_kind), &fixed, s).unwrap();
+        // Pre-bend with a tip load, then release.
+        let mut f = zero_forces(&m);
+        for i in nodes_where(&mesh, |p| (p.x - 0.04).abs() < 1e-9) {
+            f[i] = Vector3::new(0.0, 0.01, -0.05);
+        }
+        m.solve_static(&f, false, 30, 1e-10).unwrap();
+        let e0 = m.elastic_energy() + m.kinetic_energy();
+        assert!(e0 > 1e-5, "pre-bend energy {e0}");
+        let zero = zero_forces(&m);
+        let mut prev = e0;
+        let mut moved = false;
+        for step in 0..200 {
+            m.step(0.001, &zero).unwrap();
+            let e = m.elastic_energy() + m.kinetic_energy();
+            assert!(e <= prev * (1.0 + 1e-6) + 1e-15, "{model_kind:?} step {step}: energy grew {prev} → {e}");
+            moved |= m.kinetic_energy() > 0.1 * e0;
+            prev = e;
+        }
+        assert!(moved, "the beam never vibrated");
+        assert!(prev < e0);
+    }
+}
+
+#[test]
+fn inverted_element_recovers() {
+    for model_kind in [MaterialModel::Corotational, MaterialModel::StableNeoHookean] {
+        let mesh = box_mesh(0.01, 0.01, 0.01, 2, 2, 2);
+        let fixed = nodes_where(&mesh, |p| p.z < 1e-9);
+        let s = FemSettings {
+            gravity: Vector3::zeros(),
+            rayleigh_mass: 5.0,
+            ..settings(LinearSolver::Direct)
+        };
+        let mut m =
+            FemModel::new(&mesh, Material::lateral().with_model(model_kind), &fixed, s).unwrap();
+        // Push the centre node down through the bottom layer: its lower tets invert.
+        let centre = nodes_where(&mesh, |p| (p - Point3::new(0.005, 0.005, 0.005)).norm() < 1e-9)[0];
+        m.set_position(centre, Point3::new(0.005, 0.005, -0.002)).unwrap();
+        let inverted = mesh.tets.iter().filter(|t| signed_volume(m.positions(), t) < 0.0).count();
+        assert!(inverted > 0);
+        let zero = zero_forces(&m);
+        for _ in 0..300 {
+            m.step(0.01, &zero).unwrap();
+        }
+        let inverted = mesh.tets.iter().filter(|t| signed_volume(m.positions(), t) <= 0.0).count();
+        assert_eq!(inverted, 0, "{model_kind:?}");
+        let err = (m.positions()[centre] - mesh.nodes[centre]).norm();
+        assert!(err < 1e-4, "{model_kind:?}: centre node {err} m from rest");
+    }
+}
+
+#[test]
+fn neo_hookean_matches_linear_at_small_strain_and_stiffens_in_compression() {
+    let mesh = box_mesh(0.01, 0.01, 0.01, 2, 2, 2);
+    let s = FemSettings {
+        gravity: Vector3::zeros(),
+        ..settings(LinearSolver::Direct)
+    };
+    let corot = Material::lateral();
+    let nh = corot.with_model(MaterialModel::StableNeoHookean);
+    let mut a = FemModel::new(&mesh, corot, &[], s).unwrap();
+    let mut b = FemModel::new(&mesh, nh, &[], s).unwrap();
+    let mut seed = 3;
+    for i in 0..mesh.nodes.len() {
+        let d = Vector3::new(lcg(&mut seed), lcg(&mut seed), lcg(&mut seed)) * 1e-7;
+        a.set_position(i, mesh.nodes[i] + d).unwrap();
+        b.set_position(i, mesh.nodes[i] + d).unwrap();
+    }
+    let (mut fa, mut fb) = (zero_forces(&a), zero_forces(&b));
+    a.elastic_forces(&mut fa).unwrap();
+    b.elastic_forces(&mut fb).unwrap();
+    let scale = fa.iter().map(|v| v.norm()).fold(0.0, f64::max);
+    let diff = fa.iter().zip(&fb).map(|(x, y)| (x - y).norm()).fold(0.0, f64::max);
+    assert!(scale > 0.0 && diff < 1e-3 * scale, "diff {diff} scale {scale}");
+
+    // Uniaxial stress (laterally free), homogeneous F = diag(a, a, 1 − strain) with a chosen
+    // so that the lateral faces carry no load; compare the axial reaction on the top face.
+    let axial_force = |m: &mut FemModel, strain: f64| {
+        let set = |m: &mut FemModel, a: f64| {
+            for i in 0..mesh.nodes.len() {
+                let p = mesh.nodes[i];
+                m.set_position(i, Point3::new(p.x * a, p.y * a, p.z * (1.0 - strain))).unwrap();
+            }
+            let mut f = zero_forces(m);
+            m.elastic_forces(&mut f).unwrap();
+            let lateral: f64 =
+                nodes_where(&mesh, |p| (p.x - 0.01).abs() < 1e-9).iter().map(|&i| f[i].x).sum();
+            let axial: f64 =
+                nodes_where(&mesh, |p| (p.z - 0.01).abs() < 1e-9).iter().map(|&i| f[i].z).sum();
+            (lateral, axial)
+        };
+        // Lateral face force: positive (pulls in) when a is too large.
+        let (mut lo, mut hi) = (1.0, 2.0);
+        for _ in 0..100 {
+            let mid = 0.5 * (lo + hi);
+            if set(m, mid).0 < 0.0 {
+                hi = mid;
+            } else {
+                lo = mid;
+            }
+        }
+        set(m, 0.5 * (lo + hi)).1
+    };
+    let area = 1e-4;
+    let e = corot.youngs_modulus;
+    let small_a = axial_force(&mut a, 0.001);
+    let small_b = axial_force(&mut b, 0.001);
+    // Linear: σ = E ε.
+    assert!((small_a - e * 0.001 * area).abs() < 1e-6 * small_a, "{small_a}");
+    assert!((small_a - small_b).abs() < 0.01 * small_a, "{small_a} {small_b}");
+    let big_a = axial_force(&mut a, 0.4);
+    let big_b = axial_force(&mut b, 0.4);
+    assert!((big_a - e * 0.4 * area).abs() < 1e-6 * big_a, "{big_a}");
+    // Neo-Hookean: 1.36× the linear nominal stress at 40% (closed form of this energy).
+    assert!(big_b > 1.3 * big_a && big_b < 1.42 * big_a, "corotational {big_a} N, neo-Hookean {big_b} N");
+}
+
+#[test]
+fn rest_compliance_solves_rest_system() {
+    let mut m = cube_model(LinearSolver::sofa_cg());
+    let dt = 0.01;
+    let mut comp = m.rest_compliance(dt, 4).unwrap();
+    let n = m.node_count();
+    let mut seed = 11;
+    let ncols = 6;
+    let b: Vec<f64> = (0..3 * n * ncols).map(|_| lcg(&mut seed)).collect();
+    let mut x = b.clone();
+    comp.solve_block_in_place(&mut x, ncols);
+    // Check A0 x = b on free dofs with the model's own rest system.
+    let a0 = {
+        let mut m2 = cube_model(LinearSolver::sofa_cg());
+        m2.assemble_rest_system(dt);
+        m2.a.clone()
+    };
+    let nf = m.free_nodes().len();
+    for c in 0..ncols {
+        let mut xr = vec![0.0; 3 * nf];
+        let mut yr = vec![0.0; 3 * nf];
+        for (row, &node) in m.free_nodes().iter().enumerate() {
+            for k in 0..3 {
+                xr[3 * row + k] = x[c * 3 * n + 3 * node + k];
+            }
+        }
+        m.pattern().mul(&a0, &xr, &mut yr);
+        for (row, &node) in m.free_nodes().iter().enumerate() {
+            for k in 0..3 {
+                let want = b[c * 3 * n + 3 * node + k];
+                assert!((yr[3 * row + k] - want).abs() < 1e-8 * (1.0 + want.abs()));
+            }
+        }
+        for node in 0..n {
+            if m.is_held(node) {
+                for k in 0..3 {
+                    assert_eq!(x[c * 3 * n + 3 * node + k], 0.0);
+                }
+            }
+        }
+    }
+    // Single-column solve equals the block solve.
+    let mut single = b[..3 * n].to_vec();
+    comp.solve_in_place(&mut single);
+    for (s, x) in single.iter().zip(&x[..3 * n]) {
+        assert!((s - x).abs() < 1e-12 * (1.0 + x.abs()));
+    }
+}
+
+#[test]
+fn node_rotations_follow_a_rigid_rotation_and_correction_moves_nodes() {
+    let mesh = box_mesh(0.02, 0.01, 0.01, 2, 1, 1);
+    let s = FemSettings {
+        gravity: Vector3::zeros(),
+        ..settings(LinearSolver::Direct)
+    };
+    let mut m = FemModel::new(&mesh, Material::lateral(), &[], s).unwrap();
+    let rot = Rotation3::from_axis_angle(&Vector3::z_axis(), 1.0);
+    for (i, p) in mesh.nodes.iter().enumerate() {
+        m.set_position(i, rot * p).unwrap();
+    }
+    m.free_motion(0.01, &zero_forces(&m)).unwrap();
+    m.update_node_rotations();
+    for r in m.node_rotations() {
+        assert!((r - rot.matrix()).norm() < 1e-9);
+    }
+    let before = m.free_positions()[3];
+    m.apply_correction(&[(3, Vector3::new(0.0, 0.0, 1e-3))]).unwrap();
+    assert!((m.free_positions()[3] - before - Vector3::new(0.0, 0.0, 1e-3)).norm() < 1e-15);
+    assert!((m.free_velocities()[3].z - 0.1).abs() < 1e-12);
+    m.commit();
+    assert!((m.positions()[3] - before).z > 0.0);
+}
+
+#[test]
+fn support_springs_carry_the_weight() {
+    let mesh = box_mesh(0.01, 0.01, 0.005, 2, 2, 1);
+    let support = nodes_where(&mesh, |p| p.z < 1e-9);
+    let s = FemSettings {
+        support_stiffness: 500.0,
+        ..settings(LinearSolver::Direct)
+    };
+    let mut m = FemModel::new(&mesh, Material::lateral(), &support, s).unwrap();
+    assert!(m.free_nodes().len() == mesh.nodes.len());
+    m.solve_static(&zero_forces(&m), true, 30, 1e-10).unwrap();
+    let weight: f64 = m.masses().iter().sum::<f64>() * 9.81;
+    let spring: f64 = support
+        .iter()
+        .map(|&i| -500.0 * (m.positions()[i].z - mesh.nodes[i].z))
+        .sum();
+    assert!((spring - weight).abs() < 1e-6 * weight, "springs {spring} N, weight {weight} N");
+}
+
+#[test]
+fn material_change_rescales_response() {
+    let mut m = cube_model(LinearSolver::Direct);
+    let f = zero_forces(&m);
+    m.solve_static(&f, true, 20, 1e-10).unwrap();
+    let sag0 = 0.01 - m.positions().iter().map(|p| p.z).fold(f64::MIN, f64::max);
+    m.reset();
+    m.set_material(Material::lateral().degenerated(2.0).unwrap()).unwrap();
+    m.solve_static(&f, true, 20, 1e-10).unwrap();
+    let sag2 = 0.01 - m.positions().iter().map(|p| p.z).fold(f64::MIN, f64::max);
+    assert!((sag2 / sag0 - 1.0 / 0.59).abs() < 1e-3, "{sag0} {sag2}");
+}

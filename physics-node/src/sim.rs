@@ -1,0 +1,567 @@
+//! One simulation of meniscus and probe, stepped in SOFA's FreeMotionAnimationLoop order:
+//!
+//! 1. free motion: FEM implicit step without contact, probe coupled to its proxy (implicit);
+//! 2. proximity queries: probe spheres against the refitted boundary surface (side tracked);
+//! 3. one constraint per close pair (normal + two tangents), W = W_tissue + W_probe from the
+//!    precomputed, rotation-warped compliance;
+//! 4. LCP with Coulomb friction (projected block Gauss–Seidel, warm start, `contact-lcp`);
+//! 5. corrected motion: δx_tissue = dt R A0⁻¹ Rᵀ Hᵀ λ, probe Δv = M_eff⁻¹ Hᵀ λ.
+//!
+//! Everything the haptic node needs is left in a [`ContactFrame`] (boxed, filled in place).
+//! A step allocates nothing and iterates nothing unordered, so the same inputs give
+//! bit-identical outputs.
+
+use crate::compliance::{direction, ComplianceCache, ConstraintCorrection, RestSolver};
+use crate::contact::{boundary_triangles, ContactDetector, ContactParams, TissueSurface};
+use crate::error::PhysicsError;
+use crate::fem::{FemModel, FemSettings, Material, RestCompliance};
+use crate::geometry::ProbingSite;
+use crate::probe::{pose_to_nalgebra, Probe};
+use launch_config::SceneConfig;
+use msgs::physics_to_haptic::ContactFrame;
+use msgs::{MAX_CONTACTS, MAX_ROWS};
+use nalgebra::{Point3, Vector3};
+use std::io::Write;
+use std::path::Path;
+
+/// Memory for cached compliance columns before the cache turns lazy, bytes.
+const COMPLIANCE_BUDGET_BYTES: usize = 768 << 20;
+/// Widest block of columns solved at once when filling the cache.
+const BLOCK_COLUMNS: usize = 48;
+
+/// Adapter: the FEM's rest factorization on reduced (free-dof) vectors of length `dim`.
+struct RestFactor<'a> {
+    rest: &'a mut RestCompliance,
+    dim: usize,
+}
+
+impl RestSolver for RestFactor<'_> {
+    fn dim(&self) -> usize {
+        self.dim
+    }
+    fn solve_block(&mut self, x: &mut [f64], ncols: usize) {
+        self.rest.cholesky_mut().solve_block_in_place(x, ncols);
+    }
+}
+
+/// A meniscus–probe simulation.
+pub struct Simulation {
+    scene: SceneConfig,
+    dt: f64,
+    gravity: Vector3<f64>,
+    time: f64,
+    sequence: u64,
+    instance_id: u64,
+    device_sequence: u64,
+    fem: FemModel,
+    rest: RestCompliance,
+    cache: ComplianceCache,
+    correction: ConstraintCorrection,
+    surface: TissueSurface,
+    detector: ContactDetector,
+    probe: Probe,
+    friction: f64,
+    lcp_settings: contact_lcp::Settings,
+    frame: Box<ContactFrame>,
+    /// Warm start per probe sphere (λ of its last contact).
+    warm: Vec<[f64; 3]>,
+    lambda: Vec<f64>,
+    dx: Vec<f64>,
+    external: Vec<Vector3<f64>>,
+    prev_rows: usize,
+    contact_force: [f64; 3],
+    contact_torque: [f64; 3],
+    /// Visual model: boundary vertices of the tet mesh (node indices) and compact triangles.
+    visual_nodes: Vec<usize>,
+    visual_positions: Vec<Point3<f64>>,
+    visual_triangles: Vec<[usize; 3]>,
+    sites: Vec<ProbingSite>,
+    degeneration_grade: f64,
+    /// Reduced dimension of the rest system (3 × free nodes).
+    dim: usize,
+}
+
+impl Simulation {
+    /// Builds the scene: meniscus mesh and fixed set, FE model, rest factorization and
+    /// compliance cache, collision surface, probe.
+    pub fn new(scene: &SceneConfig, data_dir: &Path) -> Result<Simulation, PhysicsError> {
+        if !(scene.dt.is_finite() && scene.dt > 0.0) {
+            return Err(PhysicsError::Config(format!("dt must be > 0 s, got {}", scene.dt)));
+        }
+        if !scene.gravity.iter().all(|g| g.is_finite()) {
+            return Err(PhysicsError::Config("gravity is not finite".into()));
+        }
+        let c = &scene.contact;
+        if !(c.alarm_distance.is_finite() && c.contact_distance.is_finite() && c.contact_distance >= 0.0)
+            || c.alarm_distance < c.contact_distance
+        {
+            return Err(PhysicsError::Config(format!(
+                "contact: need 0 ≤ contact_distance ({}) ≤ alarm_distance ({})",
+                c.contact_distance, c.alarm_distance
+            )));
+        }
+        if !(c.friction.is_finite() && c.friction >= 0.0) {
+            return Err(PhysicsError::Config(format!("contact: friction must be ≥ 0, got {}", c.friction)));
+        }
+        if c.max_contacts == 0 || c.max_contacts as usize > MAX_CONTACTS {
+            return Err(PhysicsError::Config(format!(
+                "contact: max_contacts must be 1..={MAX_CONTACTS}, got {}",
+                c.max_contacts
+            )));
+        }
+        if !(c.lcp_tolerance.is_finite() && c.lcp_tolerance >= 0.0) || c.lcp_max_iterations == 0 {
+            return Err(PhysicsError::Config("contact: lcp_tolerance ≥ 0 and lcp_max_iterations ≥ 1 needed".into()));
+        }
+
+        let loaded = crate::mesh::load_scene_mesh(&scene.meniscus, data_dir).map_err(|e| PhysicsError::Mesh(e.to_string()))?;
+        let mesh = loaded.mesh;
+        let fixed = loaded.fixed_nodes;
+        let sites = loaded.probing_sites;
+
+        let material = Material::from_config(&scene.material).map_err(|e| PhysicsError::Fem(e.to_string()))?;
+        let settings = FemSettings::from_scene(scene).map_err(|e| PhysicsError::Fem(e.to_string()))?;
+        let mut fem = FemModel::new(&mesh, material, &fixed, settings).map_err(|e| PhysicsError::Fem(e.to_string()))?;
+        let mut rest = fem
+            .rest_compliance(scene.dt, BLOCK_COLUMNS)
+            .map_err(|e| PhysicsError::Fem(e.to_string()))?;
+
+        let triangles = boundary_triangles(&mesh.tets);
+        let surface = TissueSurface::new(triangles.clone(), &mesh.nodes)
+            .ok_or_else(|| PhysicsError::Mesh("tet mesh has no boundary surface".into()))?;
+        let free_index: Vec<u32> = (0..mesh.nodes.len())
+            .map(|n| rest.free_index(n).map_or(crate::compliance::NONE, |i| i as u32))
+            .collect();
+        let dim = cache_dim(&rest);
+        let cache = ComplianceCache::new(
+            free_index,
+            &surface.nodes,
+            &mut RestFactor { rest: &mut rest, dim },
+            COMPLIANCE_BUDGET_BYTES,
+        );
+
+        let probe = Probe::new(&scene.probe, c.contact_distance, data_dir)?;
+        let params = ContactParams {
+            alarm_distance: c.alarm_distance,
+            contact_distance: c.contact_distance,
+            max_contacts: c.max_contacts as usize,
+        };
+        let detector = ContactDetector::new(params, probe.spheres.len());
+
+        let mut slot = Box::new(core::mem::MaybeUninit::<ContactFrame>::uninit());
+        msgs::Topic::zeroed_in(&mut *slot);
+        // SAFETY: zeroed_in initialised the frame (plain old data).
+        let mut frame: Box<ContactFrame> = unsafe { Box::from_raw(Box::into_raw(slot) as *mut ContactFrame) };
+        frame.dt_s = scene.dt;
+        frame.friction_mu = c.friction;
+        frame.probe_pose = probe.pose();
+        frame.probe_free_pose = probe.pose();
+        frame.proxy_pose = probe.target_pose();
+
+        let visual_nodes = surface.nodes.clone();
+        let mut node_to_visual = vec![usize::MAX; mesh.nodes.len()];
+        for (i, &n) in visual_nodes.iter().enumerate() {
+            node_to_visual[n] = i;
+        }
+        let visual_triangles = triangles
+            .iter()
+            .map(|t| [node_to_visual[t[0]], node_to_visual[t[1]], node_to_visual[t[2]]])
+            .collect();
+        let visual_positions = visual_nodes.iter().map(|&n| mesh.nodes[n]).collect();
+
+        let n_nodes = mesh.nodes.len();
+        let spheres = probe.spheres.len();
+        Ok(Simulation {
+            scene: scene.clone(),
+            dt: scene.dt,
+            gravity: Vector3::from(scene.gravity),
+            time: 0.0,
+            sequence: 0,
+            instance_id: 0,
+            device_sequence: 0,
+            fem,
+            rest,
+            cache,
+            correction: ConstraintCorrection::new(dim, MAX_CONTACTS),
+            surface,
+            detector,
+            probe,
+            friction: c.friction,
+            lcp_settings: contact_lcp::Settings {
+                max_iterations: c.lcp_max_iterations,
+                tolerance: c.lcp_tolerance,
+                deadline: None,
+                deadline_check_every: 2,
+            },
+            frame,
+            warm: vec![[0.0; 3]; spheres],
+            lambda: vec![0.0; MAX_ROWS],
+            dx: vec![0.0; 3 * n_nodes],
+            external: vec![Vector3::zeros(); n_nodes],
+            prev_rows: 0,
+            contact_force: [0.0; 3],
+            contact_torque: [0.0; 3],
+            visual_nodes,
+            visual_positions,
+            visual_triangles,
+            sites,
+            degeneration_grade: scene.material.degeneration_grade,
+            dim,
+        })
+    }
+
+    /// Device proxy: the probe follows it through the coupling spring.
+    pub fn set_proxy_pose(&mut self, pose: &msgs::Pose) {
+        if let Some((p, q)) = pose_to_nalgebra(pose) {
+            self.probe.set_proxy(p, q);
+        }
+    }
+
+    /// Prescribed probe pose for the next step (replay of experiments); coupling off.
+    pub fn set_probe_kinematic(&mut self, pose: &msgs::Pose) {
+        if let Some((p, q)) = pose_to_nalgebra(pose) {
+            self.probe.set_kinematic(p, q);
+        }
+    }
+
+    /// Puts the probe at `pose` at rest (no step), e.g. above a probing site before a run.
+    pub fn teleport_probe(&mut self, pose: &msgs::Pose) {
+        if let Some((p, q)) = pose_to_nalgebra(pose) {
+            self.probe.position = p;
+            self.probe.orientation = q;
+            self.probe.velocity = Vector3::zeros();
+            self.probe.angular_velocity = Vector3::zeros();
+            self.probe.free_position = p;
+            self.probe.free_orientation = q;
+            self.probe.target_position = p;
+            self.probe.target_orientation = q;
+            self.detector.reset_tracking();
+            self.warm.iter_mut().for_each(|w| *w = [0.0; 3]);
+        }
+    }
+
+    /// Changes the degeneration grade (0..=2) between probings: new material, new rest
+    /// factorization and compliance cache (allocates; not for the real-time loop's steps).
+    pub fn set_degeneration_grade(&mut self, grade: f64) -> Result<(), PhysicsError> {
+        if !(grade.is_finite() && (0.0..=2.0).contains(&grade)) {
+            return Err(PhysicsError::Config(format!("degeneration grade must be in 0..=2, got {grade}")));
+        }
+        if grade == self.degeneration_grade {
+            return Ok(());
+        }
+        let mut cfg = self.scene.material.clone();
+        cfg.degeneration_grade = grade;
+        let material = Material::from_config(&cfg).map_err(|e| PhysicsError::Fem(e.to_string()))?;
+        self.fem.set_material(material).map_err(|e| PhysicsError::Fem(e.to_string()))?;
+        self.rest = self
+            .fem
+            .rest_compliance(self.dt, BLOCK_COLUMNS)
+            .map_err(|e| PhysicsError::Fem(e.to_string()))?;
+        let free_index: Vec<u32> = (0..self.fem.node_count())
+            .map(|n| self.rest.free_index(n).map_or(crate::compliance::NONE, |i| i as u32))
+            .collect();
+        self.cache = ComplianceCache::new(
+            free_index,
+            &self.surface.nodes,
+            &mut RestFactor {
+                rest: &mut self.rest,
+                dim: self.dim,
+            },
+            COMPLIANCE_BUDGET_BYTES,
+        );
+        self.scene.material.degeneration_grade = grade;
+        self.degeneration_grade = grade;
+        Ok(())
+    }
+
+    /// Records which device state drove this step (published in the frame).
+    pub fn set_device_sequence(&mut self, sequence: u64) {
+        self.device_sequence = sequence;
+    }
+
+    /// Instance id written into every frame.
+    pub fn set_instance_id(&mut self, id: u64) {
+        self.instance_id = id;
+        self.frame.instance_id = id;
+    }
+
+    /// One FreeMotionAnimationLoop step. Allocation-free.
+    pub fn step(&mut self) -> Result<(), PhysicsError> {
+        let dt = self.dt;
+        // Start-of-step geometry: collision surface and nodal rotations of the committed state.
+        self.surface.refit(self.fem.positions());
+        self.fem.update_node_rotations();
+
+        // 1. Free motion.
+        self.fem
+            .free_motion(dt, &self.external)
+            .map_err(|e| PhysicsError::Numerical {
+                time: self.time,
+                detail: e.to_string(),
+            })?;
+        self.probe.free_motion(dt, &self.gravity);
+
+        // 2. Proximity queries.
+        let x0 = self.fem.positions();
+        let xf = self.fem.free_positions();
+        let mut motion: f64 = 0.0;
+        for &n in &self.surface.nodes {
+            motion = motion.max((xf[n] - x0[n]).norm());
+        }
+        self.detector.detect(&self.probe, &self.surface, x0, xf, motion);
+        let contacts = &self.detector.contacts;
+        let m = contacts.len();
+        let rows = 3 * m;
+
+        // 3. Constraint rows and compliance.
+        let frame = &mut *self.frame;
+        for r in 0..self.prev_rows {
+            frame.compliance[r * MAX_ROWS..r * MAX_ROWS + self.prev_rows].fill(0.0);
+        }
+        self.prev_rows = rows;
+        let rotations = self.fem.node_rotations();
+        if m > 0 {
+            self.correction.assemble(
+                contacts,
+                &mut self.cache,
+                &mut RestFactor {
+                    rest: &mut self.rest,
+                    dim: self.dim,
+                },
+                rotations,
+                &self.probe,
+                dt,
+                &mut frame.compliance,
+                MAX_ROWS,
+            );
+        }
+        for (k, c) in contacts.iter().enumerate() {
+            let arm = self.probe.arm_free(c.sphere);
+            for j in 0..3 {
+                let d = direction(c, j);
+                let ang = arm.cross(&d);
+                frame.constraint_directions[3 * k + j] = [d.x, d.y, d.z, ang.x, ang.y, ang.z];
+                frame.free_violation[3 * k + j] = c.free_violation[j];
+                self.lambda[3 * k + j] = self.warm[c.sphere][j];
+            }
+            frame.contact_points[k] = [c.point.x, c.point.y, c.point.z];
+        }
+
+        // 4. LCP.
+        let mut iterations = 0;
+        let mut residual = 0.0;
+        if m > 0 {
+            let problem = contact_lcp::Problem {
+                compliance: &frame.compliance,
+                free_violation: &frame.free_violation,
+                friction_mu: self.friction,
+                row_count: rows,
+            };
+            match contact_lcp::solve(&problem, &mut self.lambda[..rows], &self.lcp_settings) {
+                Ok(sol) => {
+                    iterations = sol.iterations;
+                    residual = sol.residual;
+                }
+                Err(e) => {
+                    return Err(PhysicsError::Numerical {
+                        time: self.time,
+                        detail: format!("contact LCP: {e}"),
+                    })
+                }
+            }
+        }
+        for w in self.warm.iter_mut() {
+            *w = [0.0; 3];
+        }
+        for (k, c) in contacts.iter().enumerate() {
+            self.warm[c.sphere] = [self.lambda[3 * k], self.lambda[3 * k + 1], self.lambda[3 * k + 2]];
+        }
+
+        // 5. Corrected motion.
+        let mut impulse = Vector3::zeros();
+        let mut angular = Vector3::zeros();
+        for r in 0..rows {
+            let h = &frame.constraint_directions[r];
+            impulse += Vector3::new(h[0], h[1], h[2]) * self.lambda[r];
+            angular += Vector3::new(h[3], h[4], h[5]) * self.lambda[r];
+        }
+        let probe_free_pose = self.probe.free_pose();
+        let proxy_pose = self.probe.target_pose();
+        self.probe.commit(dt, &impulse, &angular);
+        if m > 0
+            && self
+                .correction
+                .tissue_displacement(contacts, &self.cache, rotations, &self.lambda[..rows], dt, &mut self.dx)
+        {
+            self.fem
+                .apply_correction_full(&self.dx)
+                .map_err(|e| PhysicsError::Numerical {
+                    time: self.time,
+                    detail: e.to_string(),
+                })?;
+        }
+        self.fem.commit();
+        self.time = (self.sequence + 1) as f64 * dt;
+        self.sequence += 1;
+
+        let force = impulse / dt;
+        let torque = angular / dt;
+        if !(force.iter().all(|v| v.is_finite()) && self.probe.position.iter().all(|v| v.is_finite())) {
+            return Err(PhysicsError::Numerical {
+                time: self.time,
+                detail: "non-finite contact force or probe position".into(),
+            });
+        }
+        self.contact_force = [force.x, force.y, force.z];
+        self.contact_torque = [torque.x, torque.y, torque.z];
+
+        // Frame header and results.
+        frame.instance_id = self.instance_id;
+        frame.sequence = self.sequence;
+        frame.sim_time_s = self.time;
+        frame.dt_s = dt;
+        frame.contact_count = m as u32;
+        frame.row_count = rows as u32;
+        frame.friction_mu = self.friction;
+        frame.lcp_iterations = iterations;
+        frame.lcp_residual = residual;
+        frame.device_sequence_used = self.device_sequence;
+        frame.proxy_pose = proxy_pose;
+        frame.probe_free_pose = probe_free_pose;
+        frame.probe_pose = self.probe.pose();
+        frame.lambda[..rows].copy_from_slice(&self.lambda[..rows]);
+        frame.lambda[rows..].fill(0.0);
+        frame.contact_force = self.contact_force;
+        frame.contact_torque = self.contact_torque;
+
+        // Visual model follows the nodes.
+        let x = self.fem.positions();
+        for (dst, &n) in self.visual_positions.iter_mut().zip(&self.visual_nodes) {
+            *dst = x[n];
+        }
+        Ok(())
+    }
+
+    pub fn contact_frame(&self) -> &ContactFrame {
+        &self.frame
+    }
+
+    /// Eq. (1): Hᵀλ/dt on the probe, world frame, N.
+    pub fn contact_force(&self) -> [f64; 3] {
+        self.contact_force
+    }
+
+    pub fn contact_count(&self) -> usize {
+        self.detector.contacts.len()
+    }
+
+    pub fn probe_pose(&self) -> msgs::Pose {
+        self.probe.pose()
+    }
+
+    pub fn time(&self) -> f64 {
+        self.time
+    }
+
+    pub fn dt(&self) -> f64 {
+        self.dt
+    }
+
+    /// Visual model vertices, world m.
+    pub fn surface_positions(&self) -> &[Point3<f64>] {
+        &self.visual_positions
+    }
+
+    pub fn surface_triangles(&self) -> &[[usize; 3]] {
+        &self.visual_triangles
+    }
+
+    pub fn probing_sites(&self) -> &[ProbingSite] {
+        &self.sites
+    }
+
+    pub fn node_count(&self) -> usize {
+        self.fem.node_count()
+    }
+
+    pub fn tet_count(&self) -> usize {
+        self.fem.tet_count()
+    }
+
+    /// The FE model (read access for diagnostics and tests).
+    pub fn fem(&self) -> &FemModel {
+        &self.fem
+    }
+
+    /// The probe (read access).
+    pub fn probe(&self) -> &Probe {
+        &self.probe
+    }
+
+    /// Compliance cache misses so far (each one 3-column solve inside a step).
+    pub fn compliance_misses(&self) -> u64 {
+        self.cache.misses
+    }
+
+    /// Total mechanical energy, J: tissue (elastic, kinetic, gravity) + probe (kinetic,
+    /// gravity, coupling spring). Without input it must not grow.
+    pub fn energy(&mut self) -> f64 {
+        let g = self.gravity;
+        let tissue = self.fem.elastic_energy() + self.fem.kinetic_energy() + self.fem.gravity_energy();
+        let probe_gravity = -self.probe.mass() * g.dot(&self.probe.position);
+        let coupling = match self.probe.drive {
+            crate::probe::ProbeDrive::Coupled => self.probe.coupling_energy(),
+            crate::probe::ProbeDrive::Kinematic => 0.0,
+        };
+        tissue + self.probe.kinetic_energy() + probe_gravity + coupling
+    }
+
+    /// Number of cache slots and whether the whole surface is cached.
+    pub fn compliance_cache_info(&self) -> (usize, bool) {
+        (self.cache.slots(), self.cache.complete)
+    }
+}
+
+fn cache_dim(rest: &RestCompliance) -> usize {
+    3 * (0..rest.node_count()).filter(|&n| rest.free_index(n).is_some()).count()
+}
+
+/// Contact-force CSV export: `time_s,fx_n,fy_n,fz_n,contacts,px_m,py_m,pz_m,qx,qy,qz,qw`.
+pub struct ContactForceCsv {
+    out: std::io::BufWriter<std::fs::File>,
+}
+
+impl ContactForceCsv {
+    pub const HEADER: &'static str = "time_s,fx_n,fy_n,fz_n,contacts,px_m,py_m,pz_m,qx,qy,qz,qw";
+
+    pub fn create(path: &Path) -> std::io::Result<ContactForceCsv> {
+        let mut out = std::io::BufWriter::new(std::fs::File::create(path)?);
+        writeln!(out, "{}", Self::HEADER)?;
+        Ok(ContactForceCsv { out })
+    }
+
+    /// Appends the current step of `sim`.
+    pub fn write(&mut self, sim: &Simulation) -> std::io::Result<()> {
+        let f = sim.contact_force();
+        let p = sim.probe_pose();
+        writeln!(
+            self.out,
+            "{:.6},{:.9},{:.9},{:.9},{},{:.9},{:.9},{:.9},{:.9},{:.9},{:.9},{:.9}",
+            sim.time(),
+            f[0],
+            f[1],
+            f[2],
+            sim.contact_count(),
+            p.position[0],
+            p.position[1],
+            p.position[2],
+            p.orientation[0],
+            p.orientation[1],
+            p.orientation[2],
+            p.orientation[3]
+        )
+    }
+
+    pub fn flush(&mut self) -> std::io::Result<()> {
+        self.out.flush()
+    }
+}

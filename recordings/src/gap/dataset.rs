@@ -1,0 +1,176 @@
+//! Trials prepared for fitting: measured samples, the replay grid, baseline and re-simulated
+//! forces, and the per-sample geometry (normal, depth, phase).
+use super::effects::Effect;
+use super::experiment::{Experiment, Region, Trial};
+use super::metrics::{depth_series, phases, trial_normal, Phase};
+use super::model::{replay, ForceModel, ProbePath, Variant};
+use super::signal::{interp, nlerp, norm, sample_uniform};
+use super::GapError;
+use msgs::Pose;
+use rayon::prelude::*;
+use std::collections::HashMap;
+
+#[derive(Debug, Clone)]
+pub struct TrialData {
+    pub name: String,
+    pub region: Option<Region>,
+    /// Measurement times and measured force.
+    pub t: Vec<f64>,
+    pub f: Vec<[f64; 3]>,
+    /// Replay grid and the probe path on it.
+    pub path: ProbePath,
+    pub acc_grid: Vec<[f64; 3]>,
+    pub depth_grid: Vec<f64>,
+    /// Baseline replay on the grid.
+    pub base: Vec<[f64; 3]>,
+    /// Re-simulations per effect, in the order of `Effect::resims`.
+    pub resims: HashMap<Effect, Vec<Vec<[f64; 3]>>>,
+    /// Contact normal (outward), depth (mm) and phase at the measurement times.
+    pub normal: [f64; 3],
+    pub depth: Vec<f64>,
+    pub phase: Vec<Phase>,
+    /// Baseline at measurement times.
+    pub base_at_t: Vec<[f64; 3]>,
+}
+
+impl TrialData {
+    pub fn resim(&self, e: Effect) -> &Vec<Vec<[f64; 3]>> {
+        &self.resims[&e]
+    }
+    pub fn has_resims(&self, e: Effect) -> bool {
+        e.resims().is_empty() || self.resims.contains_key(&e)
+    }
+}
+
+/// The probe path of a trial on a uniform grid starting at its first sample.
+pub fn grid_path(trial: &Trial, dt: f64) -> ProbePath {
+    let t0 = trial.t[0];
+    let t1 = *trial.t.last().unwrap();
+    let n = ((t1 - t0) / dt).ceil() as usize + 1;
+    let poses = (0..n)
+        .map(|k| {
+            let t = t0 + k as f64 * dt;
+            let i = trial.t.partition_point(|&v| v <= t).saturating_sub(1).min(trial.t.len() - 2);
+            let w = ((t - trial.t[i]) / (trial.t[i + 1] - trial.t[i])).clamp(0.0, 1.0);
+            let (a, b) = (&trial.pose[i], &trial.pose[i + 1]);
+            let mut p = [0.0; 3];
+            for q in 0..3 {
+                p[q] = a.position[q] + w * (b.position[q] - a.position[q]);
+            }
+            Pose { position: p, orientation: nlerp(a.orientation, b.orientation, w) }
+        })
+        .collect();
+    ProbePath { t0, dt, poses }
+}
+
+/// Options for building the dataset.
+#[derive(Debug, Clone)]
+pub struct BuildOptions {
+    /// Replay step, s (quasi-static stepping: larger than the node's 0.01 s is allowed
+    /// because the probe is prescribed and inertia is negligible at probing speeds).
+    pub dt: f64,
+    pub progress: bool,
+}
+
+/// Replay every trial at baseline and at each re-simulation the `effects` need, in parallel.
+pub fn build(exp: &Experiment, model: &dyn ForceModel, effects: &[Effect], opts: &BuildOptions) -> Result<Vec<TrialData>, GapError> {
+    let paths: Vec<ProbePath> = exp.trials.iter().map(|t| grid_path(t, opts.dt)).collect();
+    let mut variants: Vec<(Option<Effect>, Variant)> = vec![(None, Variant::default())];
+    for &e in effects {
+        for v in e.resims() {
+            variants.push((Some(e), v));
+        }
+    }
+    let jobs: Vec<(usize, usize)> =
+        (0..variants.len()).flat_map(|v| (0..paths.len()).map(move |t| (v, t))).collect();
+    let bar = progress_bar(opts.progress, jobs.len() as u64, "replaying");
+    let results: Vec<Result<Vec<[f64; 3]>, GapError>> = jobs
+        .par_iter()
+        .map(|&(v, t)| {
+            let r = replay(model, &variants[v].1, &paths[t]);
+            if let Some(b) = &bar {
+                b.inc(1);
+            }
+            r
+        })
+        .collect();
+    if let Some(b) = bar {
+        b.finish_and_clear();
+    }
+    let mut forces: Vec<Vec<Option<Vec<[f64; 3]>>>> = vec![vec![None; paths.len()]; variants.len()];
+    for ((v, t), r) in jobs.into_iter().zip(results) {
+        forces[v][t] = Some(r?);
+    }
+    let mut out = Vec::with_capacity(paths.len());
+    for (ti, (trial, path)) in exp.trials.iter().zip(paths).enumerate() {
+        let base = forces[0][ti].take().unwrap();
+        let mut resims: HashMap<Effect, Vec<Vec<[f64; 3]>>> = HashMap::new();
+        for (vi, (e, _)) in variants.iter().enumerate().skip(1) {
+            resims.entry(e.unwrap()).or_default().push(forces[vi][ti].take().unwrap());
+        }
+        out.push(prepare(trial, path, base, resims));
+    }
+    Ok(out)
+}
+
+pub fn progress_bar(show: bool, len: u64, msg: &'static str) -> Option<indicatif::ProgressBar> {
+    if !show {
+        return None;
+    }
+    let b = indicatif::ProgressBar::new(len);
+    b.set_style(
+        indicatif::ProgressStyle::with_template("{msg:>10} [{bar:40}] {pos}/{len} {elapsed}")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
+    b.set_message(msg);
+    Some(b)
+}
+
+/// Geometry and phases of a trial once its baseline replay is known.
+pub fn prepare(trial: &Trial, path: ProbePath, base: Vec<[f64; 3]>, resims: HashMap<Effect, Vec<Vec<[f64; 3]>>>) -> TrialData {
+    let pos: Vec<[f64; 3]> = path.poses.iter().map(|p| p.position).collect();
+    let normal = trial_normal(&base, &trial.force);
+    let depth_grid = depth_series(&pos, &base, normal);
+    let peak = base.iter().map(|f| norm(*f)).fold(0.0, f64::max);
+    let contact: Vec<bool> =
+        base.iter().zip(&depth_grid).map(|(f, d)| norm(*f) > (0.03 * peak).max(0.01) || *d > 0.0).collect();
+    let ph_grid = phases(&pos, &depth_grid, normal, path.dt, &contact);
+    let dt = path.dt;
+    let n = pos.len();
+    let acc_grid: Vec<[f64; 3]> = (0..n)
+        .map(|i| {
+            if i == 0 || i + 1 >= n {
+                return [0.0; 3];
+            }
+            let mut a = [0.0; 3];
+            for q in 0..3 {
+                a[q] = (pos[i + 1][q] - 2.0 * pos[i][q] + pos[i - 1][q]) / (dt * dt);
+            }
+            a
+        })
+        .collect();
+    let tg: Vec<f64> = (0..n).map(|k| path.t0 + k as f64 * dt).collect();
+    let depth: Vec<f64> = trial.t.iter().map(|&t| interp(&tg, &depth_grid, t)).collect();
+    let phase: Vec<Phase> = trial
+        .t
+        .iter()
+        .map(|&t| ph_grid[(((t - path.t0) / dt).round() as usize).min(n - 1)])
+        .collect();
+    let base_at_t = trial.t.iter().map(|&t| sample_uniform(path.t0, dt, &base, t)).collect();
+    TrialData {
+        name: trial.name.clone(),
+        region: trial.region,
+        t: trial.t.clone(),
+        f: trial.force.clone(),
+        path,
+        acc_grid,
+        depth_grid,
+        base,
+        resims,
+        normal,
+        depth,
+        phase,
+        base_at_t,
+    }
+}

@@ -1,0 +1,295 @@
+//! The candidate effects: each a small parametrised addition to the baseline model.
+//!
+//! Post-processing effects act exactly on the replayed baseline force (displacement-driven
+//! replay: elastic force ∝ E, so `modulus` is a scale; `hardening` a depth-dependent
+//! stiffening factor; `viscoelastic` the QLV hereditary integral on the elastic force;
+//! `device` bias + tool inertia; `sensor` delay + first-order low-pass). Re-simulated effects
+//! (`friction`, `tilt`, `support`, `mesh`) are replayed at a few parameter values and
+//! interpolated (piecewise linear in μ and in support compliance, quadratic per tilt angle).
+use super::dataset::TrialData;
+use super::model::Variant;
+use super::signal::{lowpass_in_place, sample_uniform};
+use serde::{Deserialize, Serialize};
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Effect {
+    // order = order of application (tissue geometry/contact, material, device, sensor)
+    Friction,
+    Tilt,
+    Support,
+    Mesh,
+    Modulus,
+    Hardening,
+    Viscoelastic,
+    Device,
+    Sensor,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ParamSpec {
+    pub name: &'static str,
+    pub unit: &'static str,
+    pub lo: f64,
+    pub hi: f64,
+    /// Value at which the effect vanishes (the baseline).
+    pub neutral: f64,
+    /// Optimise in log space.
+    pub log: bool,
+}
+
+const fn p(name: &'static str, unit: &'static str, lo: f64, hi: f64, neutral: f64, log: bool) -> ParamSpec {
+    ParamSpec { name, unit, lo, hi, neutral, log }
+}
+
+/// Tilt re-simulation step (rad) for the quadratic interpolation.
+pub const TILT_STEP: f64 = 0.10472; // 6°
+pub const FRICTION_KNOTS: [f64; 2] = [0.15, 0.4];
+/// Support compliance knots, m/N per node (k = 4000 and 1000 N/m).
+pub const SUPPORT_KNOTS: [f64; 2] = [2.5e-4, 1.0e-3];
+
+impl Effect {
+    pub const ALL: [Effect; 9] = [
+        Effect::Modulus,
+        Effect::Hardening,
+        Effect::Viscoelastic,
+        Effect::Friction,
+        Effect::Tilt,
+        Effect::Device,
+        Effect::Support,
+        Effect::Mesh,
+        Effect::Sensor,
+    ];
+    pub fn name(self) -> &'static str {
+        match self {
+            Effect::Modulus => "modulus",
+            Effect::Hardening => "hardening",
+            Effect::Viscoelastic => "viscoelastic",
+            Effect::Friction => "friction",
+            Effect::Tilt => "tilt",
+            Effect::Device => "device",
+            Effect::Support => "support",
+            Effect::Mesh => "mesh",
+            Effect::Sensor => "sensor",
+        }
+    }
+    pub fn parse(s: &str) -> Option<Effect> {
+        Effect::ALL.into_iter().find(|e| e.name() == s)
+    }
+    pub fn params(self) -> Vec<ParamSpec> {
+        match self {
+            Effect::Modulus => vec![p("modulus_scale", "", 0.2, 5.0, 1.0, true)],
+            Effect::Hardening => vec![
+                p("small_strain_scale", "", 0.05, 5.0, 1.0, true),
+                p("stiffening_rate", "1/mm", 0.0, 2.0, 0.0, false),
+            ],
+            Effect::Viscoelastic => vec![
+                p("prony_g1", "", 0.0, 0.9, 0.0, false),
+                p("prony_tau1", "s", 0.05, 10.0, 1.0, true),
+            ],
+            Effect::Friction => vec![p("mu", "", 0.0, 0.8, 0.0, false)],
+            Effect::Tilt => vec![p("tilt_x", "deg", -15.0, 15.0, 0.0, false), p("tilt_y", "deg", -15.0, 15.0, 0.0, false)],
+            Effect::Device => vec![
+                p("bias_x", "N", -3.0, 3.0, 0.0, false),
+                p("bias_y", "N", -3.0, 3.0, 0.0, false),
+                p("bias_z", "N", -3.0, 3.0, 0.0, false),
+                p("tool_mass", "kg", -0.2, 0.2, 0.0, false),
+            ],
+            Effect::Support => vec![p("support_compliance", "m/N per node", 0.0, 2.0e-3, 0.0, false)],
+            Effect::Mesh => vec![],
+            Effect::Sensor => vec![p("delay", "s", 0.0, 0.3, 0.0, false), p("lowpass_tau", "s", 0.0, 0.3, 0.0, false)],
+        }
+    }
+    /// Effects that only make sense with a time history.
+    pub fn time_dependent(self) -> bool {
+        matches!(self, Effect::Viscoelastic | Effect::Sensor)
+    }
+    /// Effects that need sliding or tangential information.
+    pub fn needs_tangential(self) -> bool {
+        matches!(self, Effect::Friction)
+    }
+    /// Re-simulations this effect interpolates between (in order).
+    pub fn resims(self) -> Vec<Variant> {
+        let v = Variant::default();
+        match self {
+            Effect::Friction => FRICTION_KNOTS.iter().map(|&mu| Variant { friction: mu, ..v.clone() }).collect(),
+            Effect::Support => {
+                SUPPORT_KNOTS.iter().map(|&c| Variant { support_stiffness: 1.0 / c, ..v.clone() }).collect()
+            }
+            Effect::Tilt => vec![
+                Variant { tilt: [TILT_STEP, 0.0], ..v.clone() },
+                Variant { tilt: [-TILT_STEP, 0.0], ..v.clone() },
+                Variant { tilt: [0.0, TILT_STEP], ..v.clone() },
+                Variant { tilt: [0.0, -TILT_STEP], ..v.clone() },
+            ],
+            Effect::Mesh => vec![Variant { fine_mesh: true, ..v }],
+            _ => vec![],
+        }
+    }
+}
+
+/// A candidate explanation: one effect or a pair, in application order.
+#[derive(Debug, Clone, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub struct Candidate(pub Vec<Effect>);
+
+impl Candidate {
+    pub fn single(e: Effect) -> Candidate {
+        Candidate(vec![e])
+    }
+    pub fn pair(a: Effect, b: Effect) -> Candidate {
+        let mut v = vec![a, b];
+        v.sort();
+        Candidate(v)
+    }
+    pub fn name(&self) -> String {
+        // names listed in the issue's order joined by '+'
+        let mut v = self.0.clone();
+        v.sort_by_key(|e| Effect::ALL.iter().position(|x| x == e));
+        v.iter().map(|e| e.name()).collect::<Vec<_>>().join("+")
+    }
+    pub fn params(&self) -> Vec<(Effect, ParamSpec)> {
+        self.0.iter().flat_map(|&e| e.params().into_iter().map(move |p| (e, p))).collect()
+    }
+    pub fn neutral(&self) -> Vec<f64> {
+        self.params().iter().map(|(_, p)| p.neutral).collect()
+    }
+}
+
+fn axpy(dst: &mut [[f64; 3]], a: f64, x: &[[f64; 3]], y: Option<&[[f64; 3]]>) {
+    // dst += a (x − y)
+    for (i, d) in dst.iter_mut().enumerate() {
+        for k in 0..3 {
+            d[k] += a * (x[i][k] - y.map(|y| y[i][k]).unwrap_or(0.0));
+        }
+    }
+}
+
+/// Model force on the trial's grid and at its measurement times for candidate `c` at `theta`.
+/// `grid` and `out` are scratch buffers (resized here).
+pub fn predict(c: &Candidate, theta: &[f64], td: &TrialData, grid: &mut Vec<[f64; 3]>, out: &mut Vec<[f64; 3]>) {
+    grid.clear();
+    grid.extend_from_slice(&td.base);
+    let mut k = 0;
+    let mut delay = 0.0;
+    for &e in &c.0 {
+        let np = e.params().len();
+        let th = &theta[k..k + np];
+        k += np;
+        match e {
+            Effect::Friction => {
+                let r = td.resim(Effect::Friction);
+                let mu = th[0];
+                let [m1, m2] = FRICTION_KNOTS;
+                if mu <= m1 {
+                    axpy(grid, mu / m1, &r[0], Some(&td.base));
+                } else {
+                    axpy(grid, 1.0, &r[0], Some(&td.base));
+                    axpy(grid, (mu - m1) / (m2 - m1), &r[1], Some(&r[0]));
+                }
+            }
+            Effect::Support => {
+                let r = td.resim(Effect::Support);
+                let cpl = th[0];
+                let [c1, c2] = SUPPORT_KNOTS;
+                if cpl <= c1 {
+                    axpy(grid, cpl / c1, &r[0], Some(&td.base));
+                } else {
+                    axpy(grid, 1.0, &r[0], Some(&td.base));
+                    axpy(grid, (cpl - c1) / (c2 - c1), &r[1], Some(&r[0]));
+                }
+            }
+            Effect::Tilt => {
+                let r = td.resim(Effect::Tilt);
+                let h = TILT_STEP;
+                for (axis, ang) in [(0usize, th[0].to_radians()), (1, th[1].to_radians())] {
+                    let (rp, rm) = (&r[2 * axis], &r[2 * axis + 1]);
+                    let a1 = ang / (2.0 * h);
+                    let a2 = ang * ang / (2.0 * h * h);
+                    for (i, g) in grid.iter_mut().enumerate() {
+                        for q in 0..3 {
+                            g[q] += a1 * (rp[i][q] - rm[i][q]) + a2 * (rp[i][q] + rm[i][q] - 2.0 * td.base[i][q]);
+                        }
+                    }
+                }
+            }
+            Effect::Mesh => {
+                let r = td.resim(Effect::Mesh);
+                axpy(grid, 1.0, &r[0], Some(&td.base));
+            }
+            Effect::Modulus => grid.iter_mut().for_each(|g| *g = g.map(|v| v * th[0])),
+            Effect::Hardening => {
+                for (g, d) in grid.iter_mut().zip(&td.depth_grid) {
+                    let f = th[0] * (th[1] * d.max(0.0)).exp();
+                    *g = g.map(|v| v * f);
+                }
+            }
+            Effect::Viscoelastic => qlv_in_place(grid, td.path.dt, th[0], th[1]),
+            Effect::Device => {
+                for (g, a) in grid.iter_mut().zip(&td.acc_grid) {
+                    for q in 0..3 {
+                        g[q] += th[q] - th[3] * a[q];
+                    }
+                }
+            }
+            Effect::Sensor => {
+                lowpass_in_place(grid, td.path.dt, th[1]);
+                delay = th[0];
+            }
+        }
+    }
+    out.clear();
+    out.extend(td.t.iter().map(|&t| sample_uniform(td.path.t0, td.path.dt, grid, t - delay)));
+}
+
+/// Quasi-linear viscoelasticity with one Prony term, G(t) = (1 − g) + g e^{−t/τ} (G(0) = 1):
+/// F(t) = ∫ G(t − s) dF_e(s), by the exact recursion for piecewise-linear F_e.
+pub fn qlv_in_place(f: &mut [[f64; 3]], dt: f64, g: f64, tau: f64) {
+    if f.is_empty() || g == 0.0 {
+        return;
+    }
+    let e = (-dt / tau).exp();
+    // for a ramp over one step the convolution with e^{-t/τ} gives (τ/dt)(1 − e) of the increment
+    let w = tau / dt * (1.0 - e);
+    let mut h = f[0];
+    let mut prev = f[0];
+    for v in f.iter_mut() {
+        let cur = *v;
+        for k in 0..3 {
+            h[k] = e * h[k] + w * (cur[k] - prev[k]);
+            v[k] = (1.0 - g) * cur[k] + g * h[k];
+        }
+        prev = cur;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn qlv_relaxes_in_hold_to_long_term_modulus() {
+        // ramp to 1 N in 0.1 s then hold 10 s: relaxes from ~1 to (1 − g)
+        let dt = 0.01;
+        let mut f: Vec<[f64; 3]> = (0..1010).map(|i| [0.0, 0.0, (i as f64 / 10.0).min(1.0)]).collect();
+        qlv_in_place(&mut f, dt, 0.4, 0.5);
+        assert!(f[10][2] > 0.95 && f[10][2] <= 1.0, "peak {}", f[10][2]);
+        let at = |t: f64| f[(t / dt) as usize + 10][2];
+        let expect = |t: f64| 0.6 + 0.4 * (-t / 0.5f64).exp();
+        for t in [0.5, 1.0, 2.0] {
+            assert!((at(t) - expect(t)).abs() < 0.02, "t={t}: {} vs {}", at(t), expect(t));
+        }
+        assert!((f[1009][2] - 0.6).abs() < 1e-3);
+    }
+
+    #[test]
+    fn candidate_names_follow_issue_order() {
+        assert_eq!(Candidate::pair(Effect::Sensor, Effect::Modulus).name(), "modulus+sensor");
+        assert_eq!(Candidate::pair(Effect::Tilt, Effect::Hardening).name(), "hardening+tilt");
+        for e in Effect::ALL {
+            assert_eq!(Effect::parse(e.name()), Some(e));
+            for p in e.params() {
+                assert!(p.lo <= p.neutral && p.neutral <= p.hi, "{}", p.name);
+            }
+        }
+    }
+}

@@ -1,0 +1,398 @@
+//! Fitting candidates on calibration trials, scoring them on held-out trials, ranking.
+use super::dataset::TrialData;
+use super::effects::{predict, Candidate, Effect, ParamSpec};
+use super::experiment::Region;
+use super::signal::{dot, sub};
+use serde::{Deserialize, Serialize};
+
+/// Which samples calibrate and which are held out, per trial.
+#[derive(Debug, Clone)]
+pub struct Fold {
+    pub label: String,
+    pub calib: Vec<Vec<bool>>,
+    pub held: Vec<Vec<bool>>,
+}
+
+/// Leave-one-region-out when trials carry ≥ 2 regions, else k-fold over trials (k ≤ 5),
+/// else (a single trial) interleaved 3-fold over its samples.
+pub fn make_folds(data: &[TrialData]) -> (String, Vec<Fold>) {
+    let all = |v: bool| -> Vec<Vec<bool>> { data.iter().map(|d| vec![v; d.t.len()]).collect() };
+    let mut regions: Vec<Region> = data.iter().filter_map(|d| d.region).collect();
+    regions.sort();
+    regions.dedup();
+    let labelled = data.iter().all(|d| d.region.is_some());
+    let mut folds = Vec::new();
+    let scheme;
+    if labelled && regions.len() >= 2 {
+        scheme = "leave-one-region-out".to_string();
+        for r in regions {
+            let mut calib = all(false);
+            let mut held = all(false);
+            for (i, d) in data.iter().enumerate() {
+                let h = d.region == Some(r);
+                held[i].iter_mut().for_each(|v| *v = h);
+                calib[i].iter_mut().for_each(|v| *v = !h);
+            }
+            folds.push(Fold { label: r.name().into(), calib, held });
+        }
+    } else if data.len() >= 3 {
+        let k = data.len().min(5);
+        scheme = format!("{k}-fold over trials");
+        for f in 0..k {
+            let mut calib = all(false);
+            let mut held = all(false);
+            for i in 0..data.len() {
+                let h = i % k == f;
+                held[i].iter_mut().for_each(|v| *v = h);
+                calib[i].iter_mut().for_each(|v| *v = !h);
+            }
+            folds.push(Fold { label: format!("fold {}", f + 1), calib, held });
+        }
+    } else {
+        let k = 3;
+        scheme = format!("{k}-fold over samples (interleaved)");
+        for f in 0..k {
+            let held: Vec<Vec<bool>> = data.iter().map(|d| (0..d.t.len()).map(|j| j % k == f).collect()).collect();
+            let calib = held.iter().map(|v| v.iter().map(|b| !b).collect()).collect();
+            folds.push(Fold { label: format!("fold {}", f + 1), calib, held });
+        }
+    }
+    (scheme, folds)
+}
+
+fn to_theta(specs: &[ParamSpec], u: &[f64]) -> Vec<f64> {
+    specs
+        .iter()
+        .zip(u)
+        .map(|(p, &x)| {
+            let x = x.clamp(0.0, 1.0);
+            if p.log {
+                (p.lo.ln() + x * (p.hi.ln() - p.lo.ln())).exp()
+            } else {
+                p.lo + x * (p.hi - p.lo)
+            }
+        })
+        .collect()
+}
+fn to_unit(specs: &[ParamSpec], th: &[f64]) -> Vec<f64> {
+    specs
+        .iter()
+        .zip(th)
+        .map(|(p, &v)| {
+            if p.log {
+                (v.ln() - p.lo.ln()) / (p.hi.ln() - p.lo.ln())
+            } else {
+                (v - p.lo) / (p.hi - p.lo)
+            }
+        })
+        .collect()
+}
+
+/// Sum of squared residuals over the masked samples.
+pub fn sse(c: &Candidate, theta: &[f64], data: &[TrialData], mask: &[Vec<bool>]) -> (f64, usize) {
+    let (mut grid, mut out) = (Vec::new(), Vec::new());
+    let (mut s, mut n) = (0.0, 0usize);
+    for (d, m) in data.iter().zip(mask) {
+        if !m.iter().any(|&b| b) {
+            continue;
+        }
+        predict(c, theta, d, &mut grid, &mut out);
+        for ((p, f), &b) in out.iter().zip(&d.f).zip(m) {
+            if b {
+                let r = sub(*p, *f);
+                s += dot(r, r);
+                n += 3;
+            }
+        }
+    }
+    (s, n)
+}
+
+/// Nelder–Mead on the unit cube (coordinates clamped), from `x0`.
+pub fn nelder_mead(f: &dyn Fn(&[f64]) -> f64, x0: &[f64], step: f64, max_eval: usize) -> (Vec<f64>, f64) {
+    let k = x0.len();
+    if k == 0 {
+        return (vec![], f(&[]));
+    }
+    let clamp = |x: &mut Vec<f64>| x.iter_mut().for_each(|v| *v = v.clamp(0.0, 1.0));
+    let mut simplex: Vec<Vec<f64>> = vec![x0.to_vec()];
+    for i in 0..k {
+        let mut x = x0.to_vec();
+        x[i] = if x[i] + step <= 1.0 { x[i] + step } else { x[i] - step };
+        simplex.push(x);
+    }
+    let mut fv: Vec<f64> = simplex.iter().map(|x| f(x)).collect();
+    let mut evals = k + 1;
+    while evals < max_eval {
+        let mut idx: Vec<usize> = (0..=k).collect();
+        idx.sort_by(|&a, &b| fv[a].total_cmp(&fv[b]));
+        simplex = idx.iter().map(|&i| simplex[i].clone()).collect();
+        fv = idx.iter().map(|&i| fv[i]).collect();
+        let spread = simplex.iter().skip(1).map(|x| x.iter().zip(&simplex[0]).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max)).fold(0.0, f64::max);
+        if (fv[k] - fv[0]).abs() <= 1e-10 * fv[0].abs().max(1e-12) && spread < 1e-6 || spread < 1e-7 {
+            break;
+        }
+        let mut c = vec![0.0; k];
+        for x in &simplex[..k] {
+            for j in 0..k {
+                c[j] += x[j] / k as f64;
+            }
+        }
+        let pt = |a: f64| -> Vec<f64> {
+            let mut x: Vec<f64> = (0..k).map(|j| c[j] + a * (simplex[k][j] - c[j])).collect();
+            clamp(&mut x);
+            x
+        };
+        let xr = pt(-1.0);
+        let fr = f(&xr);
+        evals += 1;
+        if fr < fv[0] {
+            let xe = pt(-2.0);
+            let fe = f(&xe);
+            evals += 1;
+            if fe < fr {
+                simplex[k] = xe;
+                fv[k] = fe;
+            } else {
+                simplex[k] = xr;
+                fv[k] = fr;
+            }
+        } else if fr < fv[k - 1] {
+            simplex[k] = xr;
+            fv[k] = fr;
+        } else {
+            let xc = if fr < fv[k] { pt(-0.5) } else { pt(0.5) };
+            let fc = f(&xc);
+            evals += 1;
+            if fc < fv[k].min(fr) {
+                simplex[k] = xc;
+                fv[k] = fc;
+            } else {
+                for i in 1..=k {
+                    let x: Vec<f64> = (0..k).map(|j| simplex[0][j] + 0.5 * (simplex[i][j] - simplex[0][j])).collect();
+                    fv[i] = f(&x);
+                    simplex[i] = x;
+                    evals += 1;
+                }
+            }
+        }
+    }
+    let best = (0..=k).min_by(|&a, &b| fv[a].total_cmp(&fv[b])).unwrap();
+    (simplex[best].clone(), fv[best])
+}
+
+/// Least-squares fit of `c` on the masked samples; multi-start Nelder–Mead in unit space.
+pub fn fit(c: &Candidate, data: &[TrialData], mask: &[Vec<bool>], inits: &[Vec<f64>]) -> (Vec<f64>, f64) {
+    let specs: Vec<ParamSpec> = c.params().into_iter().map(|(_, p)| p).collect();
+    let k = specs.len();
+    let obj = |u: &[f64]| sse(c, &to_theta(&specs, u), data, mask).0;
+    if k == 0 {
+        return (vec![], obj(&[]));
+    }
+    let mut starts: Vec<Vec<f64>> = vec![to_unit(&specs, &c.neutral())];
+    for th in inits {
+        starts.push(to_unit(&specs, th));
+    }
+    // spread starts: hereditary and delay parameters have local minima
+    starts.push(vec![0.3; k]);
+    starts.push(vec![0.7; k]);
+    let mut best: (Vec<f64>, f64) = (starts[0].clone(), f64::INFINITY);
+    for s in starts {
+        let (u, v) = nelder_mead(&obj, &s, 0.15, 150 * k + 100);
+        if v < best.1 {
+            best = (u, v);
+        }
+    }
+    // polish from the best
+    let (u, v) = nelder_mead(&obj, &best.0, 0.03, 100 * k + 50);
+    if v < best.1 {
+        best = (u, v);
+    }
+    (to_theta(&specs, &best.0), best.1)
+}
+
+/// Standard errors from the Gauss–Newton covariance s²(JᵀJ)⁻¹ at the optimum.
+pub fn uncertainty(c: &Candidate, theta: &[f64], data: &[TrialData]) -> Vec<f64> {
+    let specs: Vec<ParamSpec> = c.params().into_iter().map(|(_, p)| p).collect();
+    let k = specs.len();
+    if k == 0 {
+        return vec![];
+    }
+    let resid = |th: &[f64]| -> Vec<f64> {
+        let (mut grid, mut out) = (Vec::new(), Vec::new());
+        let mut r = Vec::new();
+        for d in data {
+            predict(c, th, d, &mut grid, &mut out);
+            for (p, f) in out.iter().zip(&d.f) {
+                r.extend_from_slice(&sub(*p, *f));
+            }
+        }
+        r
+    };
+    let r0 = resid(theta);
+    let m = r0.len();
+    let mut jac = nalgebra::DMatrix::<f64>::zeros(m, k);
+    for j in 0..k {
+        let h = 1e-4 * (specs[j].hi - specs[j].lo).max(1e-9) + 1e-6 * theta[j].abs();
+        let (mut tp, mut tm) = (theta.to_vec(), theta.to_vec());
+        tp[j] += h;
+        tm[j] -= h;
+        let (rp, rm) = (resid(&tp), resid(&tm));
+        for i in 0..m {
+            jac[(i, j)] = (rp[i] - rm[i]) / (2.0 * h);
+        }
+    }
+    let s2 = r0.iter().map(|v| v * v).sum::<f64>() / (m.saturating_sub(k).max(1)) as f64;
+    let jtj = jac.transpose() * &jac;
+    match jtj.try_inverse() {
+        Some(inv) => (0..k).map(|j| (s2 * inv[(j, j)]).max(0.0).sqrt()).collect(),
+        None => vec![f64::NAN; k],
+    }
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct FittedParam {
+    pub effect: String,
+    pub name: String,
+    pub unit: String,
+    pub value: f64,
+    /// One standard error (Gauss–Newton), same unit.
+    pub std: f64,
+}
+
+/// A candidate fitted, cross-validated and scored.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct CandidateScore {
+    pub effect: String,
+    pub n_params: usize,
+    pub params: Vec<FittedParam>,
+    /// Fit on all trials.
+    pub fit_rmse: f64,
+    pub bic: f64,
+    /// BIC minus the baseline's (negative = better).
+    pub delta_bic: f64,
+    /// Pooled over held-out folds.
+    pub heldout_rmse: f64,
+    pub heldout_shrink: f64,
+    /// Study metric (mean normal force in contact): mean |simulated − measured| over trials,
+    /// held-out, N.
+    pub heldout_study_error: f64,
+    /// Ranking score: held-out log-likelihood with a BIC-style parameter penalty.
+    pub score: f64,
+    #[serde(skip)]
+    pub theta: Vec<f64>,
+    /// Held-out prediction at every measurement time, per trial.
+    #[serde(skip)]
+    pub heldout_pred: Vec<Vec<[f64; 3]>>,
+}
+
+/// Effective number of independent residual values (samples are correlated in time).
+pub fn effective_n(n_values: usize) -> f64 {
+    (n_values as f64 / 10.0).max(30.0)
+}
+
+pub fn study_metric(d: &TrialData, pred: &[[f64; 3]]) -> (f64, f64) {
+    let idx: Vec<usize> = (0..d.t.len()).filter(|&i| d.phase[i] != super::metrics::Phase::Approach).collect();
+    if idx.is_empty() {
+        return (0.0, 0.0);
+    }
+    let m = idx.iter().map(|&i| dot(d.f[i], d.normal)).sum::<f64>() / idx.len() as f64;
+    let p = idx.iter().map(|&i| dot(pred[i], d.normal)).sum::<f64>() / idx.len() as f64;
+    (m, p)
+}
+
+/// Fit `c` per fold (held-out score) and on everything (parameters, BIC).
+pub fn score_candidate(c: &Candidate, data: &[TrialData], folds: &[Fold], baseline_rmse: f64, baseline_bic: f64, inits: &[Vec<f64>]) -> CandidateScore {
+    let all: Vec<Vec<bool>> = data.iter().map(|d| vec![true; d.t.len()]).collect();
+    let (theta, sse_all) = fit(c, data, &all, inits);
+    let n_all = data.iter().map(|d| 3 * d.t.len()).sum::<usize>();
+    let k = theta.len();
+    let bic = n_all as f64 * (sse_all / n_all as f64).max(1e-30).ln() + k as f64 * (n_all as f64).ln();
+    let mut held_pred: Vec<Vec<[f64; 3]>> = data.iter().map(|d| vec![[0.0; 3]; d.t.len()]).collect();
+    let (mut hs, mut hn) = (0.0, 0usize);
+    let (mut grid, mut out) = (Vec::new(), Vec::new());
+    for f in folds {
+        let mut fi = inits.to_vec();
+        fi.push(theta.clone());
+        let (th, _) = fit(c, data, &f.calib, &fi);
+        for (i, d) in data.iter().enumerate() {
+            if !f.held[i].iter().any(|&b| b) {
+                continue;
+            }
+            predict(c, &th, d, &mut grid, &mut out);
+            for j in 0..d.t.len() {
+                if f.held[i][j] {
+                    held_pred[i][j] = out[j];
+                    let r = sub(out[j], d.f[j]);
+                    hs += dot(r, r);
+                    hn += 3;
+                }
+            }
+        }
+    }
+    let heldout_rmse = (hs / hn.max(1) as f64).sqrt();
+    let se = uncertainty(c, &theta, data);
+    let params = c
+        .params()
+        .into_iter()
+        .zip(theta.iter().zip(&se))
+        .map(|((e, p), (&v, &s))| FittedParam { effect: e.name().into(), name: p.name.into(), unit: p.unit.into(), value: v, std: s })
+        .collect();
+    let study: f64 = data
+        .iter()
+        .zip(&held_pred)
+        .map(|(d, p)| {
+            let (m, s) = study_metric(d, p);
+            (s - m).abs()
+        })
+        .sum::<f64>()
+        / data.len().max(1) as f64;
+    let ne = effective_n(hn);
+    let score = ne * (heldout_rmse * heldout_rmse).max(1e-30).ln() + k as f64 * ne.ln();
+    CandidateScore {
+        effect: c.name(),
+        n_params: k,
+        params,
+        fit_rmse: (sse_all / n_all.max(1) as f64).sqrt(),
+        bic,
+        delta_bic: bic - baseline_bic,
+        heldout_rmse,
+        heldout_shrink: if baseline_rmse > 0.0 { 1.0 - heldout_rmse / baseline_rmse } else { 0.0 },
+        heldout_study_error: study,
+        score,
+        theta,
+        heldout_pred: held_pred,
+    }
+}
+
+/// Which effects can be assessed on these data.
+pub fn applicable(e: Effect, quasi_static: bool) -> bool {
+    if quasi_static {
+        !(e.time_dependent() || e.needs_tangential() || e == Effect::Device && false)
+    } else {
+        true
+    }
+}
+
+/// Pairs that are not redundant (one nested in the other).
+pub fn pair_allowed(a: Effect, b: Effect) -> bool {
+    let redundant = |x: Effect, y: Effect| matches!((x, y), (Effect::Modulus, Effect::Hardening) | (Effect::Hardening, Effect::Modulus));
+    a != b && !redundant(a, b)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn nelder_mead_finds_quadratic_minimum() {
+        let f = |x: &[f64]| (x[0] - 0.3).powi(2) + 10.0 * (x[1] - 0.8).powi(2) + 0.1;
+        let (x, v) = nelder_mead(&f, &[0.5, 0.5], 0.1, 2000);
+        assert!((x[0] - 0.3).abs() < 1e-4 && (x[1] - 0.8).abs() < 1e-4, "{x:?}");
+        assert!((v - 0.1).abs() < 1e-8);
+        // bound-constrained: minimum outside the cube lands on the face
+        let g = |x: &[f64]| (x[0] + 0.5).powi(2);
+        let (x, _) = nelder_mead(&g, &[0.5], 0.1, 500);
+        assert!(x[0] < 1e-6);
+    }
+}

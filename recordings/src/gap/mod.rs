@@ -1,0 +1,456 @@
+//! Sim-to-real gap diagnosis (issue 6): where the simulated and measured probe forces differ,
+//! which unmodelled effect explains it, and how far the gap shrinks on held-out trials.
+//!
+//! # API the CLI wires (no clap types here)
+//! ```text
+//! arthrosim gap EXPERIMENT_DIR --out REPORT_DIR
+//!     let exp = gap::load_experiment(dir, &gap::data_dir())?;
+//!     let model = gap::SimForceModel::for_experiment(&exp, &gap::data_dir())?;
+//!     let report = gap::diagnose(&exp, &model, &gap::Options::default())?;   // or gap::diagnose_dir(dir, &opts)
+//!     gap::write_report(&report, out_dir)?;                                    // report.json + report.html
+//! arthrosim gap --force-displacement FILE.csv --out REPORT_DIR
+//!     let report = gap::diagnose_force_displacement(file, &opts)?; gap::write_report(&report, out)?;
+//! arthrosim gap selftest --cases N --seed S [--json]
+//!     let r = gap::selftest::selftest(n, seed, &gap::selftest::SelftestOptions::default())?;
+//!     print!("{}", r.table()); if json { println!("{}", serde_json::to_string(&r.summary())?) }
+//! arthrosim reality --effect NAME[=STRENGTH][,NAME...] --seed S --out DIR --truth FILE
+//!     let spec = gap::reality::RealitySpec::from_effects(&["friction=0.3"], seed)?;
+//!     gap::reality::write_experiment(&spec, dir, truth_file)?;
+//! ```
+//! The replay model is [`SimForceModel`] (the physics node's `Simulation` driven kinematically);
+//! statistics and effects are written against the [`ForceModel`] trait.
+
+pub mod dataset;
+pub mod effects;
+pub mod experiment;
+pub mod fit;
+pub mod html;
+pub mod metrics;
+pub mod model;
+pub mod reality;
+pub mod signal;
+
+pub use effects::{Candidate, Effect};
+pub use experiment::{load_experiment, read_force_displacement, Experiment, ExperimentSpec, Region, Trial};
+pub use model::{ForceModel, ProbePath, Variant};
+
+use dataset::{BuildOptions, TrialData};
+use fit::{make_folds, score_candidate, CandidateScore};
+use metrics::{band_label, band_of, region_label, trial_metrics, Acc, GroupResidual, Phase, TrialMetrics};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use signal::{dot, lag_by_xcorr, noise_sigma, sub};
+use std::path::{Path, PathBuf};
+
+#[derive(Debug, thiserror::Error)]
+pub enum GapError {
+    #[error("{}: {msg}", file.display())]
+    Input { file: PathBuf, msg: String },
+    #[error("{}:{line}: {msg}", file.display())]
+    Line { file: PathBuf, line: usize, msg: String },
+    #[error("{path}: {err}", path = .0.display(), err = .1)]
+    Io(PathBuf, std::io::Error),
+    #[error("simulation: {0}")]
+    Sim(String),
+    #[error("{0}")]
+    Other(String),
+}
+
+/// Study data folder: `ARTHROSIM_DATA`, else `../shared/data` next to the workspace.
+pub fn data_dir() -> PathBuf {
+    if let Ok(d) = std::env::var("ARTHROSIM_DATA") {
+        return PathBuf::from(d);
+    }
+    let rel = PathBuf::from("../shared/data");
+    if rel.is_dir() {
+        return rel;
+    }
+    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data"))
+}
+
+#[derive(Debug, Clone)]
+pub struct Options {
+    /// Replay step, s.
+    pub dt: f64,
+    pub progress: bool,
+    /// Candidate effects considered (default: all nine).
+    pub effects: Vec<Effect>,
+    /// Consider pairs of effects.
+    pub pairs: bool,
+    /// Minimum held-out shrink for an effect to count as identified.
+    pub min_shrink: f64,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options { dt: 0.02, progress: false, effects: Effect::ALL.to_vec(), pairs: true, min_shrink: 0.08 }
+    }
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Heatmap {
+    pub phases: Vec<String>,
+    pub regions: Vec<String>,
+    /// rmse[phase][region], N (null where no samples).
+    pub rmse: Vec<Vec<Option<f64>>>,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Localisation {
+    pub overall: GroupResidual,
+    pub by_axis: Vec<GroupResidual>,
+    pub by_phase: Vec<GroupResidual>,
+    pub by_region: Vec<GroupResidual>,
+    pub by_depth_band: Vec<GroupResidual>,
+    pub heatmap: Heatmap,
+    pub worst_axis: String,
+    pub worst_phase: String,
+    pub worst_region: String,
+    pub worst_depth_band: String,
+    /// The study's metric over all contact samples: mean normal force, N.
+    pub mean_normal_force_measured: f64,
+    pub mean_normal_force_simulated: f64,
+    pub summary: String,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Series {
+    pub t: Vec<f64>,
+    pub measured: Vec<[f64; 3]>,
+    pub baseline: Vec<[f64; 3]>,
+    /// Held-out prediction with the winning effect (baseline when the verdict is none).
+    pub winner: Vec<[f64; 3]>,
+    pub depth_mm: Vec<f64>,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct TrialReport {
+    pub name: String,
+    pub region: Option<Region>,
+    pub samples: usize,
+    /// Lag of the measured force behind the simulated one (cross-correlation), s.
+    pub lag_s: Option<f64>,
+    pub before: TrialMetrics,
+    pub after: TrialMetrics,
+    pub series: Series,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Heldout {
+    pub scheme: String,
+    pub baseline_rmse: f64,
+    pub winner_rmse: f64,
+    pub shrink: f64,
+    pub baseline_study_error: f64,
+    pub winner_study_error: f64,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Verdict {
+    /// A candidate's name, a `+`-joined pair, or `none`.
+    pub effect: String,
+    /// Held-out RMSE shrink of the winner, fraction.
+    pub heldout_shrink: f64,
+    pub params: Vec<fit::FittedParam>,
+    pub reason: String,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Report {
+    pub input: String,
+    pub model: String,
+    pub trials: usize,
+    pub samples: usize,
+    /// Measurement noise estimated from the data, N.
+    pub noise_sigma: f64,
+    pub lag_median_s: Option<f64>,
+    pub localisation: Localisation,
+    pub ranking: Vec<CandidateScore>,
+    pub heldout: Heldout,
+    pub verdict: Verdict,
+    pub elapsed_s: f64,
+    pub trial_reports: Vec<TrialReport>,
+}
+
+/// Load an experiment folder and diagnose it against the physics model.
+pub fn diagnose_dir(dir: &Path, opts: &Options) -> Result<Report, GapError> {
+    let data = data_dir();
+    let exp = load_experiment(dir, &data)?;
+    let model = sim_model::SimForceModel::for_experiment(&exp, &data)?;
+    diagnose(&exp, &model, opts)
+}
+
+pub use sim_model::SimForceModel;
+pub mod sim_model;
+
+/// Diagnose an experiment with a given force model.
+pub fn diagnose(exp: &Experiment, model: &dyn ForceModel, opts: &Options) -> Result<Report, GapError> {
+    let start = std::time::Instant::now();
+    let effects: Vec<Effect> =
+        opts
+        .effects
+        .iter()
+        .copied()
+        .filter(|&e| fit::applicable(e, exp.quasi_static) && (e != Effect::Mesh || model.has_refinement()))
+        .collect();
+    let data = dataset::build(exp, model, &effects, &BuildOptions { dt: opts.dt, progress: opts.progress })?;
+    diagnose_data(exp.dir.display().to_string(), model.describe(), &data, &effects, opts, start)
+}
+
+fn baseline_score(data: &[TrialData]) -> (f64, f64, f64) {
+    let (mut s, mut n) = (0.0, 0usize);
+    for d in data {
+        for (p, f) in d.base_at_t.iter().zip(&d.f) {
+            let r = sub(*p, *f);
+            s += dot(r, r);
+            n += 3;
+        }
+    }
+    let rmse = (s / n.max(1) as f64).sqrt();
+    let bic = n as f64 * (s / n.max(1) as f64).max(1e-30).ln();
+    let study = data
+        .iter()
+        .map(|d| {
+            let (m, p) = fit::study_metric(d, &d.base_at_t);
+            (p - m).abs()
+        })
+        .sum::<f64>()
+        / data.len().max(1) as f64;
+    (rmse, bic, study)
+}
+
+/// Diagnosis on prepared trials (replays done).
+pub fn diagnose_data(input: String, model: String, data: &[TrialData], effects: &[Effect], opts: &Options, start: std::time::Instant) -> Result<Report, GapError> {
+    if data.is_empty() {
+        return Err(GapError::Other("no trials".into()));
+    }
+    let samples: usize = data.iter().map(|d| d.t.len()).sum();
+    // noise: robust per trial and axis, pooled by median
+    let mut sig: Vec<f64> = data
+        .iter()
+        .map(|d| {
+            let s2: f64 = (0..3).map(|k| noise_sigma(&d.f.iter().map(|f| f[k]).collect::<Vec<_>>()).powi(2)).sum();
+            (s2 / 3.0).sqrt()
+        })
+        .collect();
+    let noise = signal::median(&mut sig);
+    let lags: Vec<Option<f64>> = data
+        .iter()
+        .map(|d| {
+            let m: Vec<f64> = d.f.iter().map(|f| dot(*f, d.normal)).collect();
+            let b: Vec<f64> = d.base_at_t.iter().map(|f| dot(*f, d.normal)).collect();
+            lag_by_xcorr(&d.t, &b, &d.t, &m, 0.5, 0.005).filter(|(_, c)| *c > 0.5).map(|(l, _)| l)
+        })
+        .collect();
+    let mut lv: Vec<f64> = lags.iter().flatten().copied().collect();
+    let lag_median = (!lv.is_empty()).then(|| signal::median(&mut lv));
+    let localisation = localise(data);
+    let (scheme, folds) = make_folds(data);
+    let (r0, bic0, study0) = baseline_score(data);
+
+    let usable: Vec<Effect> = effects.iter().copied().filter(|&e| data.iter().all(|d| d.has_resims(e))).collect();
+    let bar = dataset::progress_bar(opts.progress, usable.len() as u64, "fitting");
+    let mut singles: Vec<CandidateScore> = usable
+        .par_iter()
+        .map(|&e| {
+            let s = score_candidate(&Candidate::single(e), data, &folds, r0, bic0, &[]);
+            if let Some(b) = &bar {
+                b.inc(1);
+            }
+            s
+        })
+        .collect();
+    if let Some(b) = bar {
+        b.finish_and_clear();
+    }
+    singles.sort_by(|a, b| a.score.total_cmp(&b.score));
+    let mut ranking = singles.clone();
+    if opts.pairs {
+        let top: Vec<&CandidateScore> = singles.iter().filter(|s| s.heldout_shrink > 0.02).take(4).collect();
+        let mut pairs = Vec::new();
+        for i in 0..top.len() {
+            for j in i + 1..top.len() {
+                let (a, b) = (Effect::parse(&top[i].effect).unwrap(), Effect::parse(&top[j].effect).unwrap());
+                if fit::pair_allowed(a, b) {
+                    let c = Candidate::pair(a, b);
+                    let theta_of = |e: Effect| if e == a { top[i].theta.clone() } else { top[j].theta.clone() };
+                    let init: Vec<f64> = c.0.iter().flat_map(|&e| theta_of(e)).collect();
+                    pairs.push((c, init));
+                }
+            }
+        }
+        let scored: Vec<CandidateScore> =
+            pairs.par_iter().map(|(c, init)| score_candidate(c, data, &folds, r0, bic0, std::slice::from_ref(init))).collect();
+        ranking.extend(scored);
+    }
+    ranking.sort_by(|a, b| a.score.total_cmp(&b.score));
+
+    let verdict = decide(&singles, &ranking, r0, noise, opts.min_shrink);
+    let winner = ranking.iter().find(|c| c.effect == verdict.effect);
+    let heldout = Heldout {
+        scheme,
+        baseline_rmse: r0,
+        winner_rmse: winner.map(|w| w.heldout_rmse).unwrap_or(r0),
+        shrink: winner.map(|w| w.heldout_shrink).unwrap_or(0.0),
+        baseline_study_error: study0,
+        winner_study_error: winner.map(|w| w.heldout_study_error).unwrap_or(study0),
+    };
+    let trial_reports = data
+        .iter()
+        .enumerate()
+        .map(|(i, d)| {
+            let after_pred = winner.map(|w| w.heldout_pred[i].clone()).unwrap_or_else(|| d.base_at_t.clone());
+            TrialReport {
+                name: d.name.clone(),
+                region: d.region,
+                samples: d.t.len(),
+                lag_s: lags[i],
+                before: trial_metrics(&d.f, &d.base_at_t, d.normal, &d.depth, &d.phase),
+                after: trial_metrics(&d.f, &after_pred, d.normal, &d.depth, &d.phase),
+                series: Series { t: d.t.clone(), measured: d.f.clone(), baseline: d.base_at_t.clone(), winner: after_pred, depth_mm: d.depth.clone() },
+            }
+        })
+        .collect();
+    Ok(Report {
+        input,
+        model,
+        trials: data.len(),
+        samples,
+        noise_sigma: noise,
+        lag_median_s: lag_median,
+        localisation,
+        ranking,
+        heldout,
+        verdict,
+        elapsed_s: start.elapsed().as_secs_f64(),
+        trial_reports,
+    })
+}
+
+/// The verdict: the best-ranked candidate if it beats the baseline beyond noise; a pair only
+/// when the best single leaves a residual well above noise and the pair removes much of it.
+fn decide(singles: &[CandidateScore], ranking: &[CandidateScore], r0: f64, noise: f64, min_shrink: f64) -> Verdict {
+    let none = |reason: String| Verdict { effect: "none".into(), heldout_shrink: 0.0, params: vec![], reason };
+    if r0 <= 1.15 * noise {
+        return none(format!("baseline residual {r0:.4} N is within noise ({noise:.4} N)"));
+    }
+    let best = match singles.first() {
+        Some(b) => b,
+        None => return none("no candidate could be assessed".into()),
+    };
+    if best.heldout_shrink < min_shrink || best.delta_bic > -10.0 {
+        return none(format!(
+            "best candidate {} shrinks held-out RMSE by only {:.1}% (ΔBIC {:.1})",
+            best.effect,
+            100.0 * best.heldout_shrink,
+            best.delta_bic
+        ));
+    }
+    let mut win = best;
+    let mut reason = format!(
+        "{} shrinks held-out RMSE {:.4} → {:.4} N ({:.1}%), ΔBIC {:.1}",
+        best.effect, r0, best.heldout_rmse, 100.0 * best.heldout_shrink, best.delta_bic
+    );
+    if best.heldout_rmse > 1.3 * noise {
+        if let Some(pair) = ranking.iter().filter(|c| c.effect.contains('+')).min_by(|a, b| a.score.total_cmp(&b.score)) {
+            let gain = 1.0 - pair.heldout_rmse / best.heldout_rmse;
+            if gain > 0.2 && pair.score < best.score && pair.effect.split('+').any(|e| e == best.effect) {
+                reason = format!(
+                    "{} leaves {:.4} N (noise {:.4} N); the pair {} removes {:.0}% more ({:.4} N)",
+                    best.effect, best.heldout_rmse, noise, pair.effect, 100.0 * gain, pair.heldout_rmse
+                );
+                win = pair;
+            }
+        }
+    }
+    Verdict { effect: win.effect.clone(), heldout_shrink: win.heldout_shrink, params: win.params.clone(), reason }
+}
+
+/// Residual of the baseline broken down by axis, phase, region and depth band.
+pub fn localise(data: &[TrialData]) -> Localisation {
+    let mut overall = Acc::default();
+    let mut phase: Vec<Acc> = vec![Acc::default(); Phase::ALL.len()];
+    let mut region: std::collections::BTreeMap<String, Acc> = Default::default();
+    let mut band: Vec<Acc> = vec![Acc::default(); metrics::DEPTH_BANDS_MM.len()];
+    let regions: Vec<&str> = {
+        let mut r: Vec<&str> = data.iter().map(|d| region_label(d.region)).collect();
+        r.sort_by_key(|s| ["posterior", "mid", "anterior", "unlabelled"].iter().position(|x| x == s));
+        r.dedup();
+        r
+    };
+    let mut heat: Vec<Vec<Acc>> = vec![vec![Acc::default(); regions.len()]; Phase::ALL.len()];
+    let (mut sm, mut ss, mut sc) = (0.0, 0.0, 0usize);
+    for d in data {
+        let rl = region_label(d.region);
+        let ri = regions.iter().position(|r| *r == rl).unwrap();
+        for j in 0..d.t.len() {
+            let r = sub(d.base_at_t[j], d.f[j]);
+            overall.push(r, d.normal);
+            let pi = Phase::ALL.iter().position(|p| *p == d.phase[j]).unwrap();
+            phase[pi].push(r, d.normal);
+            heat[pi][ri].push(r, d.normal);
+            region.entry(rl.to_string()).or_default().push(r, d.normal);
+            if d.phase[j] != Phase::Approach {
+                if let Some(b) = band_of(d.depth[j]) {
+                    band[b].push(r, d.normal);
+                }
+                sm += dot(d.f[j], d.normal);
+                ss += dot(d.base_at_t[j], d.normal);
+                sc += 1;
+            }
+        }
+    }
+    let ov = overall.summary("all".into());
+    let by_axis = vec![
+        GroupResidual { group: "normal".into(), samples: ov.samples, rmse: ov.rmse_normal, bias_normal: ov.bias_normal, rmse_normal: ov.rmse_normal, rmse_tangential: f64::NAN },
+        GroupResidual { group: "tangential".into(), samples: ov.samples, rmse: ov.rmse_tangential, bias_normal: f64::NAN, rmse_normal: f64::NAN, rmse_tangential: ov.rmse_tangential },
+    ];
+    let by_phase: Vec<GroupResidual> =
+        Phase::ALL.iter().zip(&phase).filter(|(_, a)| a.n > 0).map(|(p, a)| a.summary(p.name().into())).collect();
+    let by_region: Vec<GroupResidual> =
+        regions.iter().map(|r| region[*r].summary(r.to_string())).collect();
+    let by_depth_band: Vec<GroupResidual> =
+        band.iter().enumerate().filter(|(_, a)| a.n > 0).map(|(i, a)| a.summary(band_label(i))).collect();
+    let worst = |v: &[GroupResidual]| {
+        v.iter().filter(|g| g.rmse.is_finite()).max_by(|a, b| a.rmse.total_cmp(&b.rmse)).map(|g| g.group.clone()).unwrap_or_default()
+    };
+    let worst_axis = if ov.rmse_normal >= ov.rmse_tangential { "normal" } else { "tangential" }.to_string();
+    let heatmap = Heatmap {
+        phases: Phase::ALL.iter().map(|p| p.name().to_string()).collect(),
+        regions: regions.iter().map(|r| r.to_string()).collect(),
+        rmse: heat.iter().map(|row| row.iter().map(|a| (a.n > 0).then(|| a.rmse())).collect()).collect(),
+    };
+    let (wp, wr, wb) = (worst(&by_phase), worst(&by_region), worst(&by_depth_band));
+    let mn_m = if sc > 0 { sm / sc as f64 } else { 0.0 };
+    let mn_s = if sc > 0 { ss / sc as f64 } else { 0.0 };
+    let summary = format!(
+        "largest residual along the {worst_axis} axis, in the {wp} phase, {wr} region, depth band {wb}; \
+         mean normal force in contact: simulated {mn_s:.3} N vs measured {mn_m:.3} N"
+    );
+    Localisation {
+        overall: ov,
+        by_axis,
+        by_phase,
+        by_region,
+        by_depth_band,
+        heatmap,
+        worst_axis,
+        worst_phase: wp,
+        worst_region: wr,
+        worst_depth_band: wb,
+        mean_normal_force_measured: mn_m,
+        mean_normal_force_simulated: mn_s,
+        summary,
+    }
+}
+
+/// Write `report.json` and `report.html` into `out_dir` (created).
+pub fn write_report(report: &Report, out_dir: &Path) -> Result<(), GapError> {
+    std::fs::create_dir_all(out_dir).map_err(|e| GapError::Io(out_dir.to_path_buf(), e))?;
+    let jp = out_dir.join("report.json");
+    let json = serde_json::to_string_pretty(report).map_err(|e| GapError::Other(format!("report.json: {e}")))?;
+    std::fs::write(&jp, json).map_err(|e| GapError::Io(jp.clone(), e))?;
+    let hp = out_dir.join("report.html");
+    std::fs::write(&hp, html::render(report)).map_err(|e| GapError::Io(hp.clone(), e))?;
+    Ok(())
+}

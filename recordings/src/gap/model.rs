@@ -1,0 +1,103 @@
+//! The force model the diagnosis replays trials through, behind a small trait so the
+//! statistics can be developed and tested independently of the FE model.
+use super::signal::{quat_conj, quat_mul, quat_rotate, quat_tilt};
+use super::GapError;
+use msgs::Pose;
+use serde::{Deserialize, Serialize};
+
+/// A prescribed probe path on a uniform time grid `t0 + k dt`, k = 0..poses.len().
+#[derive(Debug, Clone)]
+pub struct ProbePath {
+    pub t0: f64,
+    pub dt: f64,
+    pub poses: Vec<Pose>,
+}
+
+/// The model variations that need a re-simulation (everything else is post-processing).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Variant {
+    /// Global modulus scale.
+    pub modulus_scale: f64,
+    /// Neo-Hookean (stable neo-Hookean) instead of linear corotational.
+    pub neo_hookean: bool,
+    /// Coulomb friction coefficient.
+    pub friction: f64,
+    /// Specimen frame rotated about world x then y, radians.
+    pub tilt: [f64; 2],
+    /// 0: fixed inferior nodes; > 0: elastic support, N/m per node.
+    pub support_stiffness: f64,
+    /// Refined discretisation of the same specimen.
+    pub fine_mesh: bool,
+}
+
+impl Default for Variant {
+    fn default() -> Self {
+        Variant { modulus_scale: 1.0, neo_hookean: false, friction: 0.0, tilt: [0.0; 2], support_stiffness: 0.0, fine_mesh: false }
+    }
+}
+
+impl Variant {
+    pub fn label(&self) -> String {
+        let mut s = Vec::new();
+        if self.modulus_scale != 1.0 {
+            s.push(format!("E×{:.3}", self.modulus_scale));
+        }
+        if self.neo_hookean {
+            s.push("neo-Hookean".into());
+        }
+        if self.friction != 0.0 {
+            s.push(format!("μ={:.2}", self.friction));
+        }
+        if self.tilt != [0.0; 2] {
+            s.push(format!("tilt=({:.1}°,{:.1}°)", self.tilt[0].to_degrees(), self.tilt[1].to_degrees()));
+        }
+        if self.support_stiffness > 0.0 {
+            s.push(format!("support={:.0} N/m", self.support_stiffness));
+        }
+        if self.fine_mesh {
+            s.push("fine mesh".into());
+        }
+        if s.is_empty() {
+            "baseline".into()
+        } else {
+            s.join(", ")
+        }
+    }
+}
+
+/// Replays a probe path kinematically and returns the force the tissue exerts on the probe at
+/// every grid point (after the step that reaches that pose), world frame, N.
+/// Implementations handle every field of [`Variant`] except `tilt`, which [`replay`] applies
+/// by rotating the trajectory into the specimen frame.
+pub trait ForceModel: Sync + Send {
+    fn replay_untilted(&self, variant: &Variant, path: &ProbePath) -> Result<Vec<[f64; 3]>, GapError>;
+    /// Short description for reports.
+    fn describe(&self) -> String;
+    /// A refined discretisation exists (the `mesh` effect can be assessed).
+    fn has_refinement(&self) -> bool {
+        true
+    }
+}
+
+/// Replay with the specimen tilted: a specimen rotated by R in the world sees the probe path
+/// R⁻¹·p (about the world origin = specimen footprint centre), and its force comes back as R·f.
+pub fn replay(model: &dyn ForceModel, variant: &Variant, path: &ProbePath) -> Result<Vec<[f64; 3]>, GapError> {
+    if variant.tilt == [0.0; 2] {
+        return model.replay_untilted(variant, path);
+    }
+    let r = quat_tilt(variant.tilt[0], variant.tilt[1]);
+    let ri = quat_conj(r);
+    let local = ProbePath {
+        t0: path.t0,
+        dt: path.dt,
+        poses: path
+            .poses
+            .iter()
+            .map(|p| Pose { position: quat_rotate(ri, p.position), orientation: quat_mul(ri, p.orientation) })
+            .collect(),
+    };
+    let mut v = variant.clone();
+    v.tilt = [0.0; 2];
+    let f = model.replay_untilted(&v, &local)?;
+    Ok(f.into_iter().map(|x| quat_rotate(r, x)).collect())
+}

@@ -1,0 +1,382 @@
+//! A digital reality: experiment folders generated from a higher-fidelity truth with chosen
+//! effects injected, the truth written to a separate file outside the folder.
+//!
+//! The truth replays the study protocol (five probings in each of three regions: approach,
+//! loading, hold, a tangential slide on two of the five, unloading) through the physics
+//! model at the node's 0.01 s step (the diagnosis replays at 0.02 s); re-simulated effects are
+//! simulated exactly (friction μ, the tilted specimen, elastic support, the fine mesh,
+//! neo-Hookean material for hardening), the rest applied to the truth's own force
+//! (stiffening, QLV, device bias and tool inertia, sensor delay and low-pass); then sensor
+//! noise and ~38 Hz irregular sampling.
+use super::dataset::prepare;
+use super::effects::{predict, Candidate, Effect};
+use super::experiment::{write_trial_csv, ExperimentSpec, MaterialSpec, ProbeSpec, Region, SpecimenSpec, Trial, TrialSpec};
+use super::model::{replay, ForceModel, ProbePath, Variant};
+use super::signal::{add, interp, nlerp, norm, scale, sub};
+use super::sim_model::SimForceModel;
+use super::GapError;
+use launch_config::SceneConfig;
+use msgs::Pose;
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::path::Path;
+
+/// Small deterministic generator (SplitMix64) so cases are reproducible from a seed.
+#[derive(Debug, Clone)]
+pub struct Rng(u64);
+impl Rng {
+    pub fn new(seed: u64) -> Rng {
+        Rng(seed ^ 0x9E37_79B9_7F4A_7C15)
+    }
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+    pub fn uniform(&mut self) -> f64 {
+        ((self.next_u64() >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+    }
+    pub fn range(&mut self, a: f64, b: f64) -> f64 {
+        a + (b - a) * self.uniform()
+    }
+    pub fn sign(&mut self) -> f64 {
+        if self.uniform() < 0.5 {
+            -1.0
+        } else {
+            1.0
+        }
+    }
+    pub fn gauss(&mut self) -> f64 {
+        let (u1, u2) = (self.uniform(), self.uniform());
+        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+    }
+}
+
+/// One injected effect with its true parameter values (names as in `Effect::params`, plus
+/// truth-only ones such as `support_stiffness`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Injected {
+    pub effect: String,
+    pub params: BTreeMap<String, f64>,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct RealitySpec {
+    pub seed: u64,
+    pub injected: Vec<Injected>,
+    /// Sensor noise, N (white, per axis).
+    pub noise_sigma: f64,
+    /// Mean sampling rate, Hz, and relative jitter of the intervals.
+    pub rate_hz: f64,
+    pub jitter: f64,
+    /// Probings per region (the study: 5) and regions (posterior, mid, anterior).
+    pub probings_per_region: usize,
+    pub regions: Vec<Region>,
+    /// Specimen mesh the experiment names (the truth uses the refined one for `mesh`).
+    pub mesh: String,
+    /// Truth replay step, s.
+    pub truth_dt: f64,
+}
+
+impl RealitySpec {
+    /// Effects given as `name` (strength drawn from the seed) or `name=strength`
+    /// (modulus: scale; hardening: stiffening rate 1/mm; viscoelastic: g1; friction: μ;
+    /// tilt: angle in degrees; device: bias magnitude N; support: stiffness N/m per node;
+    /// mesh: no strength; sensor: delay s). `none` or an empty list: no effect.
+    pub fn from_effects(effects: &[&str], seed: u64) -> Result<RealitySpec, GapError> {
+        let mut rng = Rng::new(seed);
+        let mut injected = Vec::new();
+        for item in effects {
+            let item = item.trim();
+            if item.is_empty() || item == "none" {
+                continue;
+            }
+            let (name, strength) = match item.split_once('=') {
+                Some((n, s)) => (
+                    n.trim(),
+                    Some(s.trim().parse::<f64>().map_err(|_| GapError::Other(format!("effect {item:?}: strength is not a number")))?),
+                ),
+                None => (item, None),
+            };
+            let e = Effect::parse(name).ok_or_else(|| {
+                GapError::Other(format!(
+                    "unknown effect {name:?} (modulus, hardening, viscoelastic, friction, tilt, device, support, mesh, sensor)"
+                ))
+            })?;
+            injected.push(draw(e, strength, &mut rng));
+        }
+        Ok(RealitySpec {
+            seed,
+            injected,
+            noise_sigma: 0.02,
+            rate_hz: 38.0,
+            jitter: 0.25,
+            probings_per_region: 5,
+            regions: Region::ALL.to_vec(),
+            mesh: "default:lateral:coarse".into(),
+            truth_dt: 0.01,
+        })
+    }
+
+    /// Label the diagnosis should find: `none`, an effect, or an issue-ordered `a+b`.
+    pub fn label(&self) -> String {
+        if self.injected.is_empty() {
+            return "none".into();
+        }
+        let effects: Vec<Effect> = self.injected.iter().filter_map(|i| Effect::parse(&i.effect)).collect();
+        Candidate(effects).name()
+    }
+}
+
+fn draw(e: Effect, s: Option<f64>, rng: &mut Rng) -> Injected {
+    let mut p = BTreeMap::new();
+    match e {
+        Effect::Modulus => {
+            let v = s.unwrap_or_else(|| if rng.uniform() < 0.5 { rng.range(0.55, 0.75) } else { rng.range(1.35, 1.7) });
+            p.insert("modulus_scale".into(), v);
+        }
+        Effect::Hardening => {
+            p.insert("stiffening_rate".into(), s.unwrap_or_else(|| rng.range(0.25, 0.45)));
+            p.insert("neo_hookean".into(), 1.0);
+        }
+        Effect::Viscoelastic => {
+            p.insert("prony_g1".into(), s.unwrap_or_else(|| rng.range(0.3, 0.5)));
+            p.insert("prony_tau1".into(), rng.range(0.4, 1.5));
+        }
+        Effect::Friction => {
+            p.insert("mu".into(), s.unwrap_or_else(|| rng.range(0.2, 0.5)));
+        }
+        Effect::Tilt => {
+            let a = s.unwrap_or_else(|| rng.range(4.0, 8.0));
+            p.insert("tilt_x".into(), a * rng.sign());
+            p.insert("tilt_y".into(), a * rng.range(0.3, 0.8) * rng.sign());
+        }
+        Effect::Device => {
+            let b = s.unwrap_or_else(|| rng.range(0.2, 0.5));
+            let dir = [rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0)];
+            let n = norm(dir).max(1e-9);
+            p.insert("bias_x".into(), b * dir[0] / n);
+            p.insert("bias_y".into(), b * dir[1] / n);
+            p.insert("bias_z".into(), b * dir[2] / n);
+            p.insert("tool_mass".into(), rng.range(0.02, 0.06));
+        }
+        Effect::Support => {
+            p.insert("support_stiffness".into(), s.unwrap_or_else(|| rng.range(700.0, 2000.0)));
+        }
+        Effect::Mesh => {}
+        Effect::Sensor => {
+            let d = s.unwrap_or_else(|| rng.range(0.05, 0.12));
+            p.insert("delay".into(), d);
+            p.insert("lowpass_tau".into(), d * rng.range(0.4, 0.8));
+        }
+    }
+    Injected { effect: e.name().into(), params: p }
+}
+
+/// What the truth file holds.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Truth {
+    pub label: String,
+    pub spec: RealitySpec,
+    pub truth_variant: Variant,
+    pub model: String,
+}
+
+/// The study protocol for one probing: approach along −n, load, hold, optional slide, unload.
+pub fn protocol_path(site: [f64; 3], normal: [f64; 3], depth: f64, slide: Option<[f64; 3]>, dt: f64) -> ProbePath {
+    // waypoints: (time, offset along n (m, + = above the surface), tangential offset)
+    let above = 3.0e-3;
+    let v_app = 3.0e-3; // m/s
+    let v_load = 2.0e-3;
+    let mut wp: Vec<(f64, f64, f64)> = vec![(0.0, above, 0.0)];
+    let mut t = above / v_app;
+    wp.push((t, 0.0, 0.0));
+    t += depth / v_load;
+    wp.push((t, -depth, 0.0));
+    t += 1.0;
+    wp.push((t, -depth, 0.0));
+    let slide_len = 3.0e-3;
+    if slide.is_some() {
+        t += slide_len / 3.0e-3;
+        wp.push((t, -depth, slide_len));
+        t += 0.3;
+        wp.push((t, -depth, slide_len));
+    }
+    let last_s = wp.last().unwrap().2;
+    t += (depth + 2.0e-3) / v_load;
+    wp.push((t, 2.0e-3, last_s));
+    t += 0.3;
+    wp.push((t, 2.0e-3, last_s));
+    let tw: Vec<f64> = wp.iter().map(|w| w.0).collect();
+    let nw: Vec<f64> = wp.iter().map(|w| w.1).collect();
+    let sw: Vec<f64> = wp.iter().map(|w| w.2).collect();
+    let dir = slide.unwrap_or([1.0, 0.0, 0.0]);
+    let n_steps = (t / dt).ceil() as usize + 1;
+    let poses = (0..n_steps)
+        .map(|k| {
+            let tk = k as f64 * dt;
+            let on = interp(&tw, &nw, tk);
+            let os = interp(&tw, &sw, tk);
+            Pose { position: add(add(site, scale(normal, on)), scale(dir, os)), orientation: [0.0, 0.0, 0.0, 1.0] }
+        })
+        .collect();
+    ProbePath { t0: 0.0, dt, poses }
+}
+
+fn post_candidate(spec: &RealitySpec) -> (Candidate, Vec<f64>) {
+    let mut effects = Vec::new();
+    let mut theta = Vec::new();
+    let mut inj: Vec<&Injected> = spec.injected.iter().collect();
+    inj.sort_by_key(|i| Effect::parse(&i.effect));
+    for i in inj {
+        let e = Effect::parse(&i.effect).unwrap();
+        if !matches!(e, Effect::Modulus | Effect::Hardening | Effect::Viscoelastic | Effect::Device | Effect::Sensor) {
+            continue;
+        }
+        effects.push(e);
+        for p in e.params() {
+            let v = match (e, p.name) {
+                (Effect::Hardening, "small_strain_scale") => 1.0,
+                _ => *i.params.get(p.name).unwrap_or(&p.neutral),
+            };
+            theta.push(v);
+        }
+    }
+    (Candidate(effects), theta)
+}
+
+fn truth_variant(spec: &RealitySpec) -> Variant {
+    let mut v = Variant::default();
+    for i in &spec.injected {
+        let g = |k: &str| *i.params.get(k).unwrap_or(&0.0);
+        match Effect::parse(&i.effect) {
+            Some(Effect::Friction) => v.friction = g("mu"),
+            Some(Effect::Tilt) => v.tilt = [g("tilt_x").to_radians(), g("tilt_y").to_radians()],
+            Some(Effect::Support) => v.support_stiffness = g("support_stiffness"),
+            Some(Effect::Mesh) => v.fine_mesh = true,
+            Some(Effect::Hardening) => v.neo_hookean = g("neo_hookean") > 0.5,
+            _ => {}
+        }
+    }
+    v
+}
+
+/// Generate the experiment folder `dir` (experiment.toml + 15 CSVs) and the truth file.
+pub fn write_experiment(spec: &RealitySpec, dir: &Path, truth_path: &Path) -> Result<Truth, GapError> {
+    let data_dir = super::data_dir();
+    let mut scene = SceneConfig::default();
+    scene.meniscus.mesh = spec.mesh.clone();
+    let model = SimForceModel::from_scene(scene, &data_dir);
+    let sites = model.sites()?;
+    write_experiment_with(spec, &model, &sites, dir, truth_path)
+}
+
+/// A probing site: region, surface point and outward normal (world, m).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Site {
+    pub region: Region,
+    pub point: [f64; 3],
+    pub normal: [f64; 3],
+}
+
+/// Same as [`write_experiment`] with any force model and its probing sites.
+pub fn write_experiment_with(spec: &RealitySpec, model: &dyn ForceModel, sites: &[Site], dir: &Path, truth_path: &Path) -> Result<Truth, GapError> {
+    if truth_path.starts_with(dir) {
+        return Err(GapError::Other(format!("truth file {} must be outside the experiment folder", truth_path.display())));
+    }
+    std::fs::create_dir_all(dir).map_err(|e| GapError::Io(dir.to_path_buf(), e))?;
+    let variant = truth_variant(spec);
+    let mut rng = Rng::new(spec.seed.wrapping_mul(31).wrapping_add(7));
+    let (post, theta) = post_candidate(spec);
+    let mut jobs = Vec::new();
+    for &region in &spec.regions {
+        let rs: Vec<&Site> = sites.iter().filter(|s| s.region == region).collect();
+        if rs.is_empty() {
+            return Err(GapError::Sim(format!("no probing site in region {}", region.name())));
+        }
+        for j in 0..spec.probings_per_region {
+            let s = rs[j % rs.len()];
+            let (n, p) = (s.normal, s.point);
+            let depth = [1.6e-3, 2.2e-3, 2.8e-3, 2.0e-3, 2.5e-3][j % 5] * rng.range(0.9, 1.1);
+            // slide on probings 2 and 4: along the surface, perpendicular to n
+            let slide = if j % 5 == 1 || j % 5 == 3 {
+                let a = if n[2].abs() < 0.9 { [0.0, 0.0, 1.0] } else { [1.0, 0.0, 0.0] };
+                let t = sub(a, scale(n, super::signal::dot(a, n)));
+                let tn = norm(t);
+                Some(scale(t, rng.sign() / tn))
+            } else {
+                None
+            };
+            let name = format!("{}_{}", region.name(), j + 1);
+            jobs.push((name, region, protocol_path(p, n, depth, slide, spec.truth_dt), rng.next_u64()));
+        }
+    }
+    use rayon::prelude::*;
+    let forces: Vec<Result<Vec<[f64; 3]>, GapError>> =
+        jobs.par_iter().map(|(_, _, path, _)| replay(model, &variant, path)).collect();
+    let mut trials = Vec::new();
+    for ((name, region, path, seed), f) in jobs.into_iter().zip(forces) {
+        let f = f?;
+        let mut r = Rng::new(seed);
+        let t_end = path.t0 + path.dt * (path.poses.len() - 1) as f64;
+        let mut ts = vec![r.range(0.0, 1.0 / spec.rate_hz)];
+        loop {
+            let next = ts.last().unwrap() + (1.0 + spec.jitter * r.range(-1.0, 1.0)) / spec.rate_hz;
+            if next > t_end {
+                break;
+            }
+            ts.push(next);
+        }
+        let grid_t: Vec<f64> = (0..path.poses.len()).map(|k| path.t0 + k as f64 * path.dt).collect();
+        let grid_trial = Trial {
+            name: name.clone(),
+            file: Default::default(),
+            region: Some(region),
+            t: grid_t,
+            force: f.clone(),
+            pose: path.poses.clone(),
+        };
+        let mut td = prepare(&grid_trial, path.clone(), f, Default::default());
+        td.t = ts.clone();
+        let (mut g, mut out) = (Vec::new(), Vec::new());
+        predict(&post, &theta, &td, &mut g, &mut out);
+        let force: Vec<[f64; 3]> = out
+            .iter()
+            .map(|v| [v[0] + spec.noise_sigma * r.gauss(), v[1] + spec.noise_sigma * r.gauss(), v[2] + spec.noise_sigma * r.gauss()])
+            .collect();
+        let poses: Vec<Pose> = ts
+            .iter()
+            .map(|&t| {
+                let s = ((t - path.t0) / path.dt).max(0.0);
+                let k = (s.floor() as usize).min(path.poses.len() - 2);
+                let w = (s - k as f64).clamp(0.0, 1.0);
+                let (a, b) = (&path.poses[k], &path.poses[k + 1]);
+                Pose {
+                    position: add(a.position, scale(sub(b.position, a.position), w)),
+                    orientation: nlerp(a.orientation, b.orientation, w),
+                }
+            })
+            .collect();
+        let file = format!("{name}.csv");
+        write_trial_csv(&dir.join(&file), &ts, &force, &poses)?;
+        trials.push(TrialSpec { file, region: Some(region.name().into()) });
+    }
+    let exp = ExperimentSpec {
+        specimen: SpecimenSpec { mesh: spec.mesh.clone(), fixed: "inferior".into(), transform: None },
+        material: MaterialSpec::default(),
+        probe: ProbeSpec::default(),
+        trials,
+    };
+    let text = toml::to_string(&exp).map_err(|e| GapError::Other(format!("experiment.toml: {e}")))?;
+    let tp = dir.join("experiment.toml");
+    std::fs::write(&tp, text).map_err(|e| GapError::Io(tp, e))?;
+    let truth = Truth { label: spec.label(), spec: spec.clone(), truth_variant: variant, model: model.describe() };
+    if let Some(parent) = truth_path.parent() {
+        std::fs::create_dir_all(parent).map_err(|e| GapError::Io(parent.to_path_buf(), e))?;
+    }
+    let js = serde_json::to_string_pretty(&truth).map_err(|e| GapError::Other(e.to_string()))?;
+    std::fs::write(truth_path, js).map_err(|e| GapError::Io(truth_path.to_path_buf(), e))?;
+    Ok(truth)
+}

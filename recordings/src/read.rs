@@ -1,0 +1,535 @@
+//! Reading recordings: a tolerant linear scan (works on files cut short by `kill -9`: every
+//! complete chunk is read, the torn tail is reported), and `info`.
+
+use crate::channels::*;
+use crate::error::RecordingError;
+use mcap::read::{ChunkReader, LinearReader};
+use mcap::records::{MessageHeader, Metadata, Record};
+use msgs::ros::{self, RosMessage};
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// One channel as found in the file.
+#[derive(Debug, Clone, Serialize)]
+pub struct ChannelInfo {
+    pub id: u16,
+    pub topic: String,
+    pub schema_name: String,
+    pub schema_encoding: String,
+    pub schema_text: String,
+    pub message_encoding: String,
+    pub metadata: BTreeMap<String, String>,
+}
+
+/// What the scan hands to its visitor, in file order.
+pub enum Event<'a> {
+    Message {
+        channel: &'a ChannelInfo,
+        header: MessageHeader,
+        data: &'a [u8],
+    },
+    Metadata(&'a Metadata),
+    Attachment {
+        name: &'a str,
+        media_type: &'a str,
+        log_time: u64,
+        data: &'a [u8],
+    },
+}
+
+/// How a scan went.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct ScanOutcome {
+    pub profile: String,
+    pub library: String,
+    pub channels: BTreeMap<u16, ChannelInfo>,
+    /// Data end record seen (a cleanly closed file).
+    pub data_end: bool,
+    /// Footer and summary present.
+    pub footer: bool,
+    /// Why reading stopped before the end of the file (torn tail after `kill -9`, corruption).
+    pub stopped_early: Option<String>,
+    /// Chunks that could not be decoded (bad CRC, bad compression) and were skipped.
+    pub skipped_chunks: Vec<String>,
+    /// Messages whose channel was never declared (skipped).
+    pub orphan_messages: u64,
+    pub messages: u64,
+}
+
+/// Largest uncompressed chunk accepted (a corrupt size field must not make us allocate GBs).
+const MAX_CHUNK_BYTES: u64 = 1 << 30;
+
+/// Reads the whole file.
+pub fn load(path: &Path) -> Result<Vec<u8>, RecordingError> {
+    std::fs::read(path).map_err(|e| RecordingError::io(path, e))
+}
+
+struct Scanner<'v> {
+    path: PathBuf,
+    schemas: BTreeMap<u16, (String, String, String)>,
+    out: ScanOutcome,
+    visit: &'v mut dyn FnMut(Event<'_>) -> Result<(), RecordingError>,
+}
+
+impl Scanner<'_> {
+    /// Handles a record found at top level or inside a chunk.
+    fn record(&mut self, record: Record<'_>, in_chunk: bool) -> Result<(), RecordingError> {
+        match record {
+            Record::Header(h) => {
+                if in_chunk {
+                    return Ok(());
+                }
+                if h.profile != PROFILE {
+                    return Err(RecordingError::WrongProfile {
+                        path: self.path.clone(),
+                        found: h.profile,
+                    });
+                }
+                self.out.profile = h.profile;
+                self.out.library = h.library;
+            }
+            Record::Schema { header, data } => {
+                let text = String::from_utf8_lossy(&data).into_owned();
+                self.schemas
+                    .insert(header.id, (header.name, header.encoding, text));
+            }
+            Record::Channel(c) => {
+                if self.out.channels.contains_key(&c.id) {
+                    return Ok(());
+                }
+                let (schema_name, schema_encoding, schema_text) = match self.schemas.get(&c.schema_id)
+                {
+                    Some(s) => s.clone(),
+                    None => {
+                        return Err(RecordingError::UnknownSchema {
+                            path: self.path.clone(),
+                            topic: c.topic,
+                            schema: format!("id {}", c.schema_id),
+                            encoding: String::new(),
+                        })
+                    }
+                };
+                if schema_encoding != SCHEMA_ENCODING || c.message_encoding != MESSAGE_ENCODING {
+                    return Err(RecordingError::UnknownSchema {
+                        path: self.path.clone(),
+                        topic: c.topic,
+                        schema: schema_name,
+                        encoding: format!("{schema_encoding}/{}", c.message_encoding),
+                    });
+                }
+                self.out.channels.insert(
+                    c.id,
+                    ChannelInfo {
+                        id: c.id,
+                        topic: c.topic,
+                        schema_name,
+                        schema_encoding,
+                        schema_text,
+                        message_encoding: c.message_encoding,
+                        metadata: c.metadata,
+                    },
+                );
+            }
+            Record::Message { header, data } => match self.out.channels.get(&header.channel_id) {
+                Some(channel) => {
+                    self.out.messages += 1;
+                    (self.visit)(Event::Message {
+                        channel,
+                        header,
+                        data: &data,
+                    })?;
+                }
+                None => self.out.orphan_messages += 1,
+            },
+            Record::Chunk { header, data } => {
+                if in_chunk {
+                    return Ok(());
+                }
+                if header.uncompressed_size > MAX_CHUNK_BYTES
+                    || header.uncompressed_size > (data.len() as u64).saturating_mul(1000) + (1 << 20)
+                {
+                    self.out.skipped_chunks.push(format!(
+                        "chunk claims {} bytes uncompressed from {} compressed",
+                        header.uncompressed_size,
+                        data.len()
+                    ));
+                    return Ok(());
+                }
+                let reader = match ChunkReader::new(header, &data) {
+                    Ok(r) => r,
+                    Err(e) => {
+                        self.out.skipped_chunks.push(e.to_string());
+                        return Ok(());
+                    }
+                };
+                for inner in reader {
+                    match inner {
+                        Ok(r) => self.record(r, true)?,
+                        Err(e) => {
+                            // Messages before the damage were delivered; the rest of this
+                            // chunk is lost.
+                            self.out.skipped_chunks.push(e.to_string());
+                            break;
+                        }
+                    }
+                }
+            }
+            Record::Metadata(m) => {
+                if !in_chunk {
+                    (self.visit)(Event::Metadata(&m))?;
+                }
+            }
+            Record::Attachment { header, data, .. } => {
+                if !in_chunk {
+                    (self.visit)(Event::Attachment {
+                        name: &header.name,
+                        media_type: &header.media_type,
+                        log_time: header.log_time,
+                        data: &data,
+                    })?;
+                }
+            }
+            Record::DataEnd(_) => self.out.data_end = true,
+            Record::Footer(_) => self.out.footer = true,
+            _ => {}
+        }
+        Ok(())
+    }
+}
+
+/// Scans `bytes` (the contents of `path`) from start to end, calling `visit` for every
+/// message, metadata record and attachment. Stops quietly at a torn tail (reported in
+/// `stopped_early`); fails with a typed error on a file that is not a ROS 2 MCAP.
+pub fn scan_bytes(
+    path: &Path,
+    bytes: &[u8],
+    visit: &mut dyn FnMut(Event<'_>) -> Result<(), RecordingError>,
+) -> Result<ScanOutcome, RecordingError> {
+    if bytes.len() < mcap::MAGIC.len() || !bytes.starts_with(mcap::MAGIC) {
+        return Err(RecordingError::NotMcap {
+            path: path.to_path_buf(),
+        });
+    }
+    // The mcap crate is not supposed to panic on bad input; this guard turns a bug there
+    // into a typed error instead of taking the caller down.
+    let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        let mut scanner = Scanner {
+            path: path.to_path_buf(),
+            schemas: BTreeMap::new(),
+            out: ScanOutcome::default(),
+            visit,
+        };
+        let reader = LinearReader::new(bytes).map_err(|e| RecordingError::Corrupt {
+            path: path.to_path_buf(),
+            offset: 0,
+            detail: e.to_string(),
+        })?;
+        let mut first = true;
+        let mut records = 0u64;
+        for record in reader {
+            match record {
+                Ok(r) => {
+                    if first && !matches!(r, Record::Header(_)) {
+                        return Err(RecordingError::Corrupt {
+                            path: path.to_path_buf(),
+                            offset: 8,
+                            detail: "first record is not a header".into(),
+                        });
+                    }
+                    first = false;
+                    records += 1;
+                    scanner.record(r, false)?;
+                }
+                Err(e) => {
+                    if records == 0 {
+                        return Err(RecordingError::Truncated {
+                            path: path.to_path_buf(),
+                            detail: e.to_string(),
+                        });
+                    }
+                    scanner.out.stopped_early = Some(format!("after {records} records: {e}"));
+                    break;
+                }
+            }
+        }
+        if records == 0 {
+            return Err(RecordingError::Truncated {
+                path: path.to_path_buf(),
+                detail: "no header record".into(),
+            });
+        }
+        Ok(scanner.out)
+    }));
+    match result {
+        Ok(r) => r,
+        Err(_) => Err(RecordingError::Corrupt {
+            path: path.to_path_buf(),
+            offset: 0,
+            detail: "MCAP parser failed on malformed input".into(),
+        }),
+    }
+}
+
+/// Reads `path` and scans it (see [`scan_bytes`]).
+pub fn scan(
+    path: &Path,
+    visit: &mut dyn FnMut(Event<'_>) -> Result<(), RecordingError>,
+) -> Result<ScanOutcome, RecordingError> {
+    let bytes = load(path)?;
+    scan_bytes(path, &bytes, visit)
+}
+
+/// Checks that `channel` carries exactly our definition of `T` (name and schema text), so
+/// its CDR payloads can be decoded positionally.
+pub fn check_schema<T: RosMessage>(path: &Path, channel: &ChannelInfo) -> Result<(), RecordingError> {
+    let expected_name = ros::type_name::<T>();
+    if channel.schema_name != expected_name || channel.schema_text != ros::schema_text::<T>() {
+        return Err(RecordingError::UnknownSchema {
+            path: path.to_path_buf(),
+            topic: channel.topic.clone(),
+            schema: if channel.schema_name == expected_name {
+                format!("{} (definition differs from this build's)", channel.schema_name)
+            } else {
+                channel.schema_name.clone()
+            },
+            encoding: channel.schema_encoding.clone(),
+        });
+    }
+    Ok(())
+}
+
+/// Decodes a message of a checked channel.
+pub fn decode<T: RosMessage>(
+    path: &Path,
+    channel: &ChannelInfo,
+    header: &MessageHeader,
+    data: &[u8],
+) -> Result<T, RecordingError> {
+    ros::from_cdr::<T>(data).map_err(|e| RecordingError::Decode {
+        path: path.to_path_buf(),
+        topic: channel.topic.clone(),
+        sequence: header.sequence as u64,
+        schema: channel.schema_name.clone(),
+        detail: e.to_string(),
+    })
+}
+
+/// A stretch of a topic with no messages.
+#[derive(Debug, Clone, Serialize)]
+pub struct Gap {
+    /// Start of the gap, s after the recording's first message.
+    pub at_s: f64,
+    pub length_s: f64,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct TopicInfo {
+    pub topic: String,
+    pub type_name: String,
+    pub count: u64,
+    pub first_ns: u64,
+    pub last_ns: u64,
+    /// Mean rate over the topic's own span, Hz.
+    pub rate_hz: f64,
+    /// Intervals longer than max(5 × median interval, 50 ms).
+    pub gaps: Vec<Gap>,
+    /// Lossless channels: messages missing by their own sequence numbers (dropped
+    /// upstream of the file).
+    pub sequence_missing: Option<u64>,
+}
+
+/// Summary of a recording (`arthrosim recordings info`).
+#[derive(Debug, Clone, Serialize)]
+pub struct RecordingInfo {
+    pub path: PathBuf,
+    pub bytes: u64,
+    pub profile: String,
+    pub library: String,
+    /// Closed cleanly (data end, summary and footer present).
+    pub complete: bool,
+    pub stopped_early: Option<String>,
+    pub skipped_chunks: usize,
+    pub messages: u64,
+    pub start_ns: u64,
+    pub end_ns: u64,
+    pub duration_s: f64,
+    pub topics: Vec<TopicInfo>,
+    pub metadata: Vec<String>,
+    pub attachments: Vec<String>,
+    /// The `arthrosim_session` metadata record (session name, launch path, source).
+    pub session: BTreeMap<String, String>,
+}
+
+struct TopicAcc {
+    times: Vec<u64>,
+    last_seq: Option<(u64, u64)>,
+    missing: u64,
+    lossless: bool,
+}
+
+/// Topics, counts, rates, duration, gaps of `path`.
+pub fn info(path: &Path) -> Result<RecordingInfo, RecordingError> {
+    let bytes = load(path)?;
+    let mut acc: BTreeMap<u16, TopicAcc> = BTreeMap::new();
+    let mut metadata = Vec::new();
+    let mut attachments = Vec::new();
+    let mut session = BTreeMap::new();
+    let mut checked: BTreeMap<u16, bool> = BTreeMap::new();
+    let outcome = scan_bytes(path, &bytes, &mut |event| {
+        match event {
+            Event::Message {
+                channel,
+                header,
+                data,
+            } => {
+                let lossless = *checked.entry(channel.id).or_insert_with(|| {
+                    (channel.topic == TOPIC_CONTACT_STEP
+                        && check_schema::<ContactStep>(path, channel).is_ok())
+                        || (channel.topic == TOPIC_DEVICE_TICK
+                            && check_schema::<DeviceTick>(path, channel).is_ok())
+                });
+                let a = acc.entry(channel.id).or_insert_with(|| TopicAcc {
+                    times: Vec::new(),
+                    last_seq: None,
+                    missing: 0,
+                    lossless,
+                });
+                a.times.push(header.log_time);
+                if lossless {
+                    // Only the leading fields are needed: instance id and sequence.
+                    let ids = if channel.topic == TOPIC_CONTACT_STEP {
+                        decode::<ContactStep>(path, channel, &header, data)
+                            .map(|m| (m.instance_id, m.sequence))
+                    } else {
+                        decode::<DeviceTick>(path, channel, &header, data)
+                            .map(|m| (m.instance_id, m.sequence))
+                    };
+                    let (instance, seq) = ids?;
+                    if let Some((last_instance, last)) = a.last_seq {
+                        if last_instance == instance && seq > last + 1 {
+                            a.missing += seq - last - 1;
+                        }
+                    }
+                    a.last_seq = Some((instance, seq));
+                }
+            }
+            Event::Metadata(m) => {
+                if m.name == SESSION_METADATA {
+                    session = m.metadata.clone();
+                }
+                metadata.push(m.name.clone());
+            }
+            Event::Attachment { name, .. } => attachments.push(name.to_string()),
+        }
+        Ok(())
+    })?;
+    let start_ns = acc.values().filter_map(|a| a.times.iter().min().copied()).min().unwrap_or(0);
+    let end_ns = acc.values().filter_map(|a| a.times.iter().max().copied()).max().unwrap_or(0);
+    let mut topics = Vec::new();
+    for (id, channel) in &outcome.channels {
+        let (count, first_ns, last_ns, rate_hz, gaps, missing) = match acc.get_mut(id) {
+            Some(a) if !a.times.is_empty() => {
+                a.times.sort_unstable();
+                let first = a.times[0];
+                let last = *a.times.last().unwrap_or(&first);
+                let n = a.times.len() as u64;
+                let span = (last - first) as f64 * 1e-9;
+                let rate = if n > 1 && span > 0.0 { (n - 1) as f64 / span } else { 0.0 };
+                let mut intervals: Vec<u64> = a.times.windows(2).map(|w| w[1] - w[0]).collect();
+                let gaps = if intervals.len() >= 2 {
+                    let mut sorted = intervals.clone();
+                    sorted.sort_unstable();
+                    let median = sorted[sorted.len() / 2];
+                    let threshold = (median.saturating_mul(5)).max(50_000_000);
+                    a.times
+                        .windows(2)
+                        .filter(|w| w[1] - w[0] > threshold)
+                        .map(|w| Gap {
+                            at_s: (w[0] - start_ns) as f64 * 1e-9,
+                            length_s: (w[1] - w[0]) as f64 * 1e-9,
+                        })
+                        .collect()
+                } else {
+                    Vec::new()
+                };
+                intervals.clear();
+                (n, first, last, rate, gaps, a.lossless.then_some(a.missing))
+            }
+            _ => (0, 0, 0, 0.0, Vec::new(), None),
+        };
+        topics.push(TopicInfo {
+            topic: channel.topic.clone(),
+            type_name: channel.schema_name.clone(),
+            count,
+            first_ns,
+            last_ns,
+            rate_hz,
+            gaps,
+            sequence_missing: missing,
+        });
+    }
+    Ok(RecordingInfo {
+        path: path.to_path_buf(),
+        bytes: bytes.len() as u64,
+        profile: outcome.profile,
+        library: outcome.library,
+        complete: outcome.data_end && outcome.footer && outcome.stopped_early.is_none(),
+        stopped_early: outcome.stopped_early,
+        skipped_chunks: outcome.skipped_chunks.len(),
+        messages: outcome.messages,
+        start_ns,
+        end_ns,
+        duration_s: end_ns.saturating_sub(start_ns) as f64 * 1e-9,
+        topics,
+        metadata,
+        attachments,
+        session,
+    })
+}
+
+impl std::fmt::Display for RecordingInfo {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(f, "file:      {} ({} bytes)", self.path.display(), self.bytes)?;
+        writeln!(f, "profile:   {} ({})", self.profile, self.library)?;
+        if let Some(s) = self.session.get("session") {
+            writeln!(f, "session:   {s} (source: {})", self.session.get("source").map(String::as_str).unwrap_or("?"))?;
+        }
+        let state = if self.complete {
+            "complete".to_string()
+        } else {
+            format!(
+                "INCOMPLETE ({}); `arthrosim recordings repair` rewrites it with summary and index",
+                self.stopped_early.as_deref().unwrap_or("no summary")
+            )
+        };
+        writeln!(f, "state:     {state}")?;
+        if self.skipped_chunks > 0 {
+            writeln!(f, "skipped:   {} damaged chunk(s)", self.skipped_chunks)?;
+        }
+        writeln!(f, "duration:  {:.3} s, {} messages", self.duration_s, self.messages)?;
+        writeln!(f, "topics:")?;
+        for t in &self.topics {
+            write!(
+                f,
+                "  {:<36} {:<34} {:>9} msgs {:>9.2} Hz",
+                t.topic, t.type_name, t.count, t.rate_hz
+            )?;
+            if let Some(m) = t.sequence_missing {
+                write!(f, "  missing {m}")?;
+            }
+            if !t.gaps.is_empty() {
+                let longest = t.gaps.iter().map(|g| g.length_s).fold(0.0, f64::max);
+                write!(f, "  {} gap(s), longest {:.3} s", t.gaps.len(), longest)?;
+            }
+            writeln!(f)?;
+        }
+        if !self.attachments.is_empty() {
+            writeln!(f, "attachments: {}", self.attachments.join(", "))?;
+        }
+        if !self.metadata.is_empty() {
+            writeln!(f, "metadata:    {}", self.metadata.join(", "))?;
+        }
+        Ok(())
+    }
+}

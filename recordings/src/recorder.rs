@@ -1,0 +1,332 @@
+//! The recorder node: its own process, reading the physics and haptic streams over iceoryx2
+//! (every sample: `Queue::Every`) and writing them to one MCAP per session, so recording
+//! never slows the 1 kHz loop.
+//!
+//! Lifecycle (copper-rs style): `Recorder::new` (config, file) → `start` (ports, on the
+//! thread that will step) → `step` (drain queues, write, flush on schedule) → `stop`
+//! (last drain, summary, index, `metadata.yaml`).
+
+use crate::error::RecordingError;
+use crate::writer::{SessionInfo, SessionWriter, WriteSummary};
+use anyhow::Context;
+use launch_config::{LaunchFile, RecordingConfig};
+use msgs::haptic_to_monitor::HapticStats;
+use msgs::haptic_to_physics::DeviceState;
+use msgs::ipc::{self, IpcNode, IpcSubscriber, Queue};
+use msgs::physics_to_haptic::ContactFrame;
+use msgs::physics_to_viz::SurfaceFrame;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::Ordering;
+use std::time::Duration;
+
+/// Command-line arguments of the recorder node (also `arthrosim node recorder`).
+#[derive(Debug, Clone, clap::Args)]
+pub struct NodeArgs {
+    /// Launch file (TOML); its `[recording]` section configures this node. None: defaults.
+    #[arg(long)]
+    pub launch: Option<PathBuf>,
+    /// iceoryx2 session name (default: $ARTHROSIM_SESSION or "default").
+    #[arg(long)]
+    pub session: Option<String>,
+    /// Session folder: the MCAP (and metadata.yaml) are written here.
+    #[arg(long, default_value = ".")]
+    pub out: PathBuf,
+    /// Stop by itself after this many seconds (0: run until SIGINT/SIGTERM).
+    #[arg(long, default_value_t = 0.0)]
+    pub seconds: f64,
+}
+
+/// Counters of one recorder run (printed as a JSON line at exit).
+#[derive(Debug, Clone, Default, serde::Serialize)]
+pub struct RecorderStats {
+    pub contact_frames: u64,
+    pub device_states: u64,
+    pub haptic_stats: u64,
+    pub surface_frames: u64,
+    pub surface_frames_written: u64,
+    /// Samples missing by their publishers' sequence numbers (queue overflow): target 0.
+    pub contact_frames_dropped: u64,
+    pub device_states_dropped: u64,
+    pub messages_written: u64,
+    /// Most samples found in one drain of the device queue (capacity 2048).
+    pub max_device_backlog: u64,
+    pub flushes: u64,
+}
+
+impl RecorderStats {
+    pub fn dropped(&self) -> u64 {
+        self.contact_frames_dropped + self.device_states_dropped
+    }
+}
+
+/// Sequence continuity of one stream, per publisher instance.
+#[derive(Default)]
+struct Continuity {
+    last: Option<(u64, u64)>,
+}
+
+impl Continuity {
+    /// Returns how many samples are missing before this one.
+    fn observe(&mut self, instance: u64, sequence: u64) -> u64 {
+        let missing = match self.last {
+            Some((i, s)) if i == instance && sequence > s + 1 => sequence - s - 1,
+            _ => 0,
+        };
+        self.last = Some((instance, sequence));
+        missing
+    }
+}
+
+struct Ports {
+    _node: IpcNode,
+    contact: IpcSubscriber<ContactFrame>,
+    device: IpcSubscriber<DeviceState>,
+    stats: IpcSubscriber<HapticStats>,
+    surface: IpcSubscriber<SurfaceFrame>,
+}
+
+/// The recorder.
+pub struct Recorder {
+    session: String,
+    config: RecordingConfig,
+    writer: Option<SessionWriter>,
+    ports: Option<Ports>,
+    /// CLOCK_REALTIME − CLOCK_MONOTONIC at start: turns publishers' monotonic stamps into
+    /// ROS 2 / MCAP wall-clock times.
+    realtime_offset_ns: i128,
+    contact_seq: Continuity,
+    device_seq: Continuity,
+    pub stats: RecorderStats,
+}
+
+impl Recorder {
+    /// Creates the file and writes the session's launch file and scene into it.
+    pub fn new(
+        session: &str,
+        config: &RecordingConfig,
+        out_dir: &Path,
+        info: &SessionInfo,
+    ) -> Result<Recorder, RecordingError> {
+        config.validate().map_err(|detail| RecordingError::Launch {
+            path: info.launch_path.clone().unwrap_or_default(),
+            detail,
+        })?;
+        let path = out_dir.join(&config.file_name);
+        let writer = SessionWriter::create(&path, config, info)?;
+        Ok(Recorder {
+            session: session.to_string(),
+            config: config.clone(),
+            writer: Some(writer),
+            ports: None,
+            realtime_offset_ns: msgs::clock::realtime_ns() as i128 - msgs::clock::monotonic_ns() as i128,
+            contact_seq: Continuity::default(),
+            device_seq: Continuity::default(),
+            stats: RecorderStats::default(),
+        })
+    }
+
+    pub fn path(&self) -> Option<&Path> {
+        self.writer.as_ref().map(|w| w.path())
+    }
+
+    /// Opens the subscribers (on the calling thread: iceoryx2 ports are not Send).
+    pub fn start(&mut self) -> Result<(), RecordingError> {
+        let link = |e: ipc::LinkError| RecordingError::Link {
+            path: self.path().map(Path::to_path_buf).unwrap_or_default(),
+            detail: e.to_string(),
+        };
+        let node = ipc::create_node(&format!("recorder-{}", std::process::id())).map_err(link)?;
+        let contact = ipc::subscriber::<ContactFrame>(&node, &self.session, Queue::Every).map_err(link)?;
+        let device = ipc::subscriber::<DeviceState>(&node, &self.session, Queue::Every).map_err(link)?;
+        let stats = ipc::subscriber::<HapticStats>(&node, &self.session, Queue::Every).map_err(link)?;
+        let surface = ipc::subscriber::<SurfaceFrame>(&node, &self.session, Queue::Every).map_err(link)?;
+        self.ports = Some(Ports {
+            _node: node,
+            contact,
+            device,
+            stats,
+            surface,
+        });
+        Ok(())
+    }
+
+    fn log_time(&self, publish_ns: u64) -> u64 {
+        let t = publish_ns as i128 + self.realtime_offset_ns;
+        if publish_ns == 0 || t <= 0 {
+            msgs::clock::realtime_ns()
+        } else {
+            t as u64
+        }
+    }
+
+    /// Drains every queue once and writes what it found; finishes a chunk when the flush
+    /// interval has passed. Returns the number of samples taken.
+    pub fn step(&mut self) -> Result<u64, RecordingError> {
+        let (Some(ports), Some(writer)) = (self.ports.as_ref(), self.writer.as_mut()) else {
+            return Ok(0);
+        };
+        let offset = self.realtime_offset_ns;
+        let to_log = |publish_ns: u64| -> u64 {
+            let t = publish_ns as i128 + offset;
+            if publish_ns == 0 || t <= 0 {
+                msgs::clock::realtime_ns()
+            } else {
+                t as u64
+            }
+        };
+        let path = writer.path().to_path_buf();
+        let link = |e: ipc::LinkError| RecordingError::Link {
+            path: path.clone(),
+            detail: e.to_string(),
+        };
+        let mut first_error: Option<RecordingError> = None;
+        let mut taken = 0u64;
+
+        // Device ticks first: their queue is the one that fills fastest.
+        let stats = &mut self.stats;
+        let device_seq = &mut self.device_seq;
+        let n = ipc::drain_each(&ports.device, |d| {
+            stats.device_states += 1;
+            stats.device_states_dropped += device_seq.observe(d.instance_id, d.sequence);
+            if first_error.is_none() {
+                if let Err(e) = writer.write_device_state(d, to_log(d.publish_ns)) {
+                    first_error = Some(e);
+                }
+            }
+        })
+        .map_err(link)?;
+        stats.max_device_backlog = stats.max_device_backlog.max(n as u64);
+        taken += n as u64;
+
+        let contact_seq = &mut self.contact_seq;
+        taken += ipc::drain_each(&ports.contact, |f| {
+            stats.contact_frames += 1;
+            stats.contact_frames_dropped += contact_seq.observe(f.instance_id, f.sequence);
+            if first_error.is_none() {
+                if let Err(e) = writer.write_contact_frame(f, to_log(f.publish_ns)) {
+                    first_error = Some(e);
+                }
+            }
+        })
+        .map_err(link)? as u64;
+
+        taken += ipc::drain_each(&ports.stats, |h| {
+            stats.haptic_stats += 1;
+            if first_error.is_none() {
+                if let Err(e) = writer.write_haptic_stats(h, to_log(h.publish_ns)) {
+                    first_error = Some(e);
+                }
+            }
+        })
+        .map_err(link)? as u64;
+
+        taken += ipc::drain_each(&ports.surface, |s| {
+            stats.surface_frames += 1;
+            if first_error.is_none() {
+                match writer.write_surface(s, to_log(s.publish_ns)) {
+                    Ok(true) => stats.surface_frames_written += 1,
+                    Ok(false) => {}
+                    Err(e) => first_error = Some(e),
+                }
+            }
+        })
+        .map_err(link)? as u64;
+
+        if let Some(e) = first_error {
+            return Err(e);
+        }
+        if writer.maybe_flush(msgs::clock::monotonic_ns())? {
+            stats.flushes += 1;
+        }
+        stats.messages_written = writer.messages();
+        Ok(taken)
+    }
+
+    /// Last drain, then summary, index, rosbag2 metadata; closes the file.
+    pub fn stop(&mut self) -> Result<Option<WriteSummary>, RecordingError> {
+        if self.ports.is_some() {
+            self.step()?;
+        }
+        self.ports = None;
+        let Some(writer) = self.writer.take() else {
+            return Ok(None);
+        };
+        let mut extra = BTreeMap::new();
+        if let Ok(serde_json::Value::Object(map)) = serde_json::to_value(&self.stats) {
+            for (k, v) in map {
+                extra.insert(k, v.to_string());
+            }
+        }
+        extra.insert("closed_ns".into(), self.log_time(msgs::clock::monotonic_ns()).to_string());
+        writer.finish(extra).map(Some)
+    }
+
+    /// The drain period from the configuration.
+    pub fn drain_period(&self) -> Duration {
+        Duration::from_secs_f64(self.config.drain_period_s)
+    }
+}
+
+/// Reads the launch file (None: defaults). Returns the parsed file and its text.
+pub fn read_launch(path: Option<&Path>) -> Result<(LaunchFile, String), RecordingError> {
+    match path {
+        None => Ok((LaunchFile::default(), String::new())),
+        Some(p) => {
+            let text = std::fs::read_to_string(p).map_err(|e| RecordingError::io(p, e))?;
+            let launch = launch_config::load(p).map_err(|e| RecordingError::Launch {
+                path: p.to_path_buf(),
+                detail: e.to_string(),
+            })?;
+            Ok((launch, text))
+        }
+    }
+}
+
+/// Entry point of the `recorder` binary and of `arthrosim node recorder`.
+pub fn run_node(args: NodeArgs) -> anyhow::Result<()> {
+    let stop = msgs::lifecycle::install_stop_flag();
+    let session = ipc::session_name(args.session.as_deref())?;
+    let (launch, launch_text) = read_launch(args.launch.as_deref())?;
+    let scene_toml = toml::to_string(&launch.scene).context("serialising the scene section")?;
+    let info = SessionInfo {
+        session: session.clone(),
+        launch_path: args.launch.clone(),
+        launch_text,
+        scene_toml,
+        source: "recorder".into(),
+    };
+    if !launch.recording.enabled {
+        // Keep the process contract (READY, exit 0 on stop) without writing a file.
+        msgs::lifecycle::announce_ready("recorder");
+        while !stop.load(Ordering::SeqCst) {
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        return Ok(());
+    }
+    let mut recorder = Recorder::new(&session, &launch.recording, &args.out, &info)?;
+    recorder.start()?;
+    msgs::lifecycle::announce_ready("recorder");
+    let period = recorder.drain_period();
+    let started = std::time::Instant::now();
+    let mut result = Ok(());
+    while !stop.load(Ordering::SeqCst) {
+        if args.seconds > 0.0 && started.elapsed().as_secs_f64() >= args.seconds {
+            break;
+        }
+        if let Err(e) = recorder.step() {
+            result = Err(e);
+            break;
+        }
+        std::thread::sleep(period);
+    }
+    let summary = recorder.stop();
+    let stats = serde_json::to_string(&recorder.stats).unwrap_or_default();
+    println!("RECORDED {stats}");
+    result?;
+    let summary = summary?;
+    if let Some(s) = summary {
+        tracing::info!(path = %s.path.display(), messages = s.messages, bytes = s.bytes, "recording closed");
+    }
+    Ok(())
+}

@@ -1,0 +1,577 @@
+//! The DDS side: one thread that owns the ros2-client node, writes what the shared-memory side
+//! queued, polls the inbound subscriptions and publishes `/diagnostics`. Nothing here can
+//! block the shared-memory side: it only ever sees a bounded queue.
+
+use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender, TrySendError};
+use std::sync::Arc;
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use launch_config::bridge::{self as cfg, BridgeConfig, StreamConfig};
+use msgs::ros::*;
+use ros2_client::qos::{Durability, History, WhenFull};
+use ros2_client::{
+    Context, ContextOptions, Name, Node, NodeName, NodeOptions, Publisher, QosProfile, Subscription,
+};
+use serde::Serialize;
+
+use crate::convert::{self, StampClock};
+use crate::stats::{percentile, BridgeStats, Stream, OUT_STREAMS};
+
+/// A message for the DDS side, with the monotonic publish time of the sample it came from.
+pub struct Envelope {
+    pub source_ns: u64,
+    pub msg: Outbound,
+}
+
+pub enum Outbound {
+    ProbePose(PoseStamped),
+    ProbeWrench(WrenchStamped),
+    DeviceWrench(WrenchStamped),
+    JointStates(JointState),
+    Buttons(Joy),
+    Mesh(Box<Marker>),
+    Contacts(MarkerArray),
+    Tf(TFMessage),
+}
+
+impl Outbound {
+    pub fn stream(&self) -> Stream {
+        match self {
+            Outbound::ProbePose(_) => Stream::ProbePose,
+            Outbound::ProbeWrench(_) => Stream::ProbeWrench,
+            Outbound::DeviceWrench(_) => Stream::DeviceWrench,
+            Outbound::JointStates(_) => Stream::JointStates,
+            Outbound::Buttons(_) => Stream::Buttons,
+            Outbound::Mesh(_) => Stream::Mesh,
+            Outbound::Contacts(_) => Stream::Contacts,
+            Outbound::Tf(_) => Stream::Tf,
+        }
+    }
+}
+
+/// A command from ROS for the physics node (forwarded over shared memory).
+#[derive(Debug, Clone, Copy)]
+pub enum Inbound {
+    ProbeTarget(msgs::Pose),
+    DegenerationGrade(f64),
+}
+
+/// Failure to bring up the DDS side.
+#[derive(Debug, thiserror::Error)]
+pub enum DdsError {
+    #[error("bridge topic name {name:?}: {detail}")]
+    Name { name: String, detail: String },
+    #[error("DDS setup failed ({what}): {detail}")]
+    Setup { what: String, detail: String },
+}
+
+fn setup<E: std::fmt::Debug>(what: impl Into<String>) -> impl FnOnce(E) -> DdsError {
+    let what = what.into();
+    move |e| DdsError::Setup {
+        what,
+        detail: format!("{e:?}"),
+    }
+}
+
+/// The DDS QoS of a configured stream. Reliable writers never wait for a full send window
+/// (`WhenFull::Fail`): the sample is dropped and counted instead.
+pub fn qos(stream: &StreamConfig) -> QosProfile {
+    let base = QosProfile::publisher_default().history(History::KeepLast {
+        depth: stream.depth,
+    });
+    let base = match stream.reliability {
+        cfg::Reliability::Reliable => base.reliability_reliable(WhenFull::Fail),
+        cfg::Reliability::BestEffort => base.reliability_best_effort(),
+    };
+    base.durability(match stream.durability {
+        cfg::Durability::Volatile => Durability::Volatile,
+        cfg::Durability::TransientLocal => Durability::TransientLocal,
+    })
+}
+
+/// Full ROS name of a topic: absolute names stay, others go below the namespace.
+pub fn topic_name(namespace: &str, topic: &str) -> Result<Name, DdsError> {
+    let full = if topic.starts_with('/') {
+        topic.to_string()
+    } else if namespace == "/" {
+        format!("/{topic}")
+    } else {
+        format!("{namespace}/{topic}")
+    };
+    Name::parse(&full).map_err(|e| DdsError::Name {
+        name: full,
+        detail: format!("{e:?}"),
+    })
+}
+
+fn publisher<M: RosMessage + ros2_client::Message>(
+    node: &mut Node,
+    namespace: &str,
+    topic: &str,
+    stream: &StreamConfig,
+) -> Result<Option<Publisher<M>>, DdsError> {
+    if !stream.enabled {
+        return Ok(None);
+    }
+    let qos = qos(stream);
+    let name = topic_name(namespace, topic)?;
+    let topic_handle = node
+        .create_topic(&name, message_type_name::<M>(), &qos)
+        .map_err(setup(format!("topic {topic}")))?;
+    let publisher = node
+        .create_publisher::<M>(&topic_handle, Some(qos))
+        .map_err(setup(format!("publisher {topic}")))?;
+    Ok(Some(publisher))
+}
+
+fn subscription<M: RosMessage + ros2_client::Message + 'static>(
+    node: &mut Node,
+    namespace: &str,
+    topic: &str,
+    stream: &StreamConfig,
+) -> Result<Option<Subscription<M>>, DdsError> {
+    if !stream.enabled {
+        return Ok(None);
+    }
+    let qos = qos(stream);
+    let name = topic_name(namespace, topic)?;
+    let topic_handle = node
+        .create_topic(&name, message_type_name::<M>(), &qos)
+        .map_err(setup(format!("topic {topic}")))?;
+    let subscription = node
+        .create_subscription::<M>(&topic_handle, Some(qos))
+        .map_err(setup(format!("subscription {topic}")))?;
+    Ok(Some(subscription))
+}
+
+struct Publishers {
+    probe_pose: Option<Publisher<PoseStamped>>,
+    probe_wrench: Option<Publisher<WrenchStamped>>,
+    device_wrench: Option<Publisher<WrenchStamped>>,
+    joint_states: Option<Publisher<JointState>>,
+    buttons: Option<Publisher<Joy>>,
+    mesh: Option<Publisher<Marker>>,
+    contacts: Option<Publisher<MarkerArray>>,
+    tf: Option<Publisher<TFMessage>>,
+    diagnostics: Option<Publisher<DiagnosticArray>>,
+}
+
+/// The DDS side's state (lives on its own thread).
+struct DdsSide {
+    config: BridgeConfig,
+    stats: Arc<BridgeStats>,
+    clock: StampClock,
+    // Field order matters for drop: endpoints before the node, the node before the context.
+    publishers: Publishers,
+    target_pose: Option<Subscription<PoseStamped>>,
+    degeneration_grade: Option<Subscription<Float64>>,
+    _node: Node,
+    _context: Context,
+    _spinner: JoinHandle<()>,
+    inbound: SyncSender<Inbound>,
+    /// Source publish → DDS write latency per stream in the current window, ns.
+    latency_ns: [Vec<u64>; OUT_STREAMS],
+    window_start: Instant,
+    last_published: [u64; OUT_STREAMS],
+    last_dropped: [u64; OUT_STREAMS],
+    last_inputs: [u64; 3],
+}
+
+/// Handle of the running DDS thread.
+pub struct DdsThread {
+    pub handle: JoinHandle<()>,
+}
+
+/// Starts the DDS thread; returns once its node, publishers and subscriptions exist (or
+/// with the error that prevented it).
+pub fn spawn(
+    config: BridgeConfig,
+    stats: Arc<BridgeStats>,
+    clock: StampClock,
+    outbound: Receiver<Envelope>,
+    inbound: SyncSender<Inbound>,
+) -> Result<DdsThread, DdsError> {
+    let (ready_tx, ready_rx) = std::sync::mpsc::sync_channel::<Result<(), DdsError>>(1);
+    let handle = std::thread::Builder::new()
+        .name("viz-bridge-dds".into())
+        .spawn(move || match DdsSide::new(config, stats, clock, inbound) {
+            Ok(mut side) => {
+                let _ = ready_tx.send(Ok(()));
+                side.run(outbound);
+            }
+            Err(e) => {
+                let _ = ready_tx.send(Err(e));
+            }
+        })
+        .map_err(setup("spawn DDS thread"))?;
+    match ready_rx.recv() {
+        Ok(Ok(())) => Ok(DdsThread { handle }),
+        Ok(Err(e)) => {
+            let _ = handle.join();
+            Err(e)
+        }
+        Err(_) => Err(DdsError::Setup {
+            what: "DDS thread".into(),
+            detail: "exited before it was ready".into(),
+        }),
+    }
+}
+
+impl DdsSide {
+    fn new(
+        config: BridgeConfig,
+        stats: Arc<BridgeStats>,
+        clock: StampClock,
+        inbound: SyncSender<Inbound>,
+    ) -> Result<DdsSide, DdsError> {
+        let context = Context::with_options(ContextOptions::new().domain_id(config.domain_id))
+            .map_err(setup("DDS participant"))?;
+        let node_name =
+            NodeName::new(&config.namespace, "viz_bridge").map_err(|e| DdsError::Name {
+                name: config.namespace.clone(),
+                detail: format!("{e:?}"),
+            })?;
+        let mut node = context
+            .new_node(node_name, NodeOptions::new().enable_rosout(false))
+            .map_err(setup("ROS 2 node"))?;
+        // The spinner answers ROS graph queries (node/topic listing); it ends when the node
+        // is dropped.
+        let spinner = node.spinner().map_err(setup("spinner"))?;
+        let spinner = std::thread::Builder::new()
+            .name("viz-bridge-spin".into())
+            .spawn(move || {
+                if let Err(e) = futures_executor::block_on(spinner.spin()) {
+                    tracing::warn!("ROS 2 spinner stopped: {e:?}");
+                }
+            })
+            .map_err(setup("spawn spinner"))?;
+        let ns = config.namespace.clone();
+        let s = &config.streams;
+        let publishers = Publishers {
+            probe_pose: publisher(&mut node, &ns, Stream::ProbePose.topic(), &s.probe_pose)?,
+            probe_wrench: publisher(&mut node, &ns, Stream::ProbeWrench.topic(), &s.probe_wrench)?,
+            device_wrench: publisher(
+                &mut node,
+                &ns,
+                Stream::DeviceWrench.topic(),
+                &s.device_wrench,
+            )?,
+            joint_states: publisher(&mut node, &ns, Stream::JointStates.topic(), &s.joint_states)?,
+            buttons: publisher(&mut node, &ns, Stream::Buttons.topic(), &s.buttons)?,
+            mesh: publisher(&mut node, &ns, Stream::Mesh.topic(), &s.mesh)?,
+            contacts: publisher(&mut node, &ns, Stream::Contacts.topic(), &s.contacts)?,
+            tf: publisher(&mut node, &ns, Stream::Tf.topic(), &s.tf)?,
+            diagnostics: publisher(&mut node, &ns, "/diagnostics", &s.diagnostics)?,
+        };
+        let target_pose = subscription(&mut node, &ns, "probe/target_pose", &s.target_pose)?;
+        let degeneration_grade = subscription(
+            &mut node,
+            &ns,
+            "material/degeneration_grade",
+            &s.degeneration_grade,
+        )?;
+        Ok(DdsSide {
+            config,
+            stats,
+            clock,
+            publishers,
+            target_pose,
+            degeneration_grade,
+            _node: node,
+            _context: context,
+            _spinner: spinner,
+            inbound,
+            latency_ns: Default::default(),
+            window_start: Instant::now(),
+            last_published: [0; OUT_STREAMS],
+            last_dropped: [0; OUT_STREAMS],
+            last_inputs: [0; 3],
+        })
+    }
+
+    /// Runs until the shared-memory side drops its sender.
+    fn run(&mut self, outbound: Receiver<Envelope>) {
+        let diag_interval = Duration::from_nanos(
+            self.config
+                .streams
+                .diagnostics
+                .min_interval_ns()
+                .max(1_000_000),
+        );
+        let mut next_diag = Instant::now() + diag_interval;
+        loop {
+            match outbound.recv_timeout(Duration::from_millis(2)) {
+                Ok(envelope) => {
+                    self.write(envelope);
+                    // Drain what else is queued before polling inputs, bounded so inbound
+                    // commands are still served under a flood.
+                    for _ in 0..256 {
+                        match outbound.try_recv() {
+                            Ok(envelope) => self.write(envelope),
+                            Err(_) => break,
+                        }
+                    }
+                }
+                Err(RecvTimeoutError::Timeout) => {}
+                Err(RecvTimeoutError::Disconnected) => break,
+            }
+            self.poll_inbound();
+            let now = Instant::now();
+            if now >= next_diag {
+                self.publish_diagnostics();
+                next_diag = now + diag_interval;
+            }
+        }
+        // Endpoints, node (which stops the spinner) and participant drop with `self`.
+    }
+
+    fn write(&mut self, envelope: Envelope) {
+        let stream = envelope.msg.stream();
+        let p = &self.publishers;
+        let ok = match envelope.msg {
+            Outbound::ProbePose(m) => put(&p.probe_pose, m),
+            Outbound::ProbeWrench(m) => put(&p.probe_wrench, m),
+            Outbound::DeviceWrench(m) => put(&p.device_wrench, m),
+            Outbound::JointStates(m) => put(&p.joint_states, m),
+            Outbound::Buttons(m) => put(&p.buttons, m),
+            Outbound::Mesh(m) => put(&p.mesh, *m),
+            Outbound::Contacts(m) => put(&p.contacts, m),
+            Outbound::Tf(m) => put(&p.tf, m),
+        };
+        let counters = self.stats.stream(stream);
+        if ok {
+            BridgeStats::add(&counters.published, 1);
+            let latency = msgs::clock::monotonic_ns().saturating_sub(envelope.source_ns);
+            let window = &mut self.latency_ns[stream as usize];
+            if window.len() < 100_000 {
+                window.push(latency);
+            }
+        } else {
+            BridgeStats::add(&counters.dropped_dds, 1);
+        }
+    }
+
+    fn poll_inbound(&mut self) {
+        if let Some(sub) = &self.target_pose {
+            while let Ok(Some((msg, _info))) = sub.take() {
+                match convert::probe_target(&msg) {
+                    Some(pose) => forward(&self.inbound, &self.stats, Inbound::ProbeTarget(pose)),
+                    None => BridgeStats::add(&self.stats.inbound_rejected, 1),
+                }
+            }
+        }
+        if let Some(sub) = &self.degeneration_grade {
+            while let Ok(Some((msg, _info))) = sub.take() {
+                match convert::degeneration_grade(&msg) {
+                    Some(g) => forward(&self.inbound, &self.stats, Inbound::DegenerationGrade(g)),
+                    None => BridgeStats::add(&self.stats.inbound_rejected, 1),
+                }
+            }
+        }
+    }
+
+    fn publish_diagnostics(&mut self) {
+        let elapsed = self.window_start.elapsed().as_secs_f64().max(1e-3);
+        self.window_start = Instant::now();
+        let msg = self.diagnostics(elapsed);
+        if let Some(p) = &self.publishers.diagnostics {
+            let _ = p.publish(msg);
+        }
+    }
+
+    /// Builds the diagnostics of the last window (and starts a new one).
+    fn diagnostics(&mut self, elapsed_s: f64) -> DiagnosticArray {
+        let stats = &self.stats;
+        let mut bridge = DiagnosticStatus {
+            level: DiagnosticStatus::OK,
+            name: "arthrosim/viz-bridge".into(),
+            message: "publishing".into(),
+            hardware_id: "arthrosim".into(),
+            values: Vec::new(),
+        };
+        let mut dropped_now = 0;
+        for stream in Stream::ALL {
+            let i = stream as usize;
+            let c = stats.stream(stream);
+            let published = BridgeStats::get(&c.published);
+            let dropped_queue = BridgeStats::get(&c.dropped_queue);
+            let dropped_dds = BridgeStats::get(&c.dropped_dds);
+            let rate = (published - self.last_published[i]) as f64 / elapsed_s;
+            dropped_now += dropped_queue + dropped_dds - self.last_dropped[i];
+            self.last_published[i] = published;
+            self.last_dropped[i] = dropped_queue + dropped_dds;
+            let window = &mut self.latency_ns[i];
+            let p50 = percentile(window, 0.5) as f64 / 1e3;
+            let p99 = percentile(window, 0.99) as f64 / 1e3;
+            window.clear();
+            let t = stream.topic().trim_start_matches('/');
+            bridge.values.extend([
+                KeyValue::new(&format!("{t} rate_hz"), format!("{rate:.1}")),
+                KeyValue::new(&format!("{t} published"), published),
+                KeyValue::new(&format!("{t} dropped_queue"), dropped_queue),
+                KeyValue::new(&format!("{t} dropped_dds"), dropped_dds),
+                KeyValue::new(&format!("{t} latency_p50_us"), format!("{p50:.1}")),
+                KeyValue::new(&format!("{t} latency_p99_us"), format!("{p99:.1}")),
+            ]);
+        }
+        if dropped_now > 0 {
+            bridge.level = DiagnosticStatus::WARN;
+            bridge.message =
+                format!("DDS stalled: {dropped_now} messages dropped in the last window");
+        }
+
+        let inputs = [
+            BridgeStats::get(&stats.contact_frames),
+            BridgeStats::get(&stats.device_states),
+            BridgeStats::get(&stats.surfaces),
+        ];
+        let rates: Vec<f64> = inputs
+            .iter()
+            .zip(self.last_inputs.iter())
+            .map(|(now, before)| (now - before) as f64 / elapsed_s)
+            .collect();
+        self.last_inputs = inputs;
+        let (ipc_p50, ipc_p99) = match stats.ipc_latency_ns.lock() {
+            Ok(mut v) => {
+                let r = (percentile(&mut v, 0.5), percentile(&mut v, 0.99));
+                v.clear();
+                r
+            }
+            Err(_) => (0, 0),
+        };
+        let mut inputs_status = DiagnosticStatus {
+            level: DiagnosticStatus::OK,
+            name: "arthrosim/viz-bridge/inputs".into(),
+            message: "receiving".into(),
+            hardware_id: "arthrosim".into(),
+            values: vec![
+                KeyValue::new("contact_frame rate_hz", format!("{:.1}", rates[0])),
+                KeyValue::new("device_state rate_hz", format!("{:.1}", rates[1])),
+                KeyValue::new("surface rate_hz", format!("{:.1}", rates[2])),
+                KeyValue::new("ipc latency_p50_us", format!("{:.1}", ipc_p50 as f64 / 1e3)),
+                KeyValue::new("ipc latency_p99_us", format!("{:.1}", ipc_p99 as f64 / 1e3)),
+                KeyValue::new(
+                    "physics step_ms",
+                    format!(
+                        "{:.3}",
+                        BridgeStats::get(&stats.physics_step_ns) as f64 / 1e6
+                    ),
+                ),
+                KeyValue::new(
+                    "targets_forwarded",
+                    BridgeStats::get(&stats.targets_forwarded),
+                ),
+                KeyValue::new(
+                    "grades_forwarded",
+                    BridgeStats::get(&stats.grades_forwarded),
+                ),
+                KeyValue::new(
+                    "inbound_rejected",
+                    BridgeStats::get(&stats.inbound_rejected),
+                ),
+                KeyValue::new(
+                    "skipped_triangles",
+                    BridgeStats::get(&stats.skipped_triangles),
+                ),
+                KeyValue::new("ipc_errors", BridgeStats::get(&stats.ipc_errors)),
+            ],
+        };
+        if rates[0] == 0.0 && rates[1] == 0.0 {
+            inputs_status.level = DiagnosticStatus::STALE;
+            inputs_status.message = "no physics or haptic samples in the last window".into();
+        }
+
+        let haptic = stats.haptic.lock().ok().and_then(|h| *h);
+        let haptic_status = match haptic {
+            Some(h) => DiagnosticStatus {
+                level: if h.faults != 0 {
+                    DiagnosticStatus::WARN
+                } else {
+                    DiagnosticStatus::OK
+                },
+                name: "arthrosim/haptic".into(),
+                message: format!("{:.0} Hz", h.tick_hz),
+                hardware_id: "arthrosim".into(),
+                values: vec![
+                    KeyValue::new("tick_hz", format!("{:.1}", h.tick_hz)),
+                    KeyValue::new("period_err_p99_us", format!("{:.1}", h.period_err_p99_us)),
+                    KeyValue::new("lcp_p99_us", format!("{:.1}", h.lcp_p99_us)),
+                    KeyValue::new("frame_age_p99_us", format!("{:.1}", h.frame_age_p99_us)),
+                    KeyValue::new("transport_p99_us", format!("{:.1}", h.transport_p99_us)),
+                    KeyValue::new(
+                        "rendered_force_n",
+                        format!("{:.3}", h.rendered_force_norm_n),
+                    ),
+                    KeyValue::new("fault_count", h.fault_count),
+                    KeyValue::new("faults", format!("{:#x}", h.faults)),
+                    KeyValue::new("realtime", h.realtime),
+                ],
+            },
+            None => DiagnosticStatus {
+                level: DiagnosticStatus::STALE,
+                name: "arthrosim/haptic".into(),
+                message: "no haptic statistics received".into(),
+                hardware_id: "arthrosim".into(),
+                values: Vec::new(),
+            },
+        };
+        DiagnosticArray {
+            header: Header::new(
+                self.clock.stamp(msgs::clock::monotonic_ns()),
+                &self.config.world_frame,
+            ),
+            status: vec![bridge, inputs_status, haptic_status],
+        }
+    }
+}
+
+fn put<M: Serialize>(publisher: &Option<Publisher<M>>, msg: M) -> bool {
+    match publisher {
+        Some(p) => p.publish(msg).is_ok(),
+        None => true,
+    }
+}
+
+fn forward(inbound: &SyncSender<Inbound>, stats: &BridgeStats, cmd: Inbound) {
+    match inbound.try_send(cmd) {
+        Ok(()) => {}
+        Err(TrySendError::Full(_)) | Err(TrySendError::Disconnected(_)) => {
+            BridgeStats::add(&stats.inbound_rejected, 1)
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn topic_names_follow_the_namespace() {
+        let n = topic_name("/arthrosim", "probe/pose").unwrap();
+        assert_eq!(format!("{n}"), "/arthrosim/probe/pose");
+        assert_eq!(
+            format!("{}", topic_name("/arthrosim", "/tf").unwrap()),
+            "/tf"
+        );
+        assert_eq!(
+            format!("{}", topic_name("/", "contacts").unwrap()),
+            "/contacts"
+        );
+        assert!(topic_name("/arthrosim", "probe//pose").is_err());
+    }
+
+    #[test]
+    fn stream_qos_maps_reliability_and_durability() {
+        let streams = launch_config::bridge::BridgeStreams::default();
+        let mesh = qos(&streams.mesh);
+        assert_eq!(mesh.durability, Durability::TransientLocal);
+        assert_eq!(mesh.history, History::KeepLast { depth: 1 });
+        let mut pose = streams.probe_pose.clone();
+        pose.reliability = cfg::Reliability::BestEffort;
+        assert_eq!(
+            qos(&pose).reliability,
+            ros2_client::qos::Reliability::BestEffort
+        );
+    }
+}

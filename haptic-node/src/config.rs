@@ -11,8 +11,6 @@ pub enum ConfigError {
         value: String,
         problem: &'static str,
     },
-    #[error("cannot read launch file {path}: {detail}")]
-    Read { path: String, detail: String },
     #[error("launch file {path}: {detail}")]
     Parse { path: String, detail: String },
 }
@@ -124,16 +122,13 @@ impl Limits {
     }
 }
 
-/// Reads the `[device]` section of a launch file (no file: defaults).
+/// Reads the `[device]` section of a launch file (no file: defaults), through the launch
+/// helper so every node validates the file the same way.
 pub fn load_device_config(path: Option<&std::path::Path>) -> Result<DeviceConfig, ConfigError> {
     let Some(path) = path else {
         return Ok(DeviceConfig::default());
     };
-    let text = std::fs::read_to_string(path).map_err(|e| ConfigError::Read {
-        path: path.display().to_string(),
-        detail: e.to_string(),
-    })?;
-    let launch: launch_config::LaunchFile = toml::from_str(&text).map_err(|e| ConfigError::Parse {
+    let launch = launch_config::load(path).map_err(|e| ConfigError::Parse {
         path: path.display().to_string(),
         detail: e.to_string(),
     })?;

@@ -26,15 +26,10 @@ pub fn resolve_sites(config: &launch_config::DeviceConfig, launch: Option<&Path>
         #[cfg(feature = "scene-sites")]
         "scene" => {
             let scene = match launch {
-                Some(p) => {
-                    let text = std::fs::read_to_string(p).with_context(|| format!("reading launch file {}", p.display()))?;
-                    let l: launch_config::LaunchFile =
-                        toml::from_str(&text).with_context(|| format!("parsing launch file {}", p.display()))?;
-                    l.scene
-                }
+                Some(p) => launch_config::load(p).with_context(|| format!("loading launch file {}", p.display()))?.scene,
                 None => launch_config::SceneConfig::default(),
             };
-            let data = physics_node::mesh::resolve_data_dir();
+            let data = launch_config::data_dir();
             let m = physics_node::mesh::load_scene_mesh(&scene.meniscus, &data)
                 .with_context(|| format!("loading the scene meniscus {:?} for the probing sites", scene.meniscus.mesh))?;
             Ok(m.probing_sites

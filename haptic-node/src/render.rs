@@ -43,7 +43,10 @@ impl ForceLimiter {
             continuous_sq: limits.continuous_force_n * limits.continuous_force_n,
             max_step_per_ns: limits.max_force_rate_n_per_s * 1e-9,
             period_ns: (1e9 / limits.rate_hz) as u64,
-            ramp_ns: (limits.stale_ramp_s * 1e9) as u64,
+            // One period shorter than asked: zero then falls on the last tick inside the ramp
+            // time even when that tick wakes a little earlier (relative to the grid) than the
+            // tick that started the ramp.
+            ramp_ns: ((limits.stale_ramp_s * 1e9) as u64).saturating_sub((1e9 / limits.rate_hz) as u64),
             heat: 0.0,
             alpha: 1.0 / ticks as f64,
             last: [0.0; 3],

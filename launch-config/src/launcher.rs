@@ -378,7 +378,10 @@ impl Session<'_> {
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())
+            // Plain text in the logs and through the launcher's pipes.
+            .env("NO_COLOR", "1")
             .process_group(0);
+
         let parent = std::process::id() as libc::pid_t;
         // SAFETY: only async-signal-safe calls (prctl, getppid, _exit) between fork and exec.
         unsafe {
@@ -447,7 +450,7 @@ impl Session<'_> {
                     }
                 }
                 Event::Line { node, line } => {
-                    if self.opts.live != LiveMode::Quiet {
+                    if self.opts.live != LiveMode::Quiet && !is_iceoryx_config_notice(&line) {
                         self.display.line(&format!("[{}] {line}", node.name()));
                     }
                 }
@@ -552,6 +555,22 @@ impl Session<'_> {
         // SAFETY: as above; ESRCH when the group is already gone.
         unsafe { libc::kill(-pid, libc::SIGKILL) };
         node.child = None;
+    }
+}
+
+/// iceoryx2 prints a warning when it runs without a config file, which is how arthrosim runs
+/// it; the launcher keeps it in the logs but not on the terminal.
+fn is_iceoryx_config_notice(line: &str) -> bool {
+    line.contains("\"Config::global_config()\"") || line.contains("No config file was loaded")
+}
+
+/// Loads iceoryx2's global config with warnings muted, so the launcher's own terminal does
+/// not start with the config notice (unless the user asked for a log level).
+fn load_iceoryx_config_quietly() {
+    use iceoryx2::prelude::{set_log_level, Config, LogLevel};
+    if std::env::var_os("IOX2_LOG_LEVEL").is_none() {
+        set_log_level(LogLevel::Error);
+        let _ = Config::global_config();
     }
 }
 
@@ -680,6 +699,7 @@ pub fn run(opts: &RunOptions) -> Result<SessionReport, LauncherError> {
         display: Display::new(opts.live, opts.seconds),
     };
 
+    load_iceoryx_config_quietly();
     // Subscribe before any node starts, so the summary sees the first step.
     let mut monitor = StatusMonitor::new(&opts.session)?;
     let mut record = SessionRecord::default();
@@ -822,7 +842,9 @@ pub fn run(opts: &RunOptions) -> Result<SessionReport, LauncherError> {
     }
     while let Ok(event) = session.events_rx.try_recv() {
         if let (Event::Line { node, line }, false) = (event, opts.live == LiveMode::Quiet) {
-            eprintln!("[{}] {line}", node.name());
+            if !is_iceoryx_config_notice(&line) {
+                eprintln!("[{}] {line}", node.name());
+            }
         }
     }
 

@@ -10,3 +10,4 @@ pub mod error;
 pub mod node;
 pub mod probe;
 pub mod sim;
+pub mod visual;

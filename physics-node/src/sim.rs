@@ -450,6 +450,11 @@ impl Simulation {
         self.contact_force
     }
 
+    /// The contacts of the last step (probe sphere, triangle, normal, gaps).
+    pub fn contacts(&self) -> &[crate::contact::Contact] {
+        &self.detector.contacts
+    }
+
     pub fn contact_count(&self) -> usize {
         self.detector.contacts.len()
     }

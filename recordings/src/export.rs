@@ -211,7 +211,8 @@ pub fn export_replay_csv(path: &Path, out: &Path) -> Result<usize, RecordingErro
             why: "the device trajectory comes from the haptic ticks".into(),
         });
     }
-    ticks.sort_by_key(|t| t.publish_ns);
+    // Time from the header stamps (wall clock of each tick), in tick order.
+    ticks.sort_by_key(|t| (t.header.stamp.to_nanos(), t.sequence));
     if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).map_err(|e| RecordingError::io(dir, e))?;
     }
@@ -219,13 +220,13 @@ pub fn export_replay_csv(path: &Path, out: &Path) -> Result<usize, RecordingErro
     let mut w = std::io::BufWriter::new(file);
     let io = |e| RecordingError::io(out, e);
     writeln!(w, "{REPLAY_CSV_HEADER}").map_err(io)?;
-    let t0 = ticks[0].publish_ns;
+    let t0 = ticks[0].header.stamp.to_nanos();
     for t in &ticks {
         let p = &t.proxy_pose;
         writeln!(
             w,
             "{},{},{},{},{},{},{},{}",
-            (t.publish_ns - t0) as f64 * 1e-9,
+            (t.header.stamp.to_nanos() - t0) as f64 * 1e-9,
             p.position.x,
             p.position.y,
             p.position.z,

@@ -3,7 +3,7 @@
 
 use crate::channels::*;
 use crate::error::RecordingError;
-use mcap::read::{ChunkReader, LinearReader};
+use mcap::read::LinearReader;
 use mcap::records::{MessageHeader, Metadata, Record};
 use msgs::ros::{self, RosMessage};
 use serde::Serialize;
@@ -156,14 +156,38 @@ impl Scanner<'_> {
                     ));
                     return Ok(());
                 }
-                let reader = match ChunkReader::new(header, &data) {
-                    Ok(r) => r,
-                    Err(e) => {
-                        self.out.skipped_chunks.push(e.to_string());
+                // Decompress and verify the CRC before parsing: the records inside are then
+                // parsed from a buffer of known size (lengths beyond it are errors, not
+                // allocations).
+                let uncompressed = match header.compression.as_str() {
+                    "" => data.into_owned(),
+                    "zstd" => match zstd::bulk::decompress(&data, header.uncompressed_size as usize) {
+                        Ok(d) => d,
+                        Err(e) => {
+                            self.out.skipped_chunks.push(format!("zstd: {e}"));
+                            return Ok(());
+                        }
+                    },
+                    other => {
+                        self.out
+                            .skipped_chunks
+                            .push(format!("unsupported chunk compression {other:?}"));
                         return Ok(());
                     }
                 };
-                for inner in reader {
+                if uncompressed.len() as u64 != header.uncompressed_size {
+                    self.out.skipped_chunks.push(format!(
+                        "chunk decompressed to {} bytes, header says {}",
+                        uncompressed.len(),
+                        header.uncompressed_size
+                    ));
+                    return Ok(());
+                }
+                if header.uncompressed_crc != 0 && crc32fast::hash(&uncompressed) != header.uncompressed_crc {
+                    self.out.skipped_chunks.push("chunk CRC mismatch".into());
+                    return Ok(());
+                }
+                for inner in LinearReader::sans_magic(&uncompressed) {
                     match inner {
                         Ok(r) => self.record(r, true)?,
                         Err(e) => {

@@ -65,12 +65,16 @@ pub fn load_config(path: Option<&Path>) -> anyhow::Result<BridgeConfig> {
     Ok(config)
 }
 
+/// Default log filter: warnings, minus RustDDS's per-datagram size notices and the ROS_DISTRO
+/// notice (override with RUST_LOG).
+const QUIET_LOGS: &str = "warn,rustdds::network::udp_sender=error,ros2_client::distributions=error";
+
 /// Runs the bridge node until SIGINT / SIGTERM.
 pub fn run_node(args: NodeArgs) -> anyhow::Result<()> {
     let _ = tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(QUIET_LOGS)),
         )
         .with_writer(std::io::stderr)
         .try_init();

@@ -58,6 +58,9 @@ fn main() -> anyhow::Result<()> {
         ..Pose::IDENTITY
     };
     let mut used = 0u64;
+    // Below the haptic loop's priority, above everything else (tests run while others build).
+    haptic_node::init_tracing();
+    haptic_node::servo::request_realtime(70);
     msgs::lifecycle::announce_ready("physics");
     let mut next = start + period;
     let mut sequence = 0u64;

@@ -4,7 +4,7 @@
 use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 
 use crate::mesh::topology::face_normal;
-use crate::mesh::TetMesh;
+use crate::mesh::{SurfaceMesh, TetMesh};
 
 /// Result of [`canonical_frame`].
 #[derive(Debug, Clone)]
@@ -26,41 +26,51 @@ pub struct CanonicalFrame {
 /// to z = 0. The C's opening is found as the widest angular gap of the nodes around the
 /// footprint centre and turned to +y; finally the footprint's bounding box is centred.
 pub fn canonical_frame(mesh: &TetMesh, inferior_hint: Option<&[usize]>) -> CanonicalFrame {
-    let centroid = centroid(mesh.nodes.iter());
+    canonical_frame_of(&mesh.nodes, &mesh.boundary_faces(), inferior_hint)
+}
+
+/// [`canonical_frame`] of a closed triangle surface (e.g. a visual model), its vertices
+/// standing in for the nodes.
+pub fn canonical_surface_frame(surface: &SurfaceMesh) -> CanonicalFrame {
+    canonical_frame_of(&surface.vertices, &surface.triangles, None)
+}
+
+fn canonical_frame_of(points: &[Point3<f64>], faces: &[[usize; 3]], inferior_hint: Option<&[usize]>) -> CanonicalFrame {
+    let body = centroid(points.iter());
     let (normal, inferior_nodes) = match inferior_hint {
-        Some(nodes) if nodes.len() >= 3 => {
-            let c = centroid_of(mesh, nodes);
+        Some(hint) if hint.len() >= 3 => {
+            let c = centroid(hint.iter().map(|&i| &points[i]));
             let mut cov = Matrix3::zeros();
-            for &i in nodes {
-                let d = mesh.nodes[i] - c;
+            for &i in hint {
+                let d = points[i] - c;
                 cov += d * d.transpose();
             }
             let eig = cov.symmetric_eigen();
             let k = eig.eigenvalues.imin();
             let mut n: Vector3<f64> = eig.eigenvectors.column(k).into_owned();
-            if n.dot(&(centroid - c)) > 0.0 {
+            if n.dot(&(body - c)) > 0.0 {
                 n = -n;
             }
-            (n.normalize(), nodes.to_vec())
+            (n.normalize(), hint.to_vec())
         }
-        _ => flat_patch(mesh),
+        _ => flat_patch(points, faces),
     };
     let down = -Vector3::z();
     let r1 = Rotation3::rotation_between(&normal, &down)
         .unwrap_or_else(|| Rotation3::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI));
-    let rotated: Vec<Point3<f64>> = mesh.nodes.iter().map(|p| r1 * p).collect();
+    let rotated: Vec<Point3<f64>> = points.iter().map(|p| r1 * p).collect();
     let gap = opening_angle(&rotated);
     let r2 = Rotation3::from_axis_angle(&Vector3::z_axis(), std::f64::consts::FRAC_PI_2 - gap);
     let r = r2 * r1;
     let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
-    for p in &mesh.nodes {
+    for p in points {
         let q = r * p;
         for d in 0..2 {
             lo[d] = lo[d].min(q[d]);
             hi[d] = hi[d].max(q[d]);
         }
     }
-    let z0 = inferior_nodes.iter().map(|&i| (r * mesh.nodes[i]).z).sum::<f64>()
+    let z0 = inferior_nodes.iter().map(|&i| (r * points[i]).z).sum::<f64>()
         / inferior_nodes.len().max(1) as f64;
     let t = Vector3::new(-(lo[0] + hi[0]) / 2.0, -(lo[1] + hi[1]) / 2.0, -z0);
     CanonicalFrame {
@@ -106,17 +116,12 @@ fn centroid<'a>(points: impl Iterator<Item = &'a Point3<f64>>) -> Point3<f64> {
     Point3::from(s / n.max(1.0))
 }
 
-fn centroid_of(mesh: &TetMesh, nodes: &[usize]) -> Point3<f64> {
-    centroid(nodes.iter().map(|&i| &mesh.nodes[i]))
-}
-
 /// Outward normal and nodes of the largest flat patch of the boundary.
-fn flat_patch(mesh: &TetMesh) -> (Vector3<f64>, Vec<usize>) {
-    let faces = mesh.boundary_faces();
+fn flat_patch(nodes: &[Point3<f64>], faces: &[[usize; 3]]) -> (Vector3<f64>, Vec<usize>) {
     let weighted: Vec<(Vector3<f64>, f64)> = faces
         .iter()
         .map(|f| {
-            let [a, b, c] = f.map(|i| mesh.nodes[i]);
+            let [a, b, c] = f.map(|i| nodes[i]);
             let w = (b - a).cross(&(c - a));
             (face_normal(&a, &b, &c), w.norm() / 2.0)
         })
@@ -132,7 +137,7 @@ fn flat_patch(mesh: &TetMesh) -> (Vector3<f64>, Vec<usize>) {
         }
     }
     let mut mean = Vector3::zeros();
-    let mut on = vec![false; mesh.nodes.len()];
+    let mut on = vec![false; nodes.len()];
     for (f, (m, a)) in faces.iter().zip(&weighted) {
         if m.dot(&best.0) > cos_tol {
             mean += m * *a;
@@ -141,6 +146,6 @@ fn flat_patch(mesh: &TetMesh) -> (Vector3<f64>, Vec<usize>) {
             }
         }
     }
-    let nodes = (0..mesh.nodes.len()).filter(|&i| on[i]).collect();
-    (mean.normalize(), nodes)
+    let patch = (0..nodes.len()).filter(|&i| on[i]).collect();
+    (mean.normalize(), patch)
 }

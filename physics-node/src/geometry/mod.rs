@@ -10,7 +10,7 @@
 pub mod frame;
 pub mod meniscus;
 
-pub use frame::{canonical_frame, opening_angle, CanonicalFrame};
+pub use frame::{canonical_frame, canonical_surface_frame, opening_angle, CanonicalFrame};
 pub use meniscus::{MeniscusShape, ParametricMeniscus, Resolution, Side};
 
 use nalgebra::{Point2, Point3, Vector3};
@@ -132,4 +132,126 @@ pub fn probing_sites(surface: &SurfaceMesh) -> Vec<ProbingSite> {
         }
     }
     sites
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::{load_scene_mesh, LoadedMeniscus};
+    use launch_config::scene::MeniscusConfig;
+    use std::path::Path;
+
+    fn load(spec: &str) -> LoadedMeniscus {
+        let cfg = MeniscusConfig {
+            mesh: spec.into(),
+            ..Default::default()
+        };
+        load_scene_mesh(&cfg, Path::new("/nonexistent")).unwrap()
+    }
+
+    /// Distance from `p` to the nearest surface triangle.
+    fn surface_distance(s: &SurfaceMesh, p: &Point3<f64>) -> f64 {
+        s.triangles
+            .iter()
+            .map(|t| {
+                let [a, b, c] = t.map(|i| s.vertices[i]);
+                (p - crate::visual::closest_on_triangle(p, &a, &b, &c)).norm()
+            })
+            .fold(f64::INFINITY, f64::min)
+    }
+
+    fn check_sites(m: &LoadedMeniscus) {
+        let sites = &m.probing_sites;
+        assert_eq!(sites.len(), 15, "{}", m.name);
+        for (k, region) in [REGION_POSTERIOR, REGION_MID, REGION_ANTERIOR].into_iter().enumerate() {
+            assert!(sites[5 * k..5 * k + 5].iter().all(|s| s.region == region));
+        }
+        for s in sites {
+            assert!(surface_distance(&m.surface, &s.point) < 1e-12, "{s:?} off the surface");
+            assert!((s.normal.norm() - 1.0).abs() < 1e-12);
+            assert!(s.normal.z > 0.5, "{}: normal {:?} not roughly +z", m.name, s.normal);
+            // Superior: the site is the top of the mesh above its footprint point.
+            assert!(s.point.z > 0.5e-3);
+        }
+        // Posterior horn on −x, mid body at −y, anterior horn on +x.
+        let mean = |r: usize| sites[5 * r..5 * r + 5].iter().fold(Vector3::zeros(), |a, s| a + s.point.coords) / 5.0;
+        assert!(mean(0).x < -0.008, "{}: posterior {:?}", m.name, mean(0));
+        assert!(mean(1).y < -0.005 && mean(1).y < mean(0).y && mean(1).y < mean(2).y, "{}: mid {:?}", m.name, mean(1));
+        assert!(mean(2).x > 0.008, "{}: anterior {:?}", m.name, mean(2));
+        // Spread slightly along the arc: distinct, within a few mm of each other.
+        for r in 0..3 {
+            for i in 0..4 {
+                let d = (sites[5 * r + i + 1].point - sites[5 * r + i].point).norm();
+                assert!(d > 0.5e-3 && d < 5e-3, "{}: step {d}", m.name);
+            }
+        }
+    }
+
+    #[test]
+    fn default_specs_load_with_inferior_fixed_set_and_probing_sites() {
+        for (spec, nodes) in [
+            ("default:lateral:coarse", 276),
+            ("default:coarse", 276),
+            ("default:medial:coarse", 276),
+            ("default:lateral:fine", 2560),
+        ] {
+            let m = load(spec);
+            assert_eq!(m.mesh.nodes.len(), nodes, "{spec}");
+            // The fixed set is the inferior face (z = 0), and all of it.
+            assert!(m.fixed_nodes.iter().all(|&i| m.mesh.nodes[i].z.abs() < 1e-12));
+            let on_floor = m.mesh.nodes.iter().filter(|p| p.z.abs() < 1e-12).count();
+            assert_eq!(m.fixed_nodes.len(), on_floor);
+            // The generic inferior selection finds the same set.
+            assert_eq!(m.mesh.inferior_nodes(0.35), m.fixed_nodes, "{spec}");
+            // Surface ↔ node map.
+            for (v, &n) in m.surface_to_node.iter().enumerate() {
+                assert_eq!(m.surface.vertices[v], m.mesh.nodes[n]);
+            }
+            check_sites(&m);
+        }
+        let cfg = MeniscusConfig {
+            mesh: "default:lateral:coarse".into(),
+            fixed: "none".into(),
+            ..Default::default()
+        };
+        assert!(load_scene_mesh(&cfg, Path::new(".")).unwrap().fixed_nodes.is_empty());
+    }
+
+    #[test]
+    fn generic_probing_sites_agree_with_the_parametric_ones() {
+        // The angle-based sites of arbitrary meshes, run on the parametric mesh, land in the
+        // same regions as the arc-parameter sites.
+        let m = load("default:lateral:fine");
+        let generic = probing_sites(&m.surface);
+        assert_eq!(generic.len(), 15);
+        for (g, p) in generic.iter().zip(&m.probing_sites) {
+            assert_eq!(g.region, p.region);
+            assert!((g.point - p.point).norm() < 8e-3, "{g:?} vs {p:?}");
+        }
+    }
+
+    #[test]
+    fn bad_specs_are_typed_errors() {
+        for (spec, needle) in [
+            ("default:lateral:huge", "unknown resolution `huge`"),
+            ("default:left:coarse", "unknown meniscus `left`"),
+            ("study:knee", "unknown meniscus `knee`"),
+            ("default:a:b:c", "expected default:SIDE:RESOLUTION"),
+            ("mesh.vtk", "not default:…, study:… or a path to a .msh file"),
+            ("/nonexistent/m.msh", "cannot read"),
+        ] {
+            let cfg = MeniscusConfig {
+                mesh: spec.into(),
+                ..Default::default()
+            };
+            let e = load_scene_mesh(&cfg, Path::new("/nonexistent")).unwrap_err().to_string();
+            assert!(e.contains(needle), "{spec}: {e}");
+        }
+        let cfg = MeniscusConfig {
+            fixed: "/nonexistent/fixed.txt".into(),
+            ..Default::default()
+        };
+        let e = load_scene_mesh(&cfg, Path::new("/nonexistent")).unwrap_err().to_string();
+        assert!(e.contains("fixed.txt") && e.contains("cannot read"), "{e}");
+    }
 }

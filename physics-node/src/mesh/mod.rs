@@ -39,4 +39,4 @@ pub struct SurfaceMesh {
 }
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;

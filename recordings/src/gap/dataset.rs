@@ -44,20 +44,21 @@ impl TrialData {
 
 /// The probe path of a trial on a uniform grid starting at its first sample.
 pub fn grid_path(trial: &Trial, dt: f64) -> ProbePath {
-    let t0 = trial.t[0];
+    let t0 = trial.t[0] - trial.lead_in.max(0.0);
     let t1 = *trial.t.last().unwrap();
     let n = ((t1 - t0) / dt).ceil() as usize + 1;
     let poses = (0..n)
         .map(|k| {
             let t = t0 + k as f64 * dt;
             let i = trial.t.partition_point(|&v| v <= t).saturating_sub(1).min(trial.t.len() - 2);
-            let w = ((t - trial.t[i]) / (trial.t[i + 1] - trial.t[i])).clamp(0.0, 1.0);
+            // before the first sample (lead-in) the first motion is extended backwards
+            let w = ((t - trial.t[i]) / (trial.t[i + 1] - trial.t[i])).clamp(if i == 0 { f64::NEG_INFINITY } else { 0.0 }, 1.0);
             let (a, b) = (&trial.pose[i], &trial.pose[i + 1]);
             let mut p = [0.0; 3];
             for q in 0..3 {
                 p[q] = a.position[q] + w * (b.position[q] - a.position[q]);
             }
-            Pose { position: p, orientation: nlerp(a.orientation, b.orientation, w) }
+            Pose { position: p, orientation: nlerp(a.orientation, b.orientation, w.max(0.0)) }
         })
         .collect();
     ProbePath { t0, dt, poses }

@@ -187,6 +187,9 @@ pub struct Trial {
     pub force: Vec<[f64; 3]>,
     /// Probe tip pose, world frame.
     pub pose: Vec<Pose>,
+    /// Seconds of replay before the first sample, extrapolating the first motion backwards
+    /// (0 for recorded trials; tables that start at contact use it for the approach).
+    pub lead_in: f64,
 }
 
 /// An experiment: the folder's spec, its trials, and where the specimen mesh is.
@@ -256,7 +259,7 @@ pub fn load_experiment(dir: &Path, data_dir: &Path) -> Result<Experiment, GapErr
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_else(|| rt.file.clone());
         specs.push(TrialSpec { file: rt.file.clone(), region: region.map(|r| r.name().to_string()) });
-        trials.push(Trial { name, file: path, region, t, force, pose });
+        trials.push(Trial { name, file: path, region, t, force, pose, lead_in: 0.0 });
     }
     let spec = ExperimentSpec { specimen, material: raw.material, probe: raw.probe, trials: specs };
     check_material(&spec).map_err(|msg| GapError::Input { file: toml_path.clone(), msg })?;

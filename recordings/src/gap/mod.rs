@@ -23,15 +23,18 @@
 pub mod dataset;
 pub mod effects;
 pub mod experiment;
+pub mod fd;
 pub mod fit;
 pub mod html;
 pub mod metrics;
 pub mod model;
 pub mod reality;
+pub mod selftest;
 pub mod signal;
 
 pub use effects::{Candidate, Effect};
 pub use experiment::{load_experiment, read_force_displacement, Experiment, ExperimentSpec, Region, Trial};
+pub use fd::diagnose_force_displacement;
 pub use model::{ForceModel, ProbePath, Variant};
 
 use dataset::{BuildOptions, TrialData};

@@ -337,6 +337,7 @@ pub fn write_experiment_with(spec: &RealitySpec, model: &dyn ForceModel, sites: 
             t: grid_t,
             force: f.clone(),
             pose: path.poses.clone(),
+            lead_in: 0.0,
         };
         let mut td = prepare(&grid_trial, path.clone(), f, Default::default());
         td.t = ts.clone();

@@ -1,0 +1,231 @@
+//! Helpers for end-to-end tests: real processes over real shared memory, bounded timeouts,
+//! children killed on every exit path.
+#![allow(dead_code)]
+
+use msgs::haptic_to_physics::DeviceState;
+use msgs::ipc::{self, IpcNode, IpcSubscriber, Queue};
+use msgs::physics_to_haptic::ContactFrame;
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+pub const MS: u64 = 1_000_000;
+
+/// A child process killed (SIGKILL) and reaped when dropped.
+pub struct Proc {
+    pub name: String,
+    pub child: Child,
+}
+
+impl Proc {
+    /// Starts `exe args…` and waits (bounded) for its `READY` line on stdout.
+    pub fn start(name: &str, exe: &Path, args: &[&str], ready_timeout: Duration) -> Proc {
+        let mut child = Command::new(exe)
+            .args(args)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .unwrap_or_else(|e| panic!("cannot start {}: {e}", exe.display()));
+        let stdout = child.stdout.take().unwrap();
+        let (tx, rx) = mpsc::channel();
+        std::thread::spawn(move || {
+            for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+                if line.starts_with("READY") {
+                    let _ = tx.send(());
+                }
+            }
+        });
+        let mut p = Proc {
+            name: name.into(),
+            child,
+        };
+        if rx.recv_timeout(ready_timeout).is_err() {
+            let status = p.child.try_wait().ok().flatten();
+            p.kill9();
+            panic!("{name} did not print READY within {ready_timeout:?} (exit status {status:?})");
+        }
+        p
+    }
+
+    pub fn kill9(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+
+    /// SIGTERM, then wait (bounded); returns the exit code.
+    pub fn terminate(&mut self, timeout: Duration) -> Option<i32> {
+        // SAFETY: plain kill(2) on our own child.
+        unsafe { libc::kill(self.child.id() as i32, libc::SIGTERM) };
+        let t0 = Instant::now();
+        while t0.elapsed() < timeout {
+            if let Ok(Some(s)) = self.child.try_wait() {
+                return s.code();
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        self.kill9();
+        None
+    }
+}
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        self.kill9();
+    }
+}
+
+pub fn session(test: &str) -> String {
+    format!("hn-{test}-{}", std::process::id())
+}
+
+pub fn haptic_exe() -> PathBuf {
+    PathBuf::from(env!("CARGO_BIN_EXE_haptic-node"))
+}
+
+pub fn halfspace_exe() -> PathBuf {
+    PathBuf::from(env!("CARGO_BIN_EXE_halfspace-physics"))
+}
+
+/// The physics-node binary next to ours (same profile directory), built first with
+/// `cargo build -p physics-node --bins` (bounded). Panics with instructions if it cannot be
+/// had.
+pub fn physics_exe() -> PathBuf {
+    let dir = haptic_exe().parent().unwrap().to_path_buf();
+    let exe = dir.join("physics-node");
+    let workspace = Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap();
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let mut build = Command::new(cargo);
+    build.current_dir(workspace).args(["build", "-p", "physics-node", "--bins"]);
+    if dir.ends_with("release") {
+        build.arg("--release");
+    }
+    let ok = match build.stdout(Stdio::null()).stderr(Stdio::null()).spawn() {
+        Ok(mut c) => {
+            let t0 = Instant::now();
+            loop {
+                match c.try_wait() {
+                    Ok(Some(s)) => break s.success(),
+                    Ok(None) if t0.elapsed() < Duration::from_secs(900) => std::thread::sleep(Duration::from_millis(200)),
+                    _ => {
+                        let _ = c.kill();
+                        let _ = c.wait();
+                        break false;
+                    }
+                }
+            }
+        }
+        Err(_) => false,
+    };
+    assert!(
+        exe.exists(),
+        "physics-node binary missing at {} (cargo build -p physics-node --bins {})",
+        exe.display(),
+        if ok { "succeeded but produced no binary" } else { "failed" }
+    );
+    if !ok {
+        eprintln!("warning: cargo build -p physics-node failed; using the existing {}", exe.display());
+    }
+    exe
+}
+
+/// What the test saw of a frame (the frame itself is ~80 kB).
+#[derive(Debug, Clone, Copy)]
+pub struct FrameSeen {
+    pub instance: u64,
+    pub sequence: u64,
+    pub publish_ns: u64,
+    pub contact_count: u32,
+    pub contact_force: [f64; 3],
+    pub proxy: [f64; 3],
+}
+
+/// Watches a session's device states (every one) and contact frames.
+pub struct Watcher {
+    _node: IpcNode,
+    states: IpcSubscriber<DeviceState>,
+    frames: IpcSubscriber<ContactFrame>,
+    pub seen_states: Vec<DeviceState>,
+    pub seen_frames: Vec<FrameSeen>,
+}
+
+impl Watcher {
+    pub fn new(session: &str) -> Watcher {
+        let node = ipc::create_node("test-watcher").unwrap();
+        let states = ipc::subscriber::<DeviceState>(&node, session, Queue::Every).unwrap();
+        let frames = ipc::subscriber::<ContactFrame>(&node, session, Queue::Every).unwrap();
+        Watcher {
+            _node: node,
+            states,
+            frames,
+            seen_states: Vec::new(),
+            seen_frames: Vec::new(),
+        }
+    }
+
+    pub fn drain(&mut self) {
+        let states = &mut self.seen_states;
+        ipc::drain_each(&self.states, |s| states.push(*s)).unwrap();
+        let frames = &mut self.seen_frames;
+        ipc::drain_each(&self.frames, |f| {
+            frames.push(FrameSeen {
+                instance: f.instance_id,
+                sequence: f.sequence,
+                publish_ns: f.publish_ns,
+                contact_count: f.contact_count,
+                contact_force: f.contact_force,
+                proxy: f.proxy_pose.position,
+            })
+        })
+        .unwrap();
+    }
+
+    /// Drains for `d`.
+    pub fn watch(&mut self, d: Duration) {
+        let t0 = Instant::now();
+        while t0.elapsed() < d {
+            self.drain();
+            std::thread::sleep(Duration::from_millis(2));
+        }
+        self.drain();
+    }
+
+    /// Drains until `cond` holds on the newest state (bounded).
+    pub fn until(&mut self, timeout: Duration, what: &str, cond: impl Fn(&DeviceState) -> bool) {
+        let t0 = Instant::now();
+        while t0.elapsed() < timeout {
+            self.drain();
+            if self.seen_states.last().is_some_and(&cond) {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(2));
+        }
+        panic!(
+            "timed out after {timeout:?} waiting for {what}; last state: {:?}",
+            self.seen_states.last().map(|s| (s.rendered_force, s.commanded_force, s.faults, s.proxy_pose.position))
+        );
+    }
+}
+
+pub fn norm(v: [f64; 3]) -> f64 {
+    (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
+}
+
+/// Writes a replay CSV of (t, position) rows with identity orientation.
+pub fn write_trajectory(dir: &Path, name: &str, rows: &[(f64, [f64; 3])]) -> PathBuf {
+    std::fs::create_dir_all(dir).unwrap();
+    let mut text = String::from("t_s,px_m,py_m,pz_m,qx,qy,qz,qw\n");
+    for (t, p) in rows {
+        text.push_str(&format!("{t},{},{},{},0,0,0,1\n", p[0], p[1], p[2]));
+    }
+    let path = dir.join(name);
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+pub fn temp_dir(test: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("haptic-e2e-{test}-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}

@@ -1,0 +1,211 @@
+//! `gap selftest`: generated cases (each effect alone, some pairs, none) diagnosed blind.
+use super::experiment::load_experiment;
+use super::model::ForceModel;
+use super::reality::{write_experiment_with, RealitySpec, Site};
+use super::sim_model::SimForceModel;
+use super::{diagnose, GapError, Options};
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+
+/// The case cycle: none, every effect alone, then pairs.
+pub const CASES: [&str; 14] = [
+    "none",
+    "modulus",
+    "hardening",
+    "viscoelastic",
+    "friction",
+    "tilt",
+    "device",
+    "support",
+    "mesh",
+    "sensor",
+    "modulus+sensor",
+    "friction+device",
+    "viscoelastic+tilt",
+    "hardening+friction",
+];
+
+#[derive(Debug, Clone)]
+pub struct SelftestOptions {
+    pub diagnose: Options,
+    pub probings_per_region: usize,
+    pub noise_sigma: f64,
+    /// Keep the generated folders here (else a temporary folder, removed afterwards).
+    pub keep_dir: Option<PathBuf>,
+    /// Print one line per case on stderr.
+    pub verbose: bool,
+    /// Restrict the case cycle (labels as in [`CASES`]).
+    pub cases: Option<Vec<String>>,
+}
+
+impl Default for SelftestOptions {
+    fn default() -> Self {
+        SelftestOptions { diagnose: Options::default(), probings_per_region: 5, noise_sigma: 0.02, keep_dir: None, verbose: false, cases: None }
+    }
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct CaseResult {
+    pub case: usize,
+    pub truth: String,
+    pub found: String,
+    pub correct: bool,
+    /// Held-out shrink the diagnosis reports for its verdict.
+    pub heldout_shrink: f64,
+    /// Held-out shrink of the true candidate (None for `none` or when not ranked).
+    pub true_candidate_shrink: Option<f64>,
+    pub elapsed_s: f64,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct SelftestResult {
+    pub seed: u64,
+    pub cases: Vec<CaseResult>,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct SelftestSummary {
+    pub cases: usize,
+    pub correct: usize,
+    pub accuracy: f64,
+    /// Mean held-out shrink of the verdicts over cases with an injected effect.
+    pub heldout_shrink_mean: f64,
+    pub seed: u64,
+    pub elapsed_s: f64,
+}
+
+impl SelftestResult {
+    pub fn summary(&self) -> SelftestSummary {
+        let correct = self.cases.iter().filter(|c| c.correct).count();
+        let eff: Vec<&CaseResult> = self.cases.iter().filter(|c| c.truth != "none").collect();
+        SelftestSummary {
+            cases: self.cases.len(),
+            correct,
+            accuracy: correct as f64 / self.cases.len().max(1) as f64,
+            heldout_shrink_mean: eff.iter().map(|c| c.heldout_shrink).sum::<f64>() / eff.len().max(1) as f64,
+            seed: self.seed,
+            elapsed_s: self.cases.iter().map(|c| c.elapsed_s).sum(),
+        }
+    }
+
+    /// Per-case lines and the confusion matrix (rows: truth, columns: verdict).
+    pub fn table(&self) -> String {
+        use std::fmt::Write as _;
+        let mut s = String::new();
+        for c in &self.cases {
+            let _ = writeln!(
+                s,
+                "case {:3}  truth {:20} found {:20} {}  held-out shrink {:5.1}%  ({:.1} s)",
+                c.case,
+                c.truth,
+                c.found,
+                if c.correct { "ok " } else { "MISS" },
+                100.0 * c.heldout_shrink,
+                c.elapsed_s
+            );
+        }
+        let mut labels: Vec<String> = self.cases.iter().flat_map(|c| [c.truth.clone(), c.found.clone()]).collect();
+        labels.sort();
+        labels.dedup();
+        let mut m: BTreeMap<(String, String), usize> = BTreeMap::new();
+        for c in &self.cases {
+            *m.entry((c.truth.clone(), c.found.clone())).or_default() += 1;
+        }
+        let w = labels.iter().map(|l| l.len()).max().unwrap_or(4).max(10);
+        let _ = write!(s, "\nconfusion (rows truth, columns verdict)\n{:w$}", "", w = w + 2);
+        for l in &labels {
+            let _ = write!(s, " {:>w$}", l, w = l.len().max(3));
+        }
+        s.push('\n');
+        for r in &labels {
+            let _ = write!(s, "{:w$}  ", r, w = w);
+            for c in &labels {
+                let v = m.get(&(r.clone(), c.clone())).copied().unwrap_or(0);
+                let _ = write!(s, " {:>w$}", v, w = c.len().max(3));
+            }
+            s.push('\n');
+        }
+        let sm = self.summary();
+        let _ = writeln!(
+            s,
+            "\n{}/{} correct ({:.0}%), mean held-out shrink {:.1}%",
+            sm.correct,
+            sm.cases,
+            100.0 * sm.accuracy,
+            100.0 * sm.heldout_shrink_mean
+        );
+        s
+    }
+}
+
+/// Labels of the first `n` cases.
+pub fn case_labels(n: usize, opts: &SelftestOptions) -> Vec<String> {
+    let cycle: Vec<String> = opts.cases.clone().unwrap_or_else(|| CASES.iter().map(|s| s.to_string()).collect());
+    (0..n).map(|i| cycle[i % cycle.len()].clone()).collect()
+}
+
+/// The shipped self-test: truth and diagnosis through the physics model.
+pub fn selftest(cases: usize, seed: u64, opts: &SelftestOptions) -> Result<SelftestResult, GapError> {
+    let data = super::data_dir();
+    let mut scene = launch_config::SceneConfig::default();
+    scene.meniscus.mesh = "default:lateral:coarse".into();
+    let model = SimForceModel::from_scene(scene, &data);
+    let sites = model.sites()?;
+    selftest_with(cases, seed, opts, &model, &sites, &|exp| {
+        SimForceModel::for_experiment(exp, &data).map(|m| Box::new(m) as Box<dyn ForceModel>)
+    })
+}
+
+type ModelFor<'a> = dyn Fn(&super::Experiment) -> Result<Box<dyn ForceModel>, GapError> + 'a;
+
+/// Self-test with a given truth model and a factory for the diagnosis model of a folder.
+pub fn selftest_with(cases: usize, seed: u64, opts: &SelftestOptions, truth_model: &dyn ForceModel, sites: &[Site], model_for: &ModelFor) -> Result<SelftestResult, GapError> {
+    let root = match &opts.keep_dir {
+        Some(d) => d.clone(),
+        None => std::env::temp_dir().join(format!("arthrosim_gap_selftest_{}_{}", std::process::id(), seed)),
+    };
+    let mut out = Vec::new();
+    for (i, label) in case_labels(cases, opts).into_iter().enumerate() {
+        let start = std::time::Instant::now();
+        let effects: Vec<&str> = label.split('+').collect();
+        let case_seed = seed.wrapping_mul(1_000_003).wrapping_add(i as u64);
+        let mut spec = RealitySpec::from_effects(&effects, case_seed)?;
+        spec.probings_per_region = opts.probings_per_region;
+        spec.noise_sigma = opts.noise_sigma;
+        let dir = root.join(format!("case{i:03}"));
+        let truth_file = root.join(format!("case{i:03}_truth.json"));
+        let truth = write_experiment_with(&spec, truth_model, sites, &dir, &truth_file)?;
+        let exp = load_experiment(&dir, &super::data_dir())?;
+        let model = model_for(&exp)?;
+        let report = diagnose(&exp, model.as_ref(), &opts.diagnose)?;
+        let found = report.verdict.effect.clone();
+        let true_shrink = report.ranking.iter().find(|c| c.effect == truth.label).map(|c| c.heldout_shrink);
+        let r = CaseResult {
+            case: i,
+            correct: found == truth.label,
+            truth: truth.label,
+            found,
+            heldout_shrink: report.verdict.heldout_shrink,
+            true_candidate_shrink: true_shrink,
+            elapsed_s: start.elapsed().as_secs_f64(),
+        };
+        if opts.verbose {
+            eprintln!(
+                "case {:3}  truth {:20} found {:20} {} shrink {:5.1}%  ({:.1} s)  {}",
+                r.case,
+                r.truth,
+                r.found,
+                if r.correct { "ok " } else { "MISS" },
+                100.0 * r.heldout_shrink,
+                r.elapsed_s,
+                report.verdict.reason
+            );
+        }
+        out.push(r);
+    }
+    if opts.keep_dir.is_none() {
+        let _ = std::fs::remove_dir_all(&root);
+    }
+    Ok(SelftestResult { seed, cases: out })
+}

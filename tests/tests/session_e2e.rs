@@ -1,0 +1,139 @@
+//! End to end: `arthrosim run --seconds 20` on the embedded default session starts the real
+//! physics, haptic, bridge and recorder processes, exits 0, reports contacts in all three
+//! regions, and leaves no node process behind.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+fn workspace_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap().to_path_buf()
+}
+
+/// The `arthrosim` binary of this test's profile, built (or brought up to date) first.
+fn arthrosim_binary() -> PathBuf {
+    // target/<profile>/deps/session_e2e-… → target/<profile>
+    let exe = std::env::current_exe().unwrap();
+    let profile_dir = exe.parent().and_then(Path::parent).unwrap().to_path_buf();
+    let release = profile_dir.file_name().is_some_and(|n| n == "release");
+    let mut build = Command::new(env!("CARGO"));
+    build.current_dir(workspace_root()).args(["build", "-p", "arthrosim"]);
+    if release {
+        build.arg("--release");
+    }
+    let status = build.status().expect("run cargo build -p arthrosim");
+    assert!(status.success(), "cargo build -p arthrosim failed");
+    let bin = profile_dir.join("arthrosim");
+    assert!(bin.is_file(), "{} not found after the build", bin.display());
+    bin
+}
+
+/// Processes whose command line names this session (the launcher passes `--session NAME`
+/// to every node).
+fn processes_of_session(session: &str) -> Vec<(u32, String)> {
+    let mut found = Vec::new();
+    for entry in std::fs::read_dir("/proc").unwrap().flatten() {
+        let Ok(pid) = entry.file_name().to_string_lossy().parse::<u32>() else {
+            continue;
+        };
+        if pid == std::process::id() {
+            continue;
+        }
+        let Ok(raw) = std::fs::read(entry.path().join("cmdline")) else {
+            continue;
+        };
+        let args: Vec<String> = raw
+            .split(|b| *b == 0)
+            .map(|a| String::from_utf8_lossy(a).into_owned())
+            .collect();
+        if args.windows(2).any(|w| w[0] == "--session" && w[1] == session) {
+            found.push((pid, args.join(" ")));
+        }
+    }
+    found
+}
+
+#[test]
+fn bounded_default_session_covers_three_regions_and_leaves_nothing_running() {
+    let bin = arthrosim_binary();
+    let session = format!("e2e-{}", std::process::id());
+    let out = std::env::temp_dir().join(format!("arthrosim-e2e-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&out);
+
+    let mut child = Command::new(&bin)
+        .args(["run", "--seconds", "20", "--plain", "--out"])
+        .arg(&out)
+        .args(["--session", &session])
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("start arthrosim run");
+    // Read the output on threads so full pipes never stall the session.
+    let stdout = child.stdout.take().unwrap();
+    let stderr = child.stderr.take().unwrap();
+    let out_reader = std::thread::spawn(move || std::io::read_to_string(stdout).unwrap_or_default());
+    let err_reader = std::thread::spawn(move || std::io::read_to_string(stderr).unwrap_or_default());
+
+    // 20 s of session plus start-up (mesh, compliance) and ordered shutdown, bounded.
+    let deadline = Instant::now() + Duration::from_secs(240);
+    let status = loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            break status;
+        }
+        if Instant::now() > deadline {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("arthrosim run did not finish within 240 s");
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    let stdout = out_reader.join().unwrap();
+    let stderr = err_reader.join().unwrap();
+    let context = format!("--- stdout\n{stdout}\n--- stderr\n{stderr}");
+
+    // No node of this session is left, whatever the outcome.
+    let left = processes_of_session(&session);
+    for (pid, _) in &left {
+        // SAFETY-free cleanup through kill(1), so a failure here does not leak processes.
+        let _ = Command::new("kill").args(["-9", &pid.to_string()]).status();
+    }
+    assert!(left.is_empty(), "node processes left running: {left:?}\n{context}");
+
+    assert!(status.success(), "arthrosim run exited with {status}\n{context}");
+    assert!(stdout.contains("posterior") && stdout.contains("anterior"), "{context}");
+
+    let summary: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(out.join("summary.json")).expect("summary.json written"),
+    )
+    .unwrap();
+    assert_eq!(summary["end"]["kind"], "completed", "{summary:#}");
+    for node in summary["nodes"].as_array().unwrap() {
+        assert_eq!(node["clean_stop"], true, "{node:#}");
+    }
+    let regions = summary["summary"]["regions"].as_array().unwrap();
+    for name in ["posterior", "mid", "anterior"] {
+        let region = regions
+            .iter()
+            .find(|r| r["region"] == name)
+            .unwrap_or_else(|| panic!("region {name} missing: {summary:#}"));
+        assert!(
+            region["contact_steps"].as_u64().unwrap() > 0,
+            "no contact in {name}: {summary:#}"
+        );
+        assert!(region["probings"].as_u64().unwrap() >= 1, "{summary:#}");
+        let f_n = region["mean_normal_force_n"].as_f64().unwrap();
+        assert!(f_n < 0.0, "normal force during contact is compressive (negative): {f_n}");
+        let d = region["max_probe_displacement_m"].as_f64().unwrap();
+        assert!(d > 0.0 && d < 0.02, "probe displacement {d} m");
+    }
+    let physics_hz = summary["summary"]["physics_hz"].as_f64().unwrap();
+    assert!(physics_hz > 10.0, "physics rate {physics_hz} Hz");
+    let haptic_hz = summary["summary"]["haptic_hz"].as_f64().unwrap();
+    assert!(haptic_hz > 100.0, "haptic rate {haptic_hz} Hz");
+
+    // The session folder holds the resolved launch file, logs and the recording.
+    assert!(out.join("launch.toml").is_file());
+    assert!(out.join("logs/physics.log").is_file());
+    let _ = std::fs::remove_dir_all(&out);
+}

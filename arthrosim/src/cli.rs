@@ -26,6 +26,12 @@ pub enum Command {
     /// Inspect, export and repair MCAP recordings.
     #[command(subcommand)]
     Recordings(RecordingsCommand),
+    /// Sim-to-real gap diagnosis of an experiment folder (or a force–displacement table):
+    /// where the forces differ, which unmodelled effect explains it, how far the gap shrinks.
+    Gap(GapArgs),
+    /// Write a generated experiment folder from a higher-fidelity truth with injected
+    /// effects (the truth goes to a separate file outside the folder).
+    Reality(RealityArgs),
     /// Run one node in this process (used by `run`).
     #[command(subcommand, hide = true)]
     Node(NodeCommand),
@@ -119,4 +125,67 @@ pub enum NodeCommand {
     Bridge(viz_bridge::NodeArgs),
     /// The MCAP recorder.
     Recorder(recordings::recorder::NodeArgs),
+}
+
+#[derive(Debug, Args)]
+#[command(args_conflicts_with_subcommands = true)]
+pub struct GapArgs {
+    #[command(subcommand)]
+    pub command: Option<GapCommand>,
+    /// Experiment folder (experiment.toml and one CSV per trial) or an MCAP recording.
+    #[arg(value_name = "EXPERIMENT_DIR", required_unless_present = "force_displacement")]
+    pub experiment: Option<PathBuf>,
+    /// A force–displacement table (like the cadaver one) instead of an experiment folder.
+    #[arg(long, value_name = "FILE.csv", conflicts_with = "experiment")]
+    pub force_displacement: Option<PathBuf>,
+    /// Folder for report.json and report.html.
+    #[arg(long, value_name = "REPORT_DIR", required = true)]
+    pub out: Option<PathBuf>,
+    /// Replay step, s.
+    #[arg(long, default_value_t = 0.02)]
+    pub dt: f64,
+    /// Only single effects (no pairs).
+    #[arg(long)]
+    pub no_pairs: bool,
+    /// Print the verdict as one JSON line.
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum GapCommand {
+    /// Diagnose N generated cases blind (each effect alone, some pairs, none) and print the
+    /// confusion matrix and the mean held-out shrink.
+    Selftest {
+        #[arg(long, default_value_t = 12)]
+        cases: usize,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Keep the generated experiment folders here.
+        #[arg(long, value_name = "DIR")]
+        keep: Option<PathBuf>,
+        /// One line per case while running.
+        #[arg(long)]
+        verbose: bool,
+        /// Last line: one JSON object (cases, correct, accuracy, heldout_shrink_mean).
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+#[derive(Debug, Args)]
+pub struct RealityArgs {
+    /// Injected effects: NAME or NAME=STRENGTH, repeated or comma-separated (modulus,
+    /// hardening, viscoelastic, friction, tilt, device, support, mesh, sensor; `none`).
+    #[arg(long = "effect", value_name = "NAME[=STRENGTH]", value_delimiter = ',')]
+    pub effects: Vec<String>,
+    /// Seed of the generated strengths, noise and sampling.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Experiment folder to write.
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+    /// Truth file (must be outside the experiment folder).
+    #[arg(long, value_name = "FILE")]
+    pub truth: PathBuf,
 }

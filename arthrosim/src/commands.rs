@@ -1,6 +1,10 @@
 //! What each subcommand does. Returns the process exit code.
 
-use crate::cli::{Cli, Command, NodeCommand, RecordingsCommand, ReplayArgs, RunArgs, ValidateArgs};
+use crate::cli::{
+    Cli, Command, GapArgs, GapCommand, NodeCommand, RealityArgs, RecordingsCommand, ReplayArgs, RunArgs,
+    ValidateArgs,
+};
+use recordings::gap;
 use anyhow::{bail, Context, Result};
 use launch_config::launcher::{self, EndReason, LiveMode, RunOptions};
 use std::path::{Path, PathBuf};
@@ -11,6 +15,8 @@ pub fn dispatch(cli: Cli) -> Result<i32> {
         Command::Validate(args) => Ok(validate(&args)),
         Command::Replay(args) => replay(args),
         Command::Recordings(cmd) => recordings(cmd),
+        Command::Gap(args) => gap_command(args),
+        Command::Reality(args) => reality(args),
         Command::Node(node) => {
             match node {
                 NodeCommand::Physics(a) => physics_node::node::run_node(a),
@@ -198,4 +204,87 @@ fn recordings(cmd: RecordingsCommand) -> Result<i32> {
 fn repaired_name(file: &Path) -> PathBuf {
     let stem = file.file_stem().and_then(|s| s.to_str()).unwrap_or("recording");
     file.with_file_name(format!("{stem}.repaired.mcap"))
+}
+
+/// `arthrosim gap …`.
+fn gap_command(args: GapArgs) -> Result<i32> {
+    if let Some(GapCommand::Selftest { cases, seed, keep, verbose, json }) = args.command {
+        if cases == 0 {
+            bail!("--cases must be at least 1");
+        }
+        let opts = gap::selftest::SelftestOptions {
+            keep_dir: keep,
+            verbose,
+            diagnose: gap::Options {
+                progress: !json,
+                ..gap::Options::default()
+            },
+            ..gap::selftest::SelftestOptions::default()
+        };
+        let result = gap::selftest::selftest(cases, seed, &opts)?;
+        print!("{}", result.table());
+        if json {
+            println!("{}", serde_json::to_string(&result.summary())?);
+        }
+        return Ok(0);
+    }
+    let out = args.out.context("--out REPORT_DIR is required")?;
+    if !(args.dt.is_finite() && args.dt > 0.0) {
+        bail!("--dt {}: must be a finite number > 0", args.dt);
+    }
+    let opts = gap::Options {
+        dt: args.dt,
+        progress: !args.json,
+        pairs: !args.no_pairs,
+        ..gap::Options::default()
+    };
+    let report = match (&args.experiment, &args.force_displacement) {
+        (_, Some(table)) => gap::diagnose_force_displacement(table, &opts)
+            .with_context(|| format!("diagnosing {}", table.display()))?,
+        (Some(dir), None) => {
+            gap::diagnose_dir(dir, &opts).with_context(|| format!("diagnosing {}", dir.display()))?
+        }
+        (None, None) => bail!("give an EXPERIMENT_DIR or --force-displacement FILE.csv"),
+    };
+    gap::write_report(&report, &out).with_context(|| format!("writing the report to {}", out.display()))?;
+    if args.json {
+        println!("{}", serde_json::to_string(&report.verdict)?);
+    } else {
+        println!(
+            "verdict: {} (held-out shrink {:.1}%): {}",
+            report.verdict.effect,
+            100.0 * report.verdict.heldout_shrink,
+            report.verdict.reason
+        );
+        for p in &report.verdict.params {
+            println!("  {p:?}");
+        }
+        println!("report: {}", out.join("report.html").display());
+    }
+    Ok(0)
+}
+
+/// `arthrosim reality --effect … --out DIR --truth FILE`.
+fn reality(args: RealityArgs) -> Result<i32> {
+    let out_abs = std::path::absolute(&args.out)?;
+    let truth_abs = std::path::absolute(&args.truth)?;
+    if truth_abs.starts_with(&out_abs) {
+        bail!(
+            "--truth {} lies inside the experiment folder {}; the truth must be kept apart",
+            args.truth.display(),
+            args.out.display()
+        );
+    }
+    let effects: Vec<&str> = args.effects.iter().map(String::as_str).collect();
+    let spec = gap::reality::RealitySpec::from_effects(&effects, args.seed)?;
+    let truth = gap::reality::write_experiment(&spec, &args.out, &args.truth)
+        .with_context(|| format!("writing the experiment to {}", args.out.display()))?;
+    println!(
+        "experiment {} written ({} trials); truth ({}) in {}",
+        args.out.display(),
+        spec.probings_per_region * spec.regions.len(),
+        truth.label,
+        args.truth.display()
+    );
+    Ok(0)
 }

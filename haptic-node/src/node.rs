@@ -65,6 +65,8 @@ pub struct Summary {
     pub transport_p50_us: f64,
     pub transport_p99_us: f64,
     pub overruns: u64,
+    pub contact_ticks: u64,
+    pub max_rendered_n: f64,
     pub fault_ticks: u64,
     pub restarts: u64,
     pub invalid_frames: u64,
@@ -307,6 +309,10 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
             stats.lcp_iterations_sum += out.lcp_iterations as u64;
             stats.lcp_solves += 1;
         }
+        if out.contact_count > 0 {
+            stats.contact_ticks += 1;
+        }
+        stats.max_rendered_n = stats.max_rendered_n.max(norm(out.rendered));
         if renderer.has_frame() && out.faults & fault::STALE_FRAME == 0 {
             stats.frame_age.record(out.frame_age_ns);
         }
@@ -390,6 +396,8 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
         transport_p50_us: stats_msg.transport_p50_us,
         transport_p99_us: stats_msg.transport_p99_us,
         overruns: stats.overruns,
+        contact_ticks: stats.contact_ticks,
+        max_rendered_n: stats.max_rendered_n,
         fault_ticks: stats.fault_ticks,
         restarts: renderer.restarts,
         invalid_frames: renderer.invalid_frames,

@@ -111,6 +111,9 @@ pub struct LoopStats {
     pub overruns: u64,
     pub fault_ticks: u64,
     pub faults_seen: u32,
+    /// Ticks whose frame had at least one contact, and the largest force rendered.
+    pub contact_ticks: u64,
+    pub max_rendered_n: f64,
 }
 
 impl Default for LoopStats {
@@ -132,6 +135,8 @@ impl LoopStats {
             overruns: 0,
             fault_ticks: 0,
             faults_seen: 0,
+            contact_ticks: 0,
+            max_rendered_n: 0.0,
         }
     }
 }

@@ -71,7 +71,11 @@ fn main() {
                 da.total_cmp(&db)
             })
             .unwrap();
+        let only = std::env::var("FEM_TIMING_SOLVER").ok();
         for (name, solver) in solvers {
+            if only.as_deref().is_some_and(|o| o != name) {
+                continue;
+            }
             let settings = FemSettings {
                 solver,
                 ..FemSettings::default()

@@ -13,6 +13,7 @@
 
 use crate::probe::Probe;
 use nalgebra::{Point3, Vector3};
+use parry3d_f64::bounding_volume::Aabb;
 use parry3d_f64::math::Vector as GVec;
 use parry3d_f64::query::PointQueryWithLocation;
 use parry3d_f64::shape::{Triangle, TriMesh, TriMeshFlags, TrianglePointLocation};
@@ -311,7 +312,8 @@ impl ContactDetector {
         ContactDetector {
             params,
             tracked: vec![NO_TRIANGLE; spheres],
-            candidates: Vec::with_capacity(spheres),
+            // Several features per sphere (a sphere in a dent touches a few triangles).
+            candidates: Vec::with_capacity(spheres * 16),
             contacts: Vec::with_capacity(params.max_contacts.min(spheres).max(1)),
         }
     }
@@ -378,20 +380,74 @@ impl ContactDetector {
                 self.push_tracked(i, t, radius, &p0, &pf, surface, positions, free_positions);
                 continue;
             }
-            let dist = to_point.norm();
-            let normal = match location {
-                TrianglePointLocation::OnFace(..) | TrianglePointLocation::OnSolid => surface.face_normal(tri),
-                _ if dist > 1e-9 && !inside => to_point / dist,
-                _ => pseudo.try_normalize(0.0).unwrap_or_else(|| surface.face_normal(tri)),
-            };
-            let weights = location.barycentric_coordinates().unwrap_or([1.0 / 3.0; 3]);
-            self.push(i, tri, weights, normal, radius, &c, &p0, &pf, surface, positions, free_positions);
+            // Outside: one contact per close surface feature (a sphere in a dent touches
+            // several triangles; only the nearest would make it rock between them).
+            let first = self.candidates.len();
+            let lo = p0 - Vector3::repeat(reach);
+            let hi = p0 + Vector3::repeat(reach);
+            let aabb = Aabb::new(to_g(&lo), to_g(&hi));
+            for t in surface.trimesh.bvh().intersect_aabb(&aabb) {
+                let tri_shape = surface.trimesh.triangle(t);
+                let (proj, loc) = tri_shape.project_local_point_and_get_location(to_g(&p0), false);
+                let c = from_g(proj.point);
+                let d = p0 - c;
+                let dist = d.norm();
+                if dist > reach {
+                    continue;
+                }
+                let normal = match loc {
+                    TrianglePointLocation::OnFace(..) | TrianglePointLocation::OnSolid => {
+                        let n = surface.face_normal(t);
+                        // Behind this face's plane while outside the solid: a far side.
+                        if n.dot(&d) < 0.0 {
+                            continue;
+                        }
+                        n
+                    }
+                    _ => {
+                        let pseudo = surface.pseudo_normal(t, &loc);
+                        if pseudo.dot(&d) < 0.0 {
+                            continue;
+                        }
+                        if dist > 1e-9 {
+                            d / dist
+                        } else {
+                            pseudo.try_normalize(0.0).unwrap_or_else(|| surface.face_normal(t))
+                        }
+                    }
+                };
+                // Edges and vertices are reported by every triangle sharing them: keep one.
+                let duplicate = self.candidates[first..]
+                    .iter()
+                    .any(|k| (k.point - c).norm_squared() < 1e-18 && (k.normal - normal).norm_squared() < 1e-12);
+                if duplicate {
+                    continue;
+                }
+                let weights = loc.barycentric_coordinates().unwrap_or([1.0 / 3.0; 3]);
+                self.push(i, t, weights, normal, radius, &c, &p0, &pf, surface, positions, free_positions);
+            }
+            if self.candidates.len() == first {
+                // Nothing but the nearest feature (numerically on an edge of a far side):
+                // fall back to it with its pseudo-normal.
+                let dist = to_point.norm();
+                let normal = match location {
+                    TrianglePointLocation::OnFace(..) | TrianglePointLocation::OnSolid => surface.face_normal(tri),
+                    _ if dist > 1e-9 => to_point / dist,
+                    _ => pseudo.try_normalize(0.0).unwrap_or_else(|| surface.face_normal(tri)),
+                };
+                let weights = location.barycentric_coordinates().unwrap_or([1.0 / 3.0; 3]);
+                self.push(i, tri, weights, normal, radius, &c, &p0, &pf, surface, positions, free_positions);
+            } else if self.candidates[first..].iter().any(|k| k.triangle == tri) {
+                // Track the nearest triangle for the inside case.
+                self.tracked[i] = tri;
+            }
         }
         // Keep the most violated ones (deterministic: gap, then sphere index).
         self.candidates.sort_unstable_by(|a, b| {
             a.free_violation[0]
                 .total_cmp(&b.free_violation[0])
                 .then(a.sphere.cmp(&b.sphere))
+                .then(a.triangle.cmp(&b.triangle))
         });
         let n = self.candidates.len().min(self.params.max_contacts);
         self.contacts.extend_from_slice(&self.candidates[..n]);
@@ -462,6 +518,11 @@ impl ContactDetector {
             return;
         }
         self.tracked[i] = tri;
+        if self.candidates.len() == self.candidates.capacity() {
+            // Fixed capacity (no allocation in the step); the remaining features of a sphere
+            // this crowded are redundant.
+            return;
+        }
         let (t1, t2) = tangents(&normal);
         let slip = (pf - p0) - (c_free - c);
         self.candidates.push(Contact {

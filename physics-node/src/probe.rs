@@ -315,9 +315,8 @@ fn builtin_hook(radius: f64) -> Vec<CollisionSphere> {
     let tip = Vector3::zeros();
     let elbow = Vector3::new(HOOK_LENGTH, 0.0, 0.0);
     let top = elbow + Vector3::new(0.0, 0.0, SHAFT_LENGTH);
-    // The hook is what touches the tissue: dense. The shaft only guards against pushing it
-    // through: spacing r leaves valleys of 13% of r.
-    push_segment(tip, elbow, 0.5 * r, false);
+    // Spacing r leaves valleys of 13% of r between the balls of a chain.
+    push_segment(tip, elbow, r, false);
     push_segment(elbow, top, r, true);
     out
 }

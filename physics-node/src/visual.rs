@@ -23,7 +23,10 @@ impl BarycentricMap {
     /// Maps `points` (rest positions, same frame as `mesh`) onto `mesh`.
     pub fn new(mesh: &TetMesh, points: &[Point3<f64>]) -> Result<Self, MeshError> {
         if mesh.tets.is_empty() {
-            return Err(MeshError::invalid("<visual map>", "the tet mesh has no tetrahedra"));
+            return Err(MeshError::invalid(
+                "<visual map>",
+                "the tet mesh has no tetrahedra",
+            ));
         }
         let grid = TetGrid::new(mesh);
         let mut stamp = vec![u32::MAX; mesh.tets.len()];
@@ -63,8 +66,16 @@ impl BarycentricMap {
     /// Panics if `tet_positions` is not the mapped mesh's node count or `out` is not
     /// [`len`](Self::len) long (a wiring error, not an input error).
     pub fn update(&self, tet_positions: &[Point3<f64>], out: &mut [Point3<f64>]) {
-        assert_eq!(tet_positions.len(), self.node_count, "tet positions of another mesh");
-        assert_eq!(out.len(), self.nodes.len(), "output buffer of another length");
+        assert_eq!(
+            tet_positions.len(),
+            self.node_count,
+            "tet positions of another mesh"
+        );
+        assert_eq!(
+            out.len(),
+            self.nodes.len(),
+            "output buffer of another length"
+        );
         for ((o, n), w) in out.iter_mut().zip(&self.nodes).zip(&self.weights) {
             let mut v = Vector3::zeros();
             for k in 0..4 {
@@ -131,7 +142,12 @@ fn tet_distance(mesh: &TetMesh, t: usize, p: &Point3<f64>) -> f64 {
 }
 
 /// Closest point to `p` on triangle abc (Ericson, Real-Time Collision Detection 5.1.5).
-pub fn closest_on_triangle(p: &Point3<f64>, a: &Point3<f64>, b: &Point3<f64>, c: &Point3<f64>) -> Point3<f64> {
+pub fn closest_on_triangle(
+    p: &Point3<f64>,
+    a: &Point3<f64>,
+    b: &Point3<f64>,
+    c: &Point3<f64>,
+) -> Point3<f64> {
     let ab = b - a;
     let ac = c - a;
     let ap = p - a;
@@ -191,7 +207,9 @@ impl TetGrid {
         }
         h = h.max(max_extent / 256.0);
         let dims = [ext.x, ext.y, ext.z].map(|e| ((e / h).floor() as usize + 1).max(1));
-        let cell_of = |v: f64, axis: usize| (((v - lo[axis]) / h).floor().max(0.0) as usize).min(dims[axis] - 1);
+        let cell_of = |v: f64, axis: usize| {
+            (((v - lo[axis]) / h).floor().max(0.0) as usize).min(dims[axis] - 1)
+        };
         let ncell = dims[0] * dims[1] * dims[2];
         let mut ranges = Vec::with_capacity(mesh.tets.len());
         let mut count = vec![0usize; ncell + 1];
@@ -242,7 +260,13 @@ impl TetGrid {
     }
 
     /// The tet containing `p`, else the nearest one, with the distance.
-    fn locate(&self, mesh: &TetMesh, p: &Point3<f64>, stamp: &mut [u32], query: u32) -> (usize, f64) {
+    fn locate(
+        &self,
+        mesh: &TetMesh,
+        p: &Point3<f64>,
+        stamp: &mut [u32],
+        query: u32,
+    ) -> (usize, f64) {
         let cell: [usize; 3] = std::array::from_fn(|k| {
             (((p[k] - self.lo[k]) / self.h).floor().max(0.0) as usize).min(self.dims[k] - 1)
         });
@@ -255,11 +279,17 @@ impl TetGrid {
                 for j in lo[1].max(0)..=hi[1].min(self.dims[1] as isize - 1) {
                     for k in lo[2].max(0)..=hi[2].min(self.dims[2] as isize - 1) {
                         // Only the shell of this ring: inner cells were done before.
-                        let on_shell = i == lo[0] || i == hi[0] || j == lo[1] || j == hi[1] || k == lo[2] || k == hi[2];
+                        let on_shell = i == lo[0]
+                            || i == hi[0]
+                            || j == lo[1]
+                            || j == hi[1]
+                            || k == lo[2]
+                            || k == hi[2];
                         if !on_shell {
                             continue;
                         }
-                        let c = (i as usize * self.dims[1] + j as usize) * self.dims[2] + k as usize;
+                        let c =
+                            (i as usize * self.dims[1] + j as usize) * self.dims[2] + k as usize;
                         for &t in &self.items[self.start[c]..self.start[c + 1]] {
                             if stamp[t] == query {
                                 continue;
@@ -295,7 +325,9 @@ mod tests {
     use nalgebra::{Rotation3, Vector3};
 
     fn brute_force_nearest(mesh: &TetMesh, p: &Point3<f64>) -> f64 {
-        (0..mesh.tets.len()).map(|t| tet_distance(mesh, t, p)).fold(f64::INFINITY, f64::min)
+        (0..mesh.tets.len())
+            .map(|t| tet_distance(mesh, t, p))
+            .fold(f64::INFINITY, f64::min)
     }
 
     #[test]
@@ -310,13 +342,24 @@ mod tests {
             v.z = v.z * 1.02 - 1e-4;
         }
         let mut visual = VisualModel::new(&m.mesh, surface.clone()).unwrap();
-        let inside = visual.map.outside_distances().iter().filter(|&&d| d == 0.0).count();
+        let inside = visual
+            .map
+            .outside_distances()
+            .iter()
+            .filter(|&&d| d == 0.0)
+            .count();
         let outside = visual.map.len() - inside;
-        assert!(inside > 100 && outside > 100, "inside {inside}, outside {outside}");
+        assert!(
+            inside > 100 && outside > 100,
+            "inside {inside}, outside {outside}"
+        );
         // Nearest tets are truly the nearest (against brute force) for a sample.
         for (i, v) in surface.vertices.iter().enumerate().step_by(37) {
             let d = visual.map.outside_distances()[i];
-            assert!((d - brute_force_nearest(&m.mesh, v)).abs() < 1e-12, "vertex {i}");
+            assert!(
+                (d - brute_force_nearest(&m.mesh, v)).abs() < 1e-12,
+                "vertex {i}"
+            );
         }
         // Rest: exact reproduction.
         visual.update(&m.mesh.nodes);
@@ -324,7 +367,10 @@ mod tests {
             assert!((p - q).norm() < 1e-15, "{p} vs {q}");
         }
         // Rigid motion: rotate 40° about an oblique axis and translate.
-        let r = Rotation3::from_axis_angle(&nalgebra::Unit::new_normalize(Vector3::new(1.0, 2.0, 3.0)), 0.7);
+        let r = Rotation3::from_axis_angle(
+            &nalgebra::Unit::new_normalize(Vector3::new(1.0, 2.0, 3.0)),
+            0.7,
+        );
         let t = Vector3::new(0.01, -0.02, 0.03);
         let moved: Vec<Point3<f64>> = m.mesh.nodes.iter().map(|p| r * p + t).collect();
         visual.update(&moved);
@@ -336,7 +382,11 @@ mod tests {
     #[test]
     fn far_points_map_to_the_nearest_tet() {
         let m = ParametricMeniscus::new(Side::Medial, Resolution::Coarse);
-        let pts = [Point3::new(0.1, 0.05, -0.2), Point3::new(0.0, 0.0, 0.004), Point3::new(-0.03, 0.0, 0.002)];
+        let pts = [
+            Point3::new(0.1, 0.05, -0.2),
+            Point3::new(0.0, 0.0, 0.004),
+            Point3::new(-0.03, 0.0, 0.002),
+        ];
         let map = BarycentricMap::new(&m.mesh, &pts).unwrap();
         for (i, p) in pts.iter().enumerate() {
             assert!((map.outside_distances()[i] - brute_force_nearest(&m.mesh, p)).abs() < 1e-12);
@@ -350,22 +400,32 @@ mod tests {
 
     #[test]
     fn study_mri_surface_maps_onto_the_study_mesh() {
-        let Some(data) = crate::mesh::tests::study_data() else { return };
+        let Some(data) = crate::mesh::tests::study_data() else {
+            return;
+        };
         let cfg = launch_config::scene::MeniscusConfig {
             mesh: "study:lateral".into(),
             ..Default::default()
         };
         let m = crate::mesh::load_scene_mesh(&cfg, &data).unwrap();
-        let mut stl = crate::mesh::read_stl(&data.join("meniscus/lateral_meniscus_visual.stl")).unwrap();
+        let mut stl =
+            crate::mesh::read_stl(&data.join("meniscus/lateral_meniscus_visual.stl")).unwrap();
         // Scanner mm → m, then the same canonical frame as the study mesh.
-        crate::mesh::Transform { scale: 1e-3, ..crate::mesh::Transform::identity() }.apply_surface(&mut stl);
+        crate::mesh::Transform {
+            scale: 1e-3,
+            ..crate::mesh::Transform::identity()
+        }
+        .apply_surface(&mut stl);
         let frame = crate::geometry::canonical_surface_frame(&stl);
         for v in &mut stl.vertices {
             *v = frame.isometry * *v;
         }
         let (lo, hi) = stl.bounding_box();
         let size = (hi - lo) * 1e3;
-        assert!(size.x > 40.0 && size.x < 52.0 && size.y > 40.0 && size.y < 52.0, "MRI surface {size:?} mm");
+        assert!(
+            size.x > 40.0 && size.x < 52.0 && size.y > 40.0 && size.y < 52.0,
+            "MRI surface {size:?} mm"
+        );
         let started = std::time::Instant::now();
         let mut visual = VisualModel::new(&m.mesh, stl.clone()).unwrap();
         let d = visual.map.outside_distances();

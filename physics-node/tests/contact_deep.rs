@@ -49,6 +49,18 @@ fn run(model: &str) {
             // Outward: the contact normal points out of the tissue, toward the approach side.
             min_normal_dot = min_normal_dot.min(c.normal.dot(&n));
         }
+        if std::env::var("DEEP_DEBUG").is_ok() {
+            let zmin = sim.fem().positions().iter().map(|p| p.z).fold(f64::INFINITY, f64::min);
+            let p = sim.probe_pose().position;
+            println!(
+                "k {k} t {t:.2} proxy_depth {:.2} mm probe z {:.2} mm zmin {:.2} mm f {:?} contacts {:?}",
+                proxy_depth * 1e3,
+                p[2] * 1e3,
+                zmin * 1e3,
+                sim.contact_force(),
+                sim.contacts().iter().map(|c| (c.sphere, c.triangle, (c.gap_start * 1e3 * 100.0).round() / 100.0, c.normal.dot(&n))).collect::<Vec<_>>()
+            );
+        }
         let f = Vector3::from(sim.contact_force());
         max_force = max_force.max(f.norm());
         if f.norm() > 1e-9 {

@@ -229,3 +229,57 @@ pub fn temp_dir(test: &str) -> PathBuf {
     std::fs::create_dir_all(&d).unwrap();
     d
 }
+
+pub const PEAK: f64 = 3.3;
+/// Default rate limit 300 N/s at 1 kHz.
+pub const MAX_STEP: f64 = 0.3 + 1e-9;
+
+/// Every rendered force within the clamp; consecutive ticks never step more than the rate
+/// limit (except quarantine, which zeroes at once).
+pub fn assert_rate_limited_and_clamped(w: &Watcher) {
+    for pair in w.seen_states.windows(2) {
+        let (a, b) = (&pair[0], &pair[1]);
+        assert!(norm(b.rendered_force) <= PEAK);
+        if b.sequence == a.sequence + 1 && b.faults & (msgs::haptic_to_physics::fault::NONFINITE_DEVICE | msgs::haptic_to_physics::fault::NONFINITE_FORCE) == 0 {
+            let d = [
+                b.rendered_force[0] - a.rendered_force[0],
+                b.rendered_force[1] - a.rendered_force[1],
+                b.rendered_force[2] - a.rendered_force[2],
+            ];
+            assert!(norm(d) <= MAX_STEP, "step {} N between ticks {} and {}", norm(d), a.sequence, b.sequence);
+        }
+    }
+}
+
+
+/// After a `kill -9` of the physics at `killed_ns`: the frame goes stale 20 ms after the last
+/// frame and the force is zero within 10 ms of that.
+pub fn check_ramp_after_kill(w: &Watcher, killed_ns: u64) {
+    use msgs::haptic_to_physics::fault;
+    let last_frame = w.seen_frames.iter().map(|f| f.publish_ns).max().unwrap();
+    assert!(last_frame <= killed_ns);
+    let first_stale = w
+        .seen_states
+        .iter()
+        .find(|st| st.publish_ns > last_frame && st.faults & fault::STALE_FRAME != 0)
+        .expect("frame goes stale")
+        .publish_ns;
+    // Stale limit 20 ms (+ one tick to notice).
+    assert!(first_stale <= last_frame + 22 * MS, "stale after {} ms", (first_stale - last_frame) as f64 / 1e6);
+    for st in w.seen_states.iter().filter(|st| st.publish_ns >= first_stale + 10 * MS) {
+        assert_eq!(st.rendered_force, [0.0; 3], "force zero 10 ms after staleness (tick {})", st.sequence);
+    }
+    let zero_at = w
+        .seen_states
+        .iter()
+        .find(|st| st.publish_ns > killed_ns && st.rendered_force == [0.0; 3])
+        .expect("force reaches zero")
+        .publish_ns;
+    eprintln!(
+        "kill → zero {:.1} ms (last frame → stale {:.1} ms, stale → zero {:.1} ms)",
+        (zero_at - killed_ns) as f64 / 1e6,
+        (first_stale - last_frame) as f64 / 1e6,
+        (zero_at - first_stale) as f64 / 1e6
+    );
+    assert!(zero_at <= first_stale + 10 * MS + MS / 2);
+}

@@ -60,11 +60,15 @@ pub(crate) fn extract_rotation(a: &Matrix3<f64>, q: &mut UnitQuaternion<f64>, ma
             + 1.0e-9;
         let omega = num / den;
         let w = omega.norm();
-        if !w.is_finite() || w < 1.0e-12 {
+        if !w.is_finite() {
             break;
         }
         *q = UnitQuaternion::from_scaled_axis(omega) * *q;
         q.renormalize();
+        // 1e-10 rad: far below what the elastic forces can resolve.
+        if w < 1.0e-10 {
+            break;
+        }
     }
 }
 

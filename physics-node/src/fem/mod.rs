@@ -273,7 +273,10 @@ impl std::fmt::Debug for FemModel {
     }
 }
 
-const ROTATION_ITERATIONS: usize = 30;
+/// Rotation extraction cap in the step (warm-started: one or two iterations are typical).
+const ROTATION_ITERATIONS: usize = 8;
+/// Cap for cold starts outside the step (energies, forces, static solves).
+const ROTATION_ITERATIONS_COLD: usize = 50;
 
 impl FemModel {
     /// Builds the model. `fixed` are held in place, or supported by springs when
@@ -532,6 +535,10 @@ impl FemModel {
     /// One pass over the elements at positions `self.x` (or at rest): elastic forces into
     /// `self.force`, `k_scale · K` into `self.a` (zeroed first), and K·v into `self.kv`.
     fn assemble(&mut self, at_rest: bool, k_scale: f64, want_k: bool) {
+        self.assemble_with(at_rest, k_scale, want_k, ROTATION_ITERATIONS)
+    }
+
+    fn assemble_with(&mut self, at_rest: bool, k_scale: f64, want_k: bool, rot_iters: usize) {
         let FemModel {
             tets,
             rest_elems,
@@ -571,14 +578,14 @@ impl FemModel {
                     let rot = if at_rest {
                         Matrix3::identity()
                     } else {
-                        element::extract_rotation(&f, &mut elem_rot[e], ROTATION_ITERATIONS);
+                        element::extract_rotation(&f, &mut elem_rot[e], rot_iters);
                         elem_rot[e].to_rotation_matrix().into_inner()
                     };
                     element::corotational(re, &f, &rot, mu, lambda, want_k, &mut out);
                 }
                 MaterialModel::StableNeoHookean => {
                     if !at_rest {
-                        element::extract_rotation(&f, &mut elem_rot[e], ROTATION_ITERATIONS);
+                        element::extract_rotation(&f, &mut elem_rot[e], rot_iters);
                     }
                     element::stable_neo_hookean(
                         re,
@@ -954,7 +961,7 @@ impl FemModel {
             match self.material.model {
                 MaterialModel::Corotational => {
                     let mut q = self.elem_rot[e];
-                    element::extract_rotation(&f, &mut q, ROTATION_ITERATIONS);
+                    element::extract_rotation(&f, &mut q, ROTATION_ITERATIONS_COLD);
                     let rot = q.to_rotation_matrix().into_inner();
                     element::corotational(re, &f, &rot, self.mu, self.lambda, false, &mut out);
                 }
@@ -993,7 +1000,7 @@ impl FemModel {
         if out.len() != self.x.len() {
             return Err(FemError::Input("elastic_forces: wrong output length".into()));
         }
-        self.assemble(false, 0.0, false);
+        self.assemble_with(false, 0.0, false, ROTATION_ITERATIONS_COLD);
         for i in 0..out.len() {
             out[i] = self.force[i] - (self.x[i] - self.rest[i]) * self.support[i];
         }
@@ -1065,7 +1072,7 @@ impl FemModel {
             "static solve did not converge in {max_iterations} Newton iterations"
         )));
         for it in 1..=max_iterations {
-            self.assemble(false, 1.0, true);
+            self.assemble_with(false, 1.0, true, ROTATION_ITERATIONS_COLD);
             for (row, &node) in self.free_nodes.iter().enumerate() {
                 let ks = self.support[node];
                 let blk = &mut self.a[self.pattern.diag[row]];

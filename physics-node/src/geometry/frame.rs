@@ -35,7 +35,11 @@ pub fn canonical_surface_frame(surface: &SurfaceMesh) -> CanonicalFrame {
     canonical_frame_of(&surface.vertices, &surface.triangles, None)
 }
 
-fn canonical_frame_of(points: &[Point3<f64>], faces: &[[usize; 3]], inferior_hint: Option<&[usize]>) -> CanonicalFrame {
+fn canonical_frame_of(
+    points: &[Point3<f64>],
+    faces: &[[usize; 3]],
+    inferior_hint: Option<&[usize]>,
+) -> CanonicalFrame {
     let body = centroid(points.iter());
     let (normal, inferior_nodes) = match inferior_hint {
         Some(hint) if hint.len() >= 3 => {
@@ -70,11 +74,17 @@ fn canonical_frame_of(points: &[Point3<f64>], faces: &[[usize; 3]], inferior_hin
             hi[d] = hi[d].max(q[d]);
         }
     }
-    let z0 = inferior_nodes.iter().map(|&i| (r * points[i]).z).sum::<f64>()
+    let z0 = inferior_nodes
+        .iter()
+        .map(|&i| (r * points[i]).z)
+        .sum::<f64>()
         / inferior_nodes.len().max(1) as f64;
     let t = Vector3::new(-(lo[0] + hi[0]) / 2.0, -(lo[1] + hi[1]) / 2.0, -z0);
     CanonicalFrame {
-        isometry: Isometry3::from_parts(Translation3::from(t), UnitQuaternion::from_rotation_matrix(&r)),
+        isometry: Isometry3::from_parts(
+            Translation3::from(t),
+            UnitQuaternion::from_rotation_matrix(&r),
+        ),
         inferior_nodes,
         inferior_normal: normal,
     }
@@ -91,13 +101,19 @@ pub fn opening_angle(points: &[Point3<f64>]) -> f64 {
         }
     }
     let c = [(lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0];
-    let mut angles: Vec<f64> = points.iter().map(|p| (p.y - c[1]).atan2(p.x - c[0])).collect();
+    let mut angles: Vec<f64> = points
+        .iter()
+        .map(|p| (p.y - c[1]).atan2(p.x - c[0]))
+        .collect();
     angles.sort_by(f64::total_cmp);
     if angles.len() < 2 {
         return std::f64::consts::FRAC_PI_2;
     }
     // Wrap-around gap first.
-    let mut best = (angles[0] + std::f64::consts::TAU - angles[angles.len() - 1], angles[angles.len() - 1]);
+    let mut best = (
+        angles[0] + std::f64::consts::TAU - angles[angles.len() - 1],
+        angles[angles.len() - 1],
+    );
     for w in angles.windows(2) {
         if w[1] - w[0] > best.0 {
             best = (w[1] - w[0], w[0]);
@@ -131,7 +147,11 @@ fn flat_patch(nodes: &[Point3<f64>], faces: &[[usize; 3]]) -> (Vector3<f64>, Vec
     let stride = (faces.len() / 2000).max(1);
     let mut best = (Vector3::z(), -1.0);
     for (n, _) in weighted.iter().step_by(stride) {
-        let area: f64 = weighted.iter().filter(|(m, _)| m.dot(n) > cos_tol).map(|(_, a)| a).sum();
+        let area: f64 = weighted
+            .iter()
+            .filter(|(m, _)| m.dot(n) > cos_tol)
+            .map(|(_, a)| a)
+            .sum();
         if area > best.1 {
             best = (*n, area);
         }

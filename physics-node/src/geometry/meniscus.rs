@@ -13,7 +13,7 @@
 //! 1 = peripheral rim) and vertical v ∈ [0, 1]: the inferior face is flat (it rests on the
 //! tibial plateau), the peripheral wall is vertical with the rim thickness H(s), and the
 //! superior (femoral) face falls concavely from the rim to the inner edge,
-//! z_top = h_in + (H − h_in) · u^1.4.
+//! z_top = h_in + (H − h_in) · u^1.2 (close to the triangular wedge of anatomy texts).
 //!
 //! Sizes (document of choice):
 //! - Lateral: outer periphery an ellipse of semi-axes 23.0 mm (x) × 23.7 mm (y), arc from
@@ -91,7 +91,7 @@ impl MeniscusShape {
                 thickness: [7.0e-3, 6.4e-3, 4.8e-3],
                 width: [12.0e-3, 8.6e-3, 11.8e-3],
                 inner_edge: 1.5e-3,
-                concavity: 1.4,
+                concavity: 1.2,
             },
             Side::Medial => MeniscusShape {
                 semi_axes: [22.5e-3, 20.0e-3],
@@ -99,7 +99,7 @@ impl MeniscusShape {
                 thickness: [7.0e-3, 6.0e-3, 5.0e-3],
                 width: [14.0e-3, 9.5e-3, 8.0e-3],
                 inner_edge: 1.5e-3,
-                concavity: 1.4,
+                concavity: 1.2,
             },
         }
     }
@@ -168,7 +168,11 @@ pub struct ParametricMeniscus {
 
 impl ParametricMeniscus {
     pub fn new(side: Side, resolution: Resolution) -> Self {
-        Self::with_shape(side, MeniscusShape::anatomical(side), resolution.divisions())
+        Self::with_shape(
+            side,
+            MeniscusShape::anatomical(side),
+            resolution.divisions(),
+        )
     }
 
     pub fn with_shape(side: Side, shape: MeniscusShape, divisions: [usize; 3]) -> Self {
@@ -260,10 +264,18 @@ mod tests {
     use crate::mesh::topology::tet_det;
     use std::collections::HashSet;
 
-    fn check(side: Side, res: Resolution, min_nodes: usize, max_nodes: usize) -> ParametricMeniscus {
+    fn check(
+        side: Side,
+        res: Resolution,
+        min_nodes: usize,
+        max_nodes: usize,
+    ) -> ParametricMeniscus {
         let m = ParametricMeniscus::new(side, res);
         let n = m.mesh.nodes.len();
-        assert!(n >= min_nodes && n <= max_nodes, "{side:?} {res:?}: {n} nodes");
+        assert!(
+            n >= min_nodes && n <= max_nodes,
+            "{side:?} {res:?}: {n} nodes"
+        );
         // Every tet positive as generated (no reordering needed) and not thin.
         for t in 0..m.mesh.tets.len() {
             let d = tet_det(m.mesh.tet_points(t));
@@ -276,7 +288,13 @@ mod tests {
             .mesh
             .nodes
             .iter()
-            .map(|p| [(p.x * 1e7).round() as i64, (p.y * 1e7).round() as i64, (p.z * 1e7).round() as i64])
+            .map(|p| {
+                [
+                    (p.x * 1e7).round() as i64,
+                    (p.y * 1e7).round() as i64,
+                    (p.z * 1e7).round() as i64,
+                ]
+            })
             .collect();
         assert_eq!(keys.len(), n, "duplicate nodes");
         // Conforming: every interior face shared by exactly two tets, the boundary closed
@@ -296,7 +314,9 @@ mod tests {
         let chi = surface.vertices.len() as i64 - edges.len() as i64 + faces.len() as i64;
         assert_eq!(chi, 2);
         // Inferior set: exactly the z = 0 nodes.
-        let zero: Vec<usize> = (0..n).filter(|&i| m.mesh.nodes[i].z.abs() < 1e-12).collect();
+        let zero: Vec<usize> = (0..n)
+            .filter(|&i| m.mesh.nodes[i].z.abs() < 1e-12)
+            .collect();
         assert_eq!(m.inferior, zero);
         m
     }
@@ -321,9 +341,18 @@ mod tests {
         let l = ParametricMeniscus::new(Side::Lateral, Resolution::Fine);
         let (lo, hi) = l.mesh.bounding_box();
         let size = (hi - lo) * 1e3;
-        assert!((size.x - 46.0).abs() < 1.5 && (size.y - 46.0).abs() < 1.5, "lateral footprint {size:?}");
-        assert!(lo.z.abs() < 1e-12 && (hi.z * 1e3 - 7.0).abs() < 0.05, "lateral height {size:?}");
-        assert!((lo.x + hi.x).abs() < 1e-9 && (lo.y + hi.y).abs() < 1e-9, "footprint centred");
+        assert!(
+            (size.x - 46.0).abs() < 1.5 && (size.y - 46.0).abs() < 1.5,
+            "lateral footprint {size:?}"
+        );
+        assert!(
+            lo.z.abs() < 1e-12 && (hi.z * 1e3 - 7.0).abs() < 0.05,
+            "lateral height {size:?}"
+        );
+        assert!(
+            (lo.x + hi.x).abs() < 1e-9 && (lo.y + hi.y).abs() < 1e-9,
+            "footprint centred"
+        );
         let s = &l.shape;
         for (sv, th, w) in [(0.0, 7.0, 12.0), (0.5, 6.4, 8.6), (1.0, 4.8, 11.8)] {
             assert!((s.thickness_at(sv) * 1e3 - th).abs() < 1e-9);
@@ -338,7 +367,10 @@ mod tests {
         let m = ParametricMeniscus::new(Side::Medial, Resolution::Fine);
         let (lo, hi) = m.mesh.bounding_box();
         let size = (hi - lo) * 1e3;
-        assert!((size.x - 45.0).abs() < 1.5 && (size.y - 27.0).abs() < 1.5, "medial footprint {size:?}");
+        assert!(
+            (size.x - 45.0).abs() < 1.5 && (size.y - 27.0).abs() < 1.5,
+            "medial footprint {size:?}"
+        );
         // Volume: a few cm³, as a meniscus.
         let v = m.mesh.volume() * 1e6;
         assert!(v > 2.0 && v < 8.0, "medial volume {v} cm³");

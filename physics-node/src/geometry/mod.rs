@@ -44,7 +44,10 @@ pub struct ProbingSite {
 
 /// Highest upward-facing surface point above `xy` (vertical ray from above), with the
 /// triangle's outward normal.
-pub fn superior_point(surface: &SurfaceMesh, xy: Point2<f64>) -> Option<(Point3<f64>, Vector3<f64>)> {
+pub fn superior_point(
+    surface: &SurfaceMesh,
+    xy: Point2<f64>,
+) -> Option<(Point3<f64>, Vector3<f64>)> {
     let mut best: Option<(Point3<f64>, Vector3<f64>)> = None;
     for t in 0..surface.triangles.len() {
         let n = surface.triangle_normal(t);
@@ -81,7 +84,11 @@ pub fn parametric_probing_sites(m: &ParametricMeniscus, surface: &SurfaceMesh) -
         for off in PROBING_OFFSETS {
             let xy = m.footprint(centre + off, 0.5);
             if let Some((point, normal)) = superior_point(surface, xy) {
-                sites.push(ProbingSite { region, point, normal });
+                sites.push(ProbingSite {
+                    region,
+                    point,
+                    normal,
+                });
             }
         }
     }
@@ -126,8 +133,14 @@ pub fn probing_sites(surface: &SurfaceMesh) -> Vec<ProbingSite> {
             if r_in > r_out {
                 continue;
             }
-            if let Some((point, normal)) = superior_point(surface, centre + dir * ((r_in + r_out) / 2.0)) {
-                sites.push(ProbingSite { region, point, normal });
+            if let Some((point, normal)) =
+                superior_point(surface, centre + dir * ((r_in + r_out) / 2.0))
+            {
+                sites.push(ProbingSite {
+                    region,
+                    point,
+                    normal,
+                });
             }
         }
     }
@@ -163,20 +176,41 @@ mod tests {
     fn check_sites(m: &LoadedMeniscus) {
         let sites = &m.probing_sites;
         assert_eq!(sites.len(), 15, "{}", m.name);
-        for (k, region) in [REGION_POSTERIOR, REGION_MID, REGION_ANTERIOR].into_iter().enumerate() {
+        for (k, region) in [REGION_POSTERIOR, REGION_MID, REGION_ANTERIOR]
+            .into_iter()
+            .enumerate()
+        {
             assert!(sites[5 * k..5 * k + 5].iter().all(|s| s.region == region));
         }
         for s in sites {
-            assert!(surface_distance(&m.surface, &s.point) < 1e-12, "{s:?} off the surface");
+            assert!(
+                surface_distance(&m.surface, &s.point) < 1e-12,
+                "{s:?} off the surface"
+            );
             assert!((s.normal.norm() - 1.0).abs() < 1e-12);
-            assert!(s.normal.z > 0.5, "{}: normal {:?} not roughly +z", m.name, s.normal);
+            assert!(
+                s.normal.z > 0.5,
+                "{}: normal {:?} not roughly +z",
+                m.name,
+                s.normal
+            );
             // Superior: the site is the top of the mesh above its footprint point.
             assert!(s.point.z > 0.5e-3);
         }
         // Posterior horn on −x, mid body at −y, anterior horn on +x.
-        let mean = |r: usize| sites[5 * r..5 * r + 5].iter().fold(Vector3::zeros(), |a, s| a + s.point.coords) / 5.0;
+        let mean = |r: usize| {
+            sites[5 * r..5 * r + 5]
+                .iter()
+                .fold(Vector3::zeros(), |a, s| a + s.point.coords)
+                / 5.0
+        };
         assert!(mean(0).x < -0.008, "{}: posterior {:?}", m.name, mean(0));
-        assert!(mean(1).y < -0.005 && mean(1).y < mean(0).y && mean(1).y < mean(2).y, "{}: mid {:?}", m.name, mean(1));
+        assert!(
+            mean(1).y < -0.005 && mean(1).y < mean(0).y && mean(1).y < mean(2).y,
+            "{}: mid {:?}",
+            m.name,
+            mean(1)
+        );
         assert!(mean(2).x > 0.008, "{}: anterior {:?}", m.name, mean(2));
         // Spread slightly along the arc: distinct, within a few mm of each other.
         for r in 0..3 {
@@ -198,15 +232,27 @@ mod tests {
             let m = load(spec);
             assert_eq!(m.mesh.nodes.len(), nodes, "{spec}");
             // The fixed set is the inferior face (z = 0), and all of it.
-            assert!(m.fixed_nodes.iter().all(|&i| m.mesh.nodes[i].z.abs() < 1e-12));
+            assert!(m
+                .fixed_nodes
+                .iter()
+                .all(|&i| m.mesh.nodes[i].z.abs() < 1e-12));
             let on_floor = m.mesh.nodes.iter().filter(|p| p.z.abs() < 1e-12).count();
             assert_eq!(m.fixed_nodes.len(), on_floor);
             // The generic inferior selection finds the same set.
             assert_eq!(m.mesh.inferior_nodes(0.35), m.fixed_nodes, "{spec}");
-            // Surface ↔ node map.
+            // Surface ↔ node map, both ways.
             for (v, &n) in m.surface_to_node.iter().enumerate() {
                 assert_eq!(m.surface.vertices[v], m.mesh.nodes[n]);
             }
+            let back = m.node_to_surface();
+            for (n, v) in back.iter().enumerate() {
+                if let Some(v) = v {
+                    assert_eq!(m.surface_to_node[*v], n);
+                }
+            }
+            // Interior nodes exist from the fine level on (coarse has 2 layers through the
+            // thickness and 3 across: every node is on the surface except the middle ones).
+            assert!(back.iter().filter(|v| v.is_none()).count() < m.mesh.nodes.len() / 2);
             check_sites(&m);
         }
         let cfg = MeniscusConfig {
@@ -214,7 +260,10 @@ mod tests {
             fixed: "none".into(),
             ..Default::default()
         };
-        assert!(load_scene_mesh(&cfg, Path::new(".")).unwrap().fixed_nodes.is_empty());
+        assert!(load_scene_mesh(&cfg, Path::new("."))
+            .unwrap()
+            .fixed_nodes
+            .is_empty());
     }
 
     #[test]
@@ -237,21 +286,28 @@ mod tests {
             ("default:left:coarse", "unknown meniscus `left`"),
             ("study:knee", "unknown meniscus `knee`"),
             ("default:a:b:c", "expected default:SIDE:RESOLUTION"),
-            ("mesh.vtk", "not default:…, study:… or a path to a .msh file"),
+            (
+                "mesh.vtk",
+                "not default:…, study:… or a path to a .msh file",
+            ),
             ("/nonexistent/m.msh", "cannot read"),
         ] {
             let cfg = MeniscusConfig {
                 mesh: spec.into(),
                 ..Default::default()
             };
-            let e = load_scene_mesh(&cfg, Path::new("/nonexistent")).unwrap_err().to_string();
+            let e = load_scene_mesh(&cfg, Path::new("/nonexistent"))
+                .unwrap_err()
+                .to_string();
             assert!(e.contains(needle), "{spec}: {e}");
         }
         let cfg = MeniscusConfig {
             fixed: "/nonexistent/fixed.txt".into(),
             ..Default::default()
         };
-        let e = load_scene_mesh(&cfg, Path::new("/nonexistent")).unwrap_err().to_string();
+        let e = load_scene_mesh(&cfg, Path::new("/nonexistent"))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("fixed.txt") && e.contains("cannot read"), "{e}");
     }
 }

@@ -17,7 +17,10 @@ pub enum MeshError {
         problem: String,
     },
     #[error("{}: missing section {section}", path.display())]
-    MissingSection { path: PathBuf, section: &'static str },
+    MissingSection {
+        path: PathBuf,
+        section: &'static str,
+    },
     #[error("{}: unsupported format: {problem}", path.display())]
     Unsupported { path: PathBuf, problem: String },
     #[error("{}:{line}: node {node}: coordinate is not finite ({value})", path.display())]

@@ -11,12 +11,19 @@ pub fn read_fixed_nodes(path: &Path, node_count: usize) -> Result<Vec<usize>, Me
     parse_fixed_nodes(&text, path, node_count)
 }
 
-pub fn parse_fixed_nodes(text: &str, path: &Path, node_count: usize) -> Result<Vec<usize>, MeshError> {
+pub fn parse_fixed_nodes(
+    text: &str,
+    path: &Path,
+    node_count: usize,
+) -> Result<Vec<usize>, MeshError> {
     let mut out = Vec::new();
     for (i, raw) in text.lines().enumerate() {
         let line = i + 1;
         let l = raw.split('#').next().unwrap_or("");
-        for tok in l.split(|c: char| c.is_whitespace() || c == ',').filter(|t| !t.is_empty()) {
+        for tok in l
+            .split(|c: char| c.is_whitespace() || c == ',')
+            .filter(|t| !t.is_empty())
+        {
             let index: usize = tok.parse().map_err(|_| {
                 MeshError::parse(path, line, format!("`{tok}` is not a 0-based node index"))
             })?;

@@ -65,8 +65,13 @@ impl<'a> Cursor<'a> {
     }
     fn expect(&mut self, what: &str) -> Result<(usize, &'a str), MeshError> {
         let at = self.line;
-        self.next()
-            .ok_or_else(|| MeshError::parse(&self.path, at, format!("unexpected end of file, expected {what}")))
+        self.next().ok_or_else(|| {
+            MeshError::parse(
+                &self.path,
+                at,
+                format!("unexpected end of file, expected {what}"),
+            )
+        })
     }
     fn err(&self, line: usize, problem: impl Into<String>) -> MeshError {
         MeshError::parse(&self.path, line, problem)
@@ -140,10 +145,12 @@ pub fn parse_msh(text: &str, path: &Path) -> Result<MshMesh, MeshError> {
                 }
             }
             "$Nodes" => {
-                let v = version.as_deref().ok_or_else(|| MeshError::MissingSection {
-                    path: path.into(),
-                    section: "$MeshFormat",
-                })?;
+                let v = version
+                    .as_deref()
+                    .ok_or_else(|| MeshError::MissingSection {
+                        path: path.into(),
+                        section: "$MeshFormat",
+                    })?;
                 nodes = Some(if v == "4.1" {
                     nodes_41(&mut cur)?
                 } else {
@@ -151,10 +158,12 @@ pub fn parse_msh(text: &str, path: &Path) -> Result<MshMesh, MeshError> {
                 });
             }
             "$Elements" => {
-                let v = version.as_deref().ok_or_else(|| MeshError::MissingSection {
-                    path: path.into(),
-                    section: "$MeshFormat",
-                })?;
+                let v = version
+                    .as_deref()
+                    .ok_or_else(|| MeshError::MissingSection {
+                        path: path.into(),
+                        section: "$MeshFormat",
+                    })?;
                 elements = Some(if v == "4.1" {
                     elements_41(&mut cur)?
                 } else {
@@ -203,7 +212,11 @@ pub fn parse_msh(text: &str, path: &Path) -> Result<MshMesh, MeshError> {
                 if e.nodes.len() != 4 {
                     return Err(cur.err(
                         e.line,
-                        format!("element {}: tetrahedron needs 4 nodes, has {}", e.tag, e.nodes.len()),
+                        format!(
+                            "element {}: tetrahedron needs 4 nodes, has {}",
+                            e.tag,
+                            e.nodes.len()
+                        ),
                     ));
                 }
                 let mut t = [0usize; 4];
@@ -241,7 +254,10 @@ pub fn parse_msh(text: &str, path: &Path) -> Result<MshMesh, MeshError> {
         }
     }
     if tets.is_empty() {
-        return Err(MeshError::invalid(path, "no tetrahedra (element type 4) in $Elements"));
+        return Err(MeshError::invalid(
+            path,
+            "no tetrahedra (element type 4) in $Elements",
+        ));
     }
     let mut mesh = TetMesh {
         nodes: nodes.positions,
@@ -319,7 +335,10 @@ fn nodes_41(cur: &mut Cursor) -> Result<RawNodes, MeshError> {
     let (hl, h) = cur.expect("the $Nodes header")?;
     let head = cur.ints(hl, h, "$Nodes header")?;
     if head.len() != 4 || head.iter().any(|&v| v < 0) {
-        return Err(cur.err(hl, "$Nodes header must be `numEntityBlocks numNodes minNodeTag maxNodeTag`"));
+        return Err(cur.err(
+            hl,
+            "$Nodes header must be `numEntityBlocks numNodes minNodeTag maxNodeTag`",
+        ));
     }
     let mut out = RawNodes {
         positions: Vec::with_capacity(head[1] as usize),
@@ -329,7 +348,10 @@ fn nodes_41(cur: &mut Cursor) -> Result<RawNodes, MeshError> {
         let (bl, b) = cur.expect("a node entity block header")?;
         let block = cur.ints(bl, b, "node block header")?;
         if block.len() != 4 || block[3] < 0 {
-            return Err(cur.err(bl, "node block header must be `entityDim entityTag parametric numNodesInBlock`"));
+            return Err(cur.err(
+                bl,
+                "node block header must be `entityDim entityTag parametric numNodesInBlock`",
+            ));
         }
         let n = block[3] as usize;
         let mut tags = Vec::with_capacity(n);
@@ -348,7 +370,14 @@ fn nodes_41(cur: &mut Cursor) -> Result<RawNodes, MeshError> {
         }
     }
     if out.positions.len() != head[1] as usize {
-        return Err(cur.err(hl, format!("$Nodes header says {} nodes, blocks hold {}", head[1], out.positions.len())));
+        return Err(cur.err(
+            hl,
+            format!(
+                "$Nodes header says {} nodes, blocks hold {}",
+                head[1],
+                out.positions.len()
+            ),
+        ));
     }
     end_section(cur, "$EndNodes")?;
     Ok(out)
@@ -381,14 +410,20 @@ fn elements_41(cur: &mut Cursor) -> Result<Vec<RawElement>, MeshError> {
     let (hl, h) = cur.expect("the $Elements header")?;
     let head = cur.ints(hl, h, "$Elements header")?;
     if head.len() != 4 || head.iter().any(|&v| v < 0) {
-        return Err(cur.err(hl, "$Elements header must be `numEntityBlocks numElements minElementTag maxElementTag`"));
+        return Err(cur.err(
+            hl,
+            "$Elements header must be `numEntityBlocks numElements minElementTag maxElementTag`",
+        ));
     }
     let mut out = Vec::with_capacity(head[1] as usize);
     for _ in 0..head[0] {
         let (bl, b) = cur.expect("an element block header")?;
         let block = cur.ints(bl, b, "element block header")?;
         if block.len() != 4 || block[3] < 0 {
-            return Err(cur.err(bl, "element block header must be `entityDim entityTag elementType numElementsInBlock`"));
+            return Err(cur.err(
+                bl,
+                "element block header must be `entityDim entityTag elementType numElementsInBlock`",
+            ));
         }
         let kind = block[2];
         for _ in 0..block[3] {
@@ -406,7 +441,14 @@ fn elements_41(cur: &mut Cursor) -> Result<Vec<RawElement>, MeshError> {
         }
     }
     if out.len() != head[1] as usize {
-        return Err(cur.err(hl, format!("$Elements header says {} elements, blocks hold {}", head[1], out.len())));
+        return Err(cur.err(
+            hl,
+            format!(
+                "$Elements header says {} elements, blocks hold {}",
+                head[1],
+                out.len()
+            ),
+        ));
     }
     end_section(cur, "$EndElements")?;
     Ok(out)
@@ -424,7 +466,10 @@ fn elements_22(cur: &mut Cursor) -> Result<Vec<RawElement>, MeshError> {
         let v = cur.ints(l, t, "element")?;
         // tag type ntags tag... node...
         if v.len() < 3 || v[2] < 0 || v.len() < 3 + v[2] as usize {
-            return Err(cur.err(l, "element line must be `tag type numTags tags... nodes...`"));
+            return Err(cur.err(
+                l,
+                "element line must be `tag type numTags tags... nodes...`",
+            ));
         }
         out.push(RawElement {
             tag: v[0],

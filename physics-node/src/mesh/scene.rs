@@ -4,7 +4,9 @@ use std::path::{Path, PathBuf};
 
 use launch_config::scene::MeniscusConfig;
 
-use super::{read_fixed_nodes, read_msh, read_surface, MeshError, Sliver, SurfaceMesh, TetMesh, Transform};
+use super::{
+    read_fixed_nodes, read_msh, read_surface, MeshError, Sliver, SurfaceMesh, TetMesh, Transform,
+};
 use crate::geometry::{self, ParametricMeniscus, ProbingSite, Resolution, Side};
 
 /// Raw study units → m: the study scene scales ×26 to mm.
@@ -39,6 +41,17 @@ pub struct LoadedMeniscus {
     pub visual: Option<SurfaceMesh>,
 }
 
+impl LoadedMeniscus {
+    /// For each mesh node, its `surface` vertex (`None` for interior nodes).
+    pub fn node_to_surface(&self) -> Vec<Option<usize>> {
+        let mut map = vec![None; self.mesh.nodes.len()];
+        for (v, &n) in self.surface_to_node.iter().enumerate() {
+            map[n] = Some(v);
+        }
+        map
+    }
+}
+
 /// Where study data lives: `$ARTHROSIM_DATA`, else the repository's sibling `shared/data`.
 pub fn resolve_data_dir() -> PathBuf {
     match std::env::var_os("ARTHROSIM_DATA") {
@@ -58,7 +71,10 @@ fn parse_side(spec: &str, s: &str) -> Result<Side, MeshError> {
     match s {
         "lateral" => Ok(Side::Lateral),
         "medial" => Ok(Side::Medial),
-        _ => Err(spec_err(spec, format!("unknown meniscus `{s}` (lateral | medial)"))),
+        _ => Err(spec_err(
+            spec,
+            format!("unknown meniscus `{s}` (lateral | medial)"),
+        )),
     }
 }
 
@@ -67,7 +83,10 @@ fn parse_resolution(spec: &str, s: &str) -> Result<Resolution, MeshError> {
         "coarse" => Ok(Resolution::Coarse),
         "fine" => Ok(Resolution::Fine),
         "finest" => Ok(Resolution::Finest),
-        _ => Err(spec_err(spec, format!("unknown resolution `{s}` (coarse | fine | finest)"))),
+        _ => Err(spec_err(
+            spec,
+            format!("unknown resolution `{s}` (coarse | fine | finest)"),
+        )),
     }
 }
 
@@ -100,15 +119,34 @@ pub fn load_scene_mesh(cfg: &MeniscusConfig, data_dir: &Path) -> Result<LoadedMe
     let mut loaded = match parts.as_slice() {
         ["default"] => parametric(spec, Side::Lateral, Resolution::Coarse, cfg, data_dir)?,
         ["default", x] => match *x {
-            "lateral" | "medial" => parametric(spec, parse_side(spec, x)?, Resolution::Coarse, cfg, data_dir)?,
-            r => parametric(spec, Side::Lateral, parse_resolution(spec, r)?, cfg, data_dir)?,
+            "lateral" | "medial" => parametric(
+                spec,
+                parse_side(spec, x)?,
+                Resolution::Coarse,
+                cfg,
+                data_dir,
+            )?,
+            r => parametric(
+                spec,
+                Side::Lateral,
+                parse_resolution(spec, r)?,
+                cfg,
+                data_dir,
+            )?,
         },
-        ["default", side, res] => {
-            parametric(spec, parse_side(spec, side)?, parse_resolution(spec, res)?, cfg, data_dir)?
-        }
+        ["default", side, res] => parametric(
+            spec,
+            parse_side(spec, side)?,
+            parse_resolution(spec, res)?,
+            cfg,
+            data_dir,
+        )?,
         ["study", side] => study(spec, parse_side(spec, side)?, cfg, data_dir)?,
         _ if spec.starts_with("default:") || spec.starts_with("study:") => {
-            return Err(spec_err(spec, "expected default:SIDE:RESOLUTION or study:SIDE"))
+            return Err(spec_err(
+                spec,
+                "expected default:SIDE:RESOLUTION or study:SIDE",
+            ))
         }
         _ => msh_file(spec, cfg, data_dir)?,
     };
@@ -189,12 +227,23 @@ fn parametric(
     };
     let name = format!("parametric {side:?} meniscus ({res:?}), `{spec}`").to_lowercase();
     let mesh = p.mesh.clone();
-    Ok(finish(name, Some(side), mesh, fixed, Transform::identity(), Vec::new(), |s| {
-        geometry::parametric_probing_sites(&p, s)
-    }))
+    Ok(finish(
+        name,
+        Some(side),
+        mesh,
+        fixed,
+        Transform::identity(),
+        Vec::new(),
+        |s| geometry::parametric_probing_sites(&p, s),
+    ))
 }
 
-fn study(spec: &str, side: Side, cfg: &MeniscusConfig, data_dir: &Path) -> Result<LoadedMeniscus, MeshError> {
+fn study(
+    spec: &str,
+    side: Side,
+    cfg: &MeniscusConfig,
+    data_dir: &Path,
+) -> Result<LoadedMeniscus, MeshError> {
     let dir = data_dir.join("meniscus");
     let (file, list) = match side {
         Side::Lateral => (
@@ -234,14 +283,42 @@ fn study(spec: &str, side: Side, cfg: &MeniscusConfig, data_dir: &Path) -> Resul
         rotation: iso.rotation.to_rotation_matrix(),
         translation: iso.translation.vector,
     };
-    let name = format!("study {} meniscus, `{spec}`", if side == Side::Lateral { "lateral" } else { "medial" });
-    Ok(finish(name, Some(side), mesh, fixed, transform, msh.slivers, geometry::probing_sites))
+    let name = format!(
+        "study {} meniscus, `{spec}`",
+        if side == Side::Lateral {
+            "lateral"
+        } else {
+            "medial"
+        }
+    );
+    Ok(finish(
+        name,
+        Some(side),
+        mesh,
+        fixed,
+        transform,
+        msh.slivers,
+        geometry::probing_sites,
+    ))
 }
 
-fn msh_file(spec: &str, cfg: &MeniscusConfig, data_dir: &Path) -> Result<LoadedMeniscus, MeshError> {
+fn msh_file(
+    spec: &str,
+    cfg: &MeniscusConfig,
+    data_dir: &Path,
+) -> Result<LoadedMeniscus, MeshError> {
     let path = locate(spec, data_dir);
-    if path.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase()).as_deref() != Some("msh") {
-        return Err(spec_err(spec, "not default:…, study:… or a path to a .msh file"));
+    if path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(|e| e.to_ascii_lowercase())
+        .as_deref()
+        != Some("msh")
+    {
+        return Err(spec_err(
+            spec,
+            "not default:…, study:… or a path to a .msh file",
+        ));
     }
     let msh = read_msh(&path)?;
     let file_nodes = msh.file_index.last().map_or(0, |&l| l + 1);
@@ -251,7 +328,9 @@ fn msh_file(spec: &str, cfg: &MeniscusConfig, data_dir: &Path) -> Result<LoadedM
     let fixed = match cfg.fixed.as_str() {
         "inferior" => mesh.inferior_nodes(INFERIOR_BAND),
         "none" => Vec::new(),
-        f => fixed_from_file(&locate(f, data_dir), file_nodes, |i| msh.mesh_index_of_file(i))?,
+        f => fixed_from_file(&locate(f, data_dir), file_nodes, |i| {
+            msh.mesh_index_of_file(i)
+        })?,
     };
     Ok(finish(
         format!("mesh file {}", path.display()),

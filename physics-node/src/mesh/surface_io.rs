@@ -44,11 +44,15 @@ pub fn parse_obj(text: &str, path: &Path) -> Result<SurfaceMesh, MeshError> {
             Some("v") => {
                 let mut c = [0.0f64; 3];
                 for (k, ck) in c.iter_mut().enumerate() {
-                    let t = parts.next().ok_or_else(|| {
-                        MeshError::parse(path, line, "vertex needs x y z")
-                    })?;
+                    let t = parts
+                        .next()
+                        .ok_or_else(|| MeshError::parse(path, line, "vertex needs x y z"))?;
                     *ck = t.parse().map_err(|_| {
-                        MeshError::parse(path, line, format!("vertex coordinate {k}: `{t}` is not a number"))
+                        MeshError::parse(
+                            path,
+                            line,
+                            format!("vertex coordinate {k}: `{t}` is not a number"),
+                        )
                     })?;
                     if !ck.is_finite() {
                         return Err(MeshError::NonFiniteCoordinate {
@@ -75,13 +79,19 @@ pub fn parse_obj(text: &str, path: &Path) -> Result<SurfaceMesh, MeshError> {
                         return Err(MeshError::parse(
                             path,
                             line,
-                            format!("face vertex index {idx} is out of range ({n} vertices so far)"),
+                            format!(
+                                "face vertex index {idx} is out of range ({n} vertices so far)"
+                            ),
                         ));
                     }
                     poly.push(resolved as usize);
                 }
                 if poly.len() < 3 {
-                    return Err(MeshError::parse(path, line, format!("face has {} vertices, needs at least 3", poly.len())));
+                    return Err(MeshError::parse(
+                        path,
+                        line,
+                        format!("face has {} vertices, needs at least 3", poly.len()),
+                    ));
                 }
                 for k in 1..poly.len() - 1 {
                     triangles.push([poly[0], poly[k], poly[k + 1]]);
@@ -140,7 +150,10 @@ pub fn parse_stl(bytes: &[u8], path: &Path) -> Result<SurfaceMesh, MeshError> {
             ),
         ));
     }
-    Err(MeshError::invalid(path, "neither ASCII (`solid`) nor binary STL"))
+    Err(MeshError::invalid(
+        path,
+        "neither ASCII (`solid`) nor binary STL",
+    ))
 }
 
 struct Welder {
@@ -151,7 +164,11 @@ struct Welder {
 impl Welder {
     fn add(&mut self, p: Point3<f64>) -> usize {
         // +0.0 so that -0.0 and 0.0 weld.
-        let key = [(p.x + 0.0).to_bits(), (p.y + 0.0).to_bits(), (p.z + 0.0).to_bits()];
+        let key = [
+            (p.x + 0.0).to_bits(),
+            (p.y + 0.0).to_bits(),
+            (p.z + 0.0).to_bits(),
+        ];
         let next = self.vertices.len();
         *self.index.entry(key).or_insert_with(|| {
             self.vertices.push(p);
@@ -168,7 +185,9 @@ fn parse_stl_binary(bytes: &[u8], n: usize, path: &Path) -> Result<SurfaceMesh, 
     let mut triangles = Vec::with_capacity(n);
     for t in 0..n {
         let rec = &bytes[84 + 50 * t..84 + 50 * (t + 1)];
-        let f = |k: usize| f32::from_le_bytes([rec[4 * k], rec[4 * k + 1], rec[4 * k + 2], rec[4 * k + 3]]) as f64;
+        let f = |k: usize| {
+            f32::from_le_bytes([rec[4 * k], rec[4 * k + 1], rec[4 * k + 2], rec[4 * k + 3]]) as f64
+        };
         let mut tri = [0usize; 3];
         for (v, slot) in tri.iter_mut().enumerate() {
             let p = Point3::new(f(3 + 3 * v), f(4 + 3 * v), f(5 + 3 * v));

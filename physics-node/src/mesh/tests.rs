@@ -32,7 +32,13 @@ const CUBE: [[f64; 3]; 8] = [
     [0.0, 1.0, 1.0],
 ];
 // 1-based node tags; the first two are written inverted on purpose where noted.
-const CUBE_TETS: [[usize; 4]; 5] = [[1, 2, 4, 5], [2, 3, 4, 7], [2, 5, 6, 7], [4, 5, 7, 8], [2, 4, 5, 7]];
+const CUBE_TETS: [[usize; 4]; 5] = [
+    [1, 2, 4, 5],
+    [2, 3, 4, 7],
+    [2, 5, 6, 7],
+    [4, 5, 7, 8],
+    [2, 4, 5, 7],
+];
 
 fn msh41(nodes: &[[f64; 3]], tets: &[[usize; 4]], extra_node_line: Option<&str>) -> String {
     let mut s = String::from("$MeshFormat\n4.1 0 8\n$EndMeshFormat\n$Nodes\n");
@@ -78,7 +84,13 @@ fn inverted_cube_tets() -> Vec<[usize; 4]> {
     CUBE_TETS
         .iter()
         .enumerate()
-        .map(|(i, t)| if i % 2 == 0 { [t[0], t[2], t[1], t[3]] } else { *t })
+        .map(|(i, t)| {
+            if i % 2 == 0 {
+                [t[0], t[2], t[1], t[3]]
+            } else {
+                *t
+            }
+        })
         .collect()
 }
 
@@ -107,9 +119,14 @@ fn assert_cube(m: &MshMesh) {
         let n = surface.triangle_normal(t);
         let c = surface.triangles[t]
             .iter()
-            .fold(nalgebra::Vector3::zeros(), |s, &v| s + surface.vertices[v].coords)
+            .fold(nalgebra::Vector3::zeros(), |s, &v| {
+                s + surface.vertices[v].coords
+            })
             / 3.0;
-        assert!(n.dot(&(c - nalgebra::Vector3::repeat(0.5))) > 0.0, "triangle {t} points inward");
+        assert!(
+            n.dot(&(c - nalgebra::Vector3::repeat(0.5))) > 0.0,
+            "triangle {t} points inward"
+        );
     }
 }
 
@@ -147,8 +164,14 @@ fn inverted_tets_are_reordered() {
         }
     }
     // A mirroring transform keeps tets positive too.
-    let mut mesh = read_msh(&write(&d, "c.msh", &msh41(&CUBE, &CUBE_TETS, None))).unwrap().mesh;
-    Transform { scale: -2.0, ..Transform::identity() }.apply_tets(&mut mesh);
+    let mut mesh = read_msh(&write(&d, "c.msh", &msh41(&CUBE, &CUBE_TETS, None)))
+        .unwrap()
+        .mesh;
+    Transform {
+        scale: -2.0,
+        ..Transform::identity()
+    }
+    .apply_tets(&mut mesh);
     assert!((0..5).all(|t| mesh.tet_volume(t) > 0.0));
     assert!((mesh.volume() - 8.0).abs() < 1e-12);
 }
@@ -171,11 +194,17 @@ fn rejects_missing_sections() {
     };
     let p = write(&d, "nonodes.msh", &no_nodes);
     let e = err_text(read_msh(&p));
-    assert!(e.contains("nonodes.msh") && e.contains("missing section $Nodes"), "{e}");
+    assert!(
+        e.contains("nonodes.msh") && e.contains("missing section $Nodes"),
+        "{e}"
+    );
 
     let no_elements = full[..full.find("$Elements").unwrap()].to_string();
     let e = err_text(read_msh(&write(&d, "noelems.msh", &no_elements)));
-    assert!(e.contains("noelems.msh") && e.contains("missing section $Elements"), "{e}");
+    assert!(
+        e.contains("noelems.msh") && e.contains("missing section $Elements"),
+        "{e}"
+    );
 
     let no_format = full[full.find("$Nodes").unwrap()..].to_string();
     let e = err_text(read_msh(&write(&d, "nofmt.msh", &no_format)));
@@ -184,7 +213,10 @@ fn rejects_missing_sections() {
     // A section cut short is named with its line.
     let truncated = full[..full.find("$EndNodes").unwrap()].to_string();
     let e = err_text(read_msh(&write(&d, "short.msh", &truncated)));
-    assert!(e.contains("short.msh:") && e.contains("expected $EndNodes"), "{e}");
+    assert!(
+        e.contains("short.msh:") && e.contains("expected $EndNodes"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -194,12 +226,22 @@ fn rejects_non_finite_coordinates() {
         let p = write(&d, "nan.msh", &msh41(&CUBE, &CUBE_TETS, Some(bad)));
         let e = err_text(read_msh(&p));
         // Line 17 holds node 3's coordinates (after the 8 tag lines).
-        assert!(e.contains("nan.msh:17") && e.contains("node 3") && e.contains("not finite"), "{e}");
+        assert!(
+            e.contains("nan.msh:17") && e.contains("node 3") && e.contains("not finite"),
+            "{e}"
+        );
     }
     let mut nodes = CUBE;
     nodes[5][1] = f64::NAN;
-    let e = err_text(read_msh(&write(&d, "nan22.msh", &msh22(&nodes, &CUBE_TETS))));
-    assert!(e.contains("nan22.msh:11") && e.contains("node 6") && e.contains("not finite"), "{e}");
+    let e = err_text(read_msh(&write(
+        &d,
+        "nan22.msh",
+        &msh22(&nodes, &CUBE_TETS),
+    )));
+    assert!(
+        e.contains("nan22.msh:11") && e.contains("node 6") && e.contains("not finite"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -207,12 +249,22 @@ fn rejects_out_of_range_node_tags() {
     let d = scratch("range");
     let mut tets = CUBE_TETS.to_vec();
     tets[3][2] = 9;
-    let e = err_text(read_msh(&write(&d, "range41.msh", &msh41(&CUBE, &tets, None))));
-    assert!(e.contains("range41.msh") && e.contains("element 6") && e.contains("node tag 9"), "{e}");
+    let e = err_text(read_msh(&write(
+        &d,
+        "range41.msh",
+        &msh41(&CUBE, &tets, None),
+    )));
+    assert!(
+        e.contains("range41.msh") && e.contains("element 6") && e.contains("node tag 9"),
+        "{e}"
+    );
     assert!(e.contains("out of range"), "{e}");
     tets[3][2] = 0;
     let e = err_text(read_msh(&write(&d, "range22.msh", &msh22(&CUBE, &tets))));
-    assert!(e.contains("range22.msh") && e.contains("element 6") && e.contains("node tag 0"), "{e}");
+    assert!(
+        e.contains("range22.msh") && e.contains("element 6") && e.contains("node tag 0"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -222,20 +274,62 @@ fn rejects_zero_volume_tets() {
     let mut tets = CUBE_TETS.to_vec();
     tets.push([1, 2, 3, 4]);
     let e = err_text(read_msh(&write(&d, "flat.msh", &msh41(&CUBE, &tets, None))));
-    assert!(e.contains("flat.msh") && e.contains("element 8") && e.contains("zero-volume"), "{e}");
+    assert!(
+        e.contains("flat.msh") && e.contains("element 8") && e.contains("zero-volume"),
+        "{e}"
+    );
     // A repeated node is zero volume too.
     let mut tets = CUBE_TETS.to_vec();
     tets[0] = [1, 2, 2, 5];
     let e = err_text(read_msh(&write(&d, "repeat.msh", &msh22(&CUBE, &tets))));
-    assert!(e.contains("repeat.msh") && e.contains("element 3") && e.contains("zero-volume"), "{e}");
+    assert!(
+        e.contains("repeat.msh") && e.contains("element 3") && e.contains("zero-volume"),
+        "{e}"
+    );
+}
+
+/// Runs `f` with a subscriber that records formatted events; returns them.
+fn capture_warnings<T>(f: impl FnOnce() -> T) -> (T, String) {
+    use std::sync::{Arc, Mutex};
+    #[derive(Clone, Default)]
+    struct Buf(Arc<Mutex<Vec<u8>>>);
+    impl std::io::Write for Buf {
+        fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+            self.0.lock().unwrap().extend_from_slice(b);
+            Ok(b.len())
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+    let buf = Buf::default();
+    let writer = buf.clone();
+    let subscriber = tracing_subscriber::fmt()
+        .with_writer(move || writer.clone())
+        .with_ansi(false)
+        .with_max_level(tracing::Level::WARN)
+        .finish();
+    let out = tracing::subscriber::with_default(subscriber, f);
+    let text = String::from_utf8(buf.0.lock().unwrap().clone()).unwrap();
+    (out, text)
 }
 
 #[test]
 fn thin_tet_warns_but_loads() {
     let d = scratch("sliver");
     // A valid but very flat tet: apex 0.01 above the base triangle.
-    let nodes = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.3, 0.3, 0.01]];
-    let m = read_msh(&write(&d, "sliver.msh", &msh41(&nodes, &[[1, 2, 3, 4]], None))).unwrap();
+    let nodes = [
+        [0.0, 0.0, 0.0],
+        [1.0, 0.0, 0.0],
+        [0.0, 1.0, 0.0],
+        [0.3, 0.3, 0.01],
+    ];
+    let path = write(&d, "sliver.msh", &msh41(&nodes, &[[1, 2, 3, 4]], None));
+    let (m, log) = capture_warnings(|| read_msh(&path).unwrap());
+    assert!(
+        log.contains("WARN") && log.contains("sliver") && log.contains("sliver.msh"),
+        "{log}"
+    );
     assert_eq!(m.slivers.len(), 1);
     assert!(m.slivers[0].quality < SLIVER_QUALITY && m.slivers[0].quality > 0.0);
 }
@@ -250,25 +344,45 @@ fn rejects_binary_and_unknown_versions() {
     let e = err_text(read_msh(&write(&d, "v3.msh", &text)));
     assert!(e.contains("version 3.0"), "{e}");
     let e = err_text(read_msh(&d.join("does-not-exist.msh")));
-    assert!(e.contains("does-not-exist.msh") && e.contains("cannot read"), "{e}");
+    assert!(
+        e.contains("does-not-exist.msh") && e.contains("cannot read"),
+        "{e}"
+    );
 }
 
 #[test]
 fn obj_faces_are_fan_triangulated() {
-    let text = "# quad and pentagon\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0.5 1.5 0\nvt 0 0\nvn 0 0 1\n\
+    let text =
+        "# quad and pentagon\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0.5 1.5 0\nvt 0 0\nvn 0 0 1\n\
                 f 1/1/1 2/1/1 3/1/1 4/1/1\nf 1//1 2//1 3//1\nf -5 -4 -3 -1 -2\n";
     let s = parse_obj(text, Path::new("t.obj")).unwrap();
     assert_eq!(s.vertices.len(), 5);
     assert_eq!(
         s.triangles,
-        vec![[0, 1, 2], [0, 2, 3], [0, 1, 2], [0, 1, 2], [0, 2, 4], [0, 4, 3]]
+        vec![
+            [0, 1, 2],
+            [0, 2, 3],
+            [0, 1, 2],
+            [0, 1, 2],
+            [0, 2, 4],
+            [0, 4, 3]
+        ]
     );
-    let e = parse_obj("v 0 0 0\nv 1 0 0\nf 1 2 3\n", Path::new("bad.obj")).unwrap_err().to_string();
+    let e = parse_obj("v 0 0 0\nv 1 0 0\nf 1 2 3\n", Path::new("bad.obj"))
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("bad.obj:3") && e.contains("out of range"), "{e}");
-    let e = parse_obj("v 0 nan 0\n", Path::new("nan.obj")).unwrap_err().to_string();
+    let e = parse_obj("v 0 nan 0\n", Path::new("nan.obj"))
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("nan.obj:1") && e.contains("not finite"), "{e}");
-    let e = parse_obj("v 0 0 0\nv 1 0 0\nf 1 2\n", Path::new("two.obj")).unwrap_err().to_string();
-    assert!(e.contains("two.obj:3") && e.contains("needs at least 3"), "{e}");
+    let e = parse_obj("v 0 0 0\nv 1 0 0\nf 1 2\n", Path::new("two.obj"))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("two.obj:3") && e.contains("needs at least 3"),
+        "{e}"
+    );
 }
 
 fn tetra_surface() -> SurfaceMesh {
@@ -311,26 +425,43 @@ fn stl_ascii_and_binary_weld_to_the_same_surface() {
     let b = parse_stl(&bin, Path::new("b.stl")).unwrap();
     // Welded: 4 shared vertices, and the same triangles (vertex numbering is by first use).
     let coords = |m: &SurfaceMesh| -> Vec<[Point3<f64>; 3]> {
-        m.triangles.iter().map(|t| t.map(|v| m.vertices[v])).collect()
+        m.triangles
+            .iter()
+            .map(|t| t.map(|v| m.vertices[v]))
+            .collect()
     };
     for m in [&a, &b] {
         assert_eq!(m.vertices.len(), 4);
         assert_eq!(coords(m), coords(&s));
     }
-    let e = parse_stl(&bin[..bin.len() - 7], Path::new("cut.stl")).unwrap_err().to_string();
+    let e = parse_stl(&bin[..bin.len() - 7], Path::new("cut.stl"))
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("cut.stl"), "{e}");
     let bad = ascii.replacen("vertex 0 0 0", "vertex 0 0", 1);
-    let e = parse_stl(bad.as_bytes(), Path::new("bad.stl")).unwrap_err().to_string();
-    assert!(e.contains("bad.stl:") && e.contains("vertex needs x y z"), "{e}");
+    let e = parse_stl(bad.as_bytes(), Path::new("bad.stl"))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("bad.stl:") && e.contains("vertex needs x y z"),
+        "{e}"
+    );
 }
 
 #[test]
 fn fixed_node_list_reads_comments_and_checks_range() {
     let l = parse_fixed_nodes("# held\n3 1 2 # trailing\n\n2, 7\n", Path::new("f.txt"), 8).unwrap();
     assert_eq!(l, vec![1, 2, 3, 7]);
-    let e = parse_fixed_nodes("1 2\n9\n", Path::new("f.txt"), 8).unwrap_err().to_string();
-    assert!(e.contains("f.txt:2") && e.contains("fixed node 9") && e.contains("8 nodes"), "{e}");
-    let e = parse_fixed_nodes("1 x\n", Path::new("g.txt"), 8).unwrap_err().to_string();
+    let e = parse_fixed_nodes("1 2\n9\n", Path::new("f.txt"), 8)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("f.txt:2") && e.contains("fixed node 9") && e.contains("8 nodes"),
+        "{e}"
+    );
+    let e = parse_fixed_nodes("1 x\n", Path::new("g.txt"), 8)
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("g.txt:1") && e.contains("`x`"), "{e}");
 }
 
@@ -360,7 +491,10 @@ pub(crate) fn study_data() -> Option<PathBuf> {
         return Some(d);
     }
     if std::env::var("CI").as_deref() == Ok("true") {
-        panic!("study data not found at {} (CI=true: set ARTHROSIM_DATA)", d.display());
+        panic!(
+            "study data not found at {} (CI=true: set ARTHROSIM_DATA)",
+            d.display()
+        );
     }
     eprintln!("note: study data not found at {}; skipping", d.display());
     None
@@ -376,7 +510,10 @@ fn cfg(mesh: &str) -> launch_config::scene::MeniscusConfig {
 #[test]
 fn study_lateral_loads_with_fixed_nodes_in_canonical_frame() {
     let Some(data) = study_data() else { return };
-    let raw = read_msh(&data.join("meniscus/lateral_meniscus_computation.msh")).unwrap();
+    let (raw, log) = capture_warnings(|| {
+        read_msh(&data.join("meniscus/lateral_meniscus_computation.msh")).unwrap()
+    });
+    assert_eq!(log.matches("sliver").count(), 2, "{log}");
     assert_eq!(raw.mesh.nodes.len(), 258);
     assert_eq!(raw.mesh.tets.len(), 632);
     assert_eq!(raw.reordered, 0, "the study's tets are all positive");
@@ -403,8 +540,15 @@ fn study_lateral_loads_with_fixed_nodes_in_canonical_frame() {
     assert!(lo.z > -5e-3, "lowest node {} mm", lo.z * 1e3);
     // The generic inferior selection agrees with the study's list.
     let inferior = m.mesh.inferior_nodes(0.35);
-    let common = inferior.iter().filter(|i| m.fixed_nodes.binary_search(i).is_ok()).count();
-    assert!(common as f64 > 0.8 * inferior.len() as f64 && inferior.len() > 80, "{common} of {}", inferior.len());
+    let common = inferior
+        .iter()
+        .filter(|i| m.fixed_nodes.binary_search(i).is_ok())
+        .count();
+    assert!(
+        common as f64 > 0.8 * inferior.len() as f64 && inferior.len() > 80,
+        "{common} of {}",
+        inferior.len()
+    );
     assert!((lo.x + hi.x).abs() < 1e-9 && (lo.y + hi.y).abs() < 1e-9);
     // ≈ 50 × 51 mm footprint (the study's 50 × 51 × 15 mm, whichever way round).
     let (a, b) = (size.x.min(size.y), size.x.max(size.y));
@@ -428,13 +572,65 @@ fn study_medial_loads_in_canonical_frame() {
     assert!(lo.z > -5e-3, "lowest node {} mm", lo.z * 1e3);
     assert!(m.fixed_nodes.len() > 100, "{} fixed", m.fixed_nodes.len());
     for &i in &m.fixed_nodes {
-        assert!(m.mesh.nodes[i].z.abs() < 5e-3, "fixed node {i} at z {}", m.mesh.nodes[i].z);
+        assert!(
+            m.mesh.nodes[i].z.abs() < 5e-3,
+            "fixed node {i} at z {}",
+            m.mesh.nodes[i].z
+        );
     }
     let size = (hi - lo) * 1e3;
-    eprintln!("medial: size {size:?} mm, {} fixed, lowest {} mm", m.fixed_nodes.len(), lo.z * 1e3);
+    eprintln!(
+        "medial: size {size:?} mm, {} fixed, lowest {} mm",
+        m.fixed_nodes.len(),
+        lo.z * 1e3
+    );
     assert!(size.x > 25.0 && size.y > 15.0 && size.z < 20.0, "{size:?}");
     for s in &m.probing_sites {
+        eprintln!("site {} {:.1?} n {:.2?}", s.region, s.point.coords * 1e3, s.normal);
         assert!(s.normal.z > 0.5, "{s:?}");
     }
     assert_eq!(m.probing_sites.len(), 15);
+}
+
+#[test]
+fn msh_path_spec_applies_the_transform_and_a_fixed_list() {
+    let d = scratch("pathspec");
+    let mesh = write(&d, "cube.msh", &msh22(&CUBE, &CUBE_TETS));
+    let list = write(&d, "held.txt", "# bottom face\n0 1 2 3\n");
+    let cfg = launch_config::scene::MeniscusConfig {
+        mesh: mesh.display().to_string(),
+        transform: launch_config::scene::TransformConfig {
+            scale: 0.01,
+            rotation_deg: [0.0, 0.0, 90.0],
+            translation: [0.0, 0.0, 0.5],
+        },
+        fixed: list.display().to_string(),
+        ..Default::default()
+    };
+    let m = load_scene_mesh(&cfg, &d).unwrap();
+    // Node 1 (1, 0, 0) → scaled 0.01, turned 90° about z → (0, 0.01, 0), lifted 0.5.
+    assert!(
+        (m.mesh.nodes[1] - Point3::new(0.0, 0.01, 0.5)).norm() < 1e-12,
+        "{}",
+        m.mesh.nodes[1]
+    );
+    assert!((m.mesh.volume() - 1e-6).abs() < 1e-18);
+    assert_eq!(m.fixed_nodes, vec![0, 1, 2, 3]);
+    // `inferior` finds the same bottom face.
+    let cfg = launch_config::scene::MeniscusConfig {
+        fixed: "inferior".into(),
+        ..cfg
+    };
+    assert_eq!(
+        load_scene_mesh(&cfg, &d).unwrap().fixed_nodes,
+        vec![0, 1, 2, 3]
+    );
+    // A list index beyond the file's nodes is an error naming the list.
+    let bad = write(&d, "bad.txt", "0 1\n8\n");
+    let cfg = launch_config::scene::MeniscusConfig {
+        fixed: bad.display().to_string(),
+        ..cfg
+    };
+    let e = load_scene_mesh(&cfg, &d).unwrap_err().to_string();
+    assert!(e.contains("bad.txt:2") && e.contains("fixed node 8"), "{e}");
 }

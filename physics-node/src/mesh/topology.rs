@@ -62,7 +62,12 @@ pub fn tet_quality(p: [&Point3<f64>; 4]) -> f64 {
 impl TetMesh {
     pub fn tet_points(&self, t: usize) -> [&Point3<f64>; 4] {
         let [a, b, c, d] = self.tets[t];
-        [&self.nodes[a], &self.nodes[b], &self.nodes[c], &self.nodes[d]]
+        [
+            &self.nodes[a],
+            &self.nodes[b],
+            &self.nodes[c],
+            &self.nodes[d],
+        ]
     }
 
     /// Signed volume of tet `t`, m³.
@@ -239,7 +244,8 @@ impl SurfaceMesh {
     pub fn vertex_normals(&self) -> Vec<Vector3<f64>> {
         let mut n = vec![Vector3::zeros(); self.vertices.len()];
         for &[a, b, c] in &self.triangles {
-            let w = (self.vertices[b] - self.vertices[a]).cross(&(self.vertices[c] - self.vertices[a]));
+            let w =
+                (self.vertices[b] - self.vertices[a]).cross(&(self.vertices[c] - self.vertices[a]));
             n[a] += w;
             n[b] += w;
             n[c] += w;

@@ -29,7 +29,12 @@ impl Transform {
         if !cfg.scale.is_finite() || cfg.scale == 0.0 {
             return Err(bad("scale must be finite and non-zero"));
         }
-        if cfg.rotation_deg.iter().chain(&cfg.translation).any(|v| !v.is_finite()) {
+        if cfg
+            .rotation_deg
+            .iter()
+            .chain(&cfg.translation)
+            .any(|v| !v.is_finite())
+        {
             return Err(bad("rotation and translation must be finite"));
         }
         let [rx, ry, rz] = cfg.rotation_deg.map(f64::to_radians);

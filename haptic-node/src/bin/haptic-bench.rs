@@ -1,0 +1,252 @@
+//! Benchmark of the haptic loop against a real physics process. Prints one JSON line.
+//!
+//! `cargo run --release -p haptic-node --bin haptic-bench -- --seconds 10`
+//!
+//! Starts the physics-node binary (built first with `cargo build --release -p physics-node
+//! --bins`, found next to this executable) and the haptic-node binary (emulated Touch driven
+//! by the operator protocol on the default scene, transport probe on), each as its own
+//! process on a fresh session, and reads the haptic node's run summary. The LCP is also
+//! timed in-process on synthetic frames of 8 and 32 contacts through the same renderer the
+//! loop uses.
+use anyhow::{bail, Context};
+use clap::Parser;
+use haptic_node::config::Limits;
+use haptic_node::render::{boxed_frame, Renderer};
+use haptic_node::stats::Histogram;
+use msgs::{Pose, MAX_ROWS};
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+#[derive(Parser)]
+#[command(name = "haptic-bench")]
+struct Cli {
+    /// Length of the run with the real physics process, s.
+    #[arg(long, default_value_t = 10.0)]
+    seconds: f64,
+    /// Physics binary to use (default: physics-node next to this executable, built first).
+    #[arg(long)]
+    physics: Option<PathBuf>,
+    /// Do not run `cargo build` for the physics binary.
+    #[arg(long)]
+    no_build: bool,
+    /// LCP re-solves per synthetic size.
+    #[arg(long, default_value_t = 20_000)]
+    lcp_solves: u32,
+}
+
+struct Killed(Child);
+
+impl Drop for Killed {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn start(exe: &Path, args: &[&str]) -> anyhow::Result<Killed> {
+    let mut child = Command::new(exe)
+        .args(args)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .with_context(|| format!("starting {}", exe.display()))?;
+    let stdout = child.stdout.take().unwrap();
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+            if line.starts_with("READY") {
+                let _ = tx.send(());
+            }
+        }
+    });
+    let child = Killed(child);
+    rx.recv_timeout(Duration::from_secs(60))
+        .with_context(|| format!("{} did not become ready within 60 s", exe.display()))?;
+    Ok(child)
+}
+
+fn loadavg() -> f64 {
+    std::fs::read_to_string("/proc/loadavg")
+        .ok()
+        .and_then(|s| s.split_whitespace().next().and_then(|v| v.parse().ok()))
+        .unwrap_or(-1.0)
+}
+
+/// A synthetic contact patch of `n` contacts under a probe tip: contact points on a grid of
+/// 0.5 mm pitch, W = tissue (exponential kernel between points, PD) + probe (rigid body
+/// compliance through H), a shallow indentation.
+fn synthetic_frame(n: usize, frame: &mut msgs::physics_to_haptic::ContactFrame) {
+    let dt = 0.01;
+    frame.instance_id = 1;
+    frame.sequence = 1;
+    frame.dt_s = dt;
+    frame.contact_count = n as u32;
+    frame.row_count = (3 * n) as u32;
+    frame.friction_mu = 0.2;
+    frame.proxy_pose = Pose::IDENTITY;
+    frame.probe_free_pose = Pose::IDENTITY;
+    let side = (n as f64).sqrt().ceil() as usize;
+    let mut points = vec![[0.0f64; 3]; n];
+    for (k, p) in points.iter_mut().enumerate() {
+        *p = [(k % side) as f64 * 5e-4, (k / side) as f64 * 5e-4, 0.0];
+        frame.contact_points[k] = *p;
+        let tilt = 0.05 * ((k % 3) as f64 - 1.0);
+        let nrm = [tilt, 0.0, 1.0];
+        let l = (1.0 + tilt * tilt).sqrt();
+        let nz = [nrm[0] / l, 0.0, nrm[2] / l];
+        let t1 = [nz[2], 0.0, -nz[0]];
+        let t2 = [0.0, 1.0, 0.0];
+        for (r, d) in [nz, t1, t2].iter().enumerate() {
+            // Angular part about the probe position: p × d.
+            let a = [p[1] * d[2] - p[2] * d[1], p[2] * d[0] - p[0] * d[2], p[0] * d[1] - p[1] * d[0]];
+            frame.constraint_directions[3 * k + r] = [d[0], d[1], d[2], a[0], a[1], a[2]];
+        }
+        frame.free_violation[3 * k] = -2e-4 * (1.0 + 0.3 * ((k % 4) as f64));
+    }
+    // Tissue: 1/(k dt) with k ≈ 2000 N/m per contact, coupling decaying over 1 mm. Probe:
+    // dt/m for the 35 g probe (translation only; rotation much stiffer).
+    let c0 = 1.0 / (2000.0 * dt);
+    let probe = dt / 0.035;
+    let rows = 3 * n;
+    for i in 0..rows {
+        for j in 0..rows {
+            let (ki, kj) = (i / 3, j / 3);
+            let pi = points[ki];
+            let pj = points[kj];
+            let r = ((pi[0] - pj[0]).powi(2) + (pi[1] - pj[1]).powi(2)).sqrt();
+            let hi = frame.constraint_directions[i];
+            let hj = frame.constraint_directions[j];
+            let dir = hi[0] * hj[0] + hi[1] * hj[1] + hi[2] * hj[2];
+            let tissue = if i % 3 == j % 3 { c0 * (-r / 1e-3).exp() } else { 0.0 };
+            frame.compliance[i * MAX_ROWS + j] = tissue + probe * dir;
+        }
+    }
+}
+
+fn lcp_p99_us(contacts: usize, solves: u32) -> anyhow::Result<(f64, f64)> {
+    let limits = Limits::from_config(&launch_config::DeviceConfig::default())?;
+    let mut renderer = Renderer::new(limits);
+    let mut frame = boxed_frame();
+    synthetic_frame(contacts, &mut frame);
+    let mut hist = Histogram::new(100_000, 10);
+    let mut iterations = 0u64;
+    let mut seed = 0x2545_f491_4f6c_dd1du64;
+    let t0 = msgs::clock::monotonic_ns();
+    for i in 0..solves as u64 {
+        if i % 10 == 0 {
+            // A new physics frame every 10 ticks (100 Hz vs 1 kHz).
+            let mut f = boxed_frame();
+            *f = *frame;
+            f.sequence = 1 + i / 10;
+            f.publish_ns = t0 + i * 1_000_000;
+            renderer.accept_frame(&mut f);
+        }
+        // The hand trembles by up to ±50 µm around the frame's proxy.
+        seed ^= seed << 13;
+        seed ^= seed >> 7;
+        seed ^= seed << 17;
+        let jitter = (seed % 1000) as f64 / 1000.0 - 0.5;
+        let proxy = Pose {
+            position: [jitter * 1e-4, -jitter * 5e-5, jitter * 1e-4],
+            ..Pose::IDENTITY
+        };
+        let out = renderer.tick(t0 + i * 1_000_000 + 500_000, &proxy, true);
+        if out.lcp_ns == 0 {
+            bail!("synthetic frame of {contacts} contacts was not solved (faults {:#x})", out.faults);
+        }
+        hist.record(out.lcp_ns);
+        iterations += out.lcp_iterations as u64;
+    }
+    Ok((hist.quantile_us(0.99), iterations as f64 / solves as f64))
+}
+
+fn main() -> anyhow::Result<()> {
+    let cli = Cli::parse();
+    let here = std::env::current_exe()?.parent().unwrap().to_path_buf();
+    let physics = match &cli.physics {
+        Some(p) => p.clone(),
+        None => {
+            if !cli.no_build {
+                let workspace = Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap();
+                let status = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()))
+                    .current_dir(workspace)
+                    .args(["build", "--release", "-p", "physics-node", "--bins"])
+                    .stdout(Stdio::null())
+                    .stderr(Stdio::inherit())
+                    .status()
+                    .context("running cargo build for physics-node")?;
+                if !status.success() {
+                    bail!("cargo build --release -p physics-node --bins failed");
+                }
+            }
+            here.join("physics-node")
+        }
+    };
+    if !physics.exists() {
+        bail!("physics binary {} not found (build it with cargo build --release -p physics-node --bins)", physics.display());
+    }
+    let haptic = here.join("haptic-node");
+    if !haptic.exists() {
+        bail!("haptic-node binary {} not found next to the bench", haptic.display());
+    }
+
+    // LCP on synthetic frames first (before the run loads the machine).
+    let (lcp8, it8) = lcp_p99_us(8, cli.lcp_solves)?;
+    let (lcp32, it32) = lcp_p99_us(32, cli.lcp_solves)?;
+
+    let session = format!("bench-{}", std::process::id());
+    let out = std::env::temp_dir().join(format!("haptic-bench-{}", std::process::id()));
+    let load_before = loadavg();
+    let _physics = start(&physics, &["--session", &session])?;
+    let seconds = cli.seconds.to_string();
+    let mut haptic = start(
+        &haptic,
+        &["--session", &session, "--seconds", &seconds, "--transport-probe", "--out", out.to_str().unwrap()],
+    )?;
+    let deadline = Instant::now() + Duration::from_secs_f64(cli.seconds + 30.0);
+    loop {
+        if let Some(status) = haptic.0.try_wait()? {
+            if !status.success() {
+                bail!("haptic-node exited with {status}");
+            }
+            break;
+        }
+        if Instant::now() > deadline {
+            bail!("haptic-node did not finish within {} s", cli.seconds + 30.0);
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let load_after = loadavg();
+    let summary_path = out.join("haptic-stats.json");
+    let text = std::fs::read_to_string(&summary_path).with_context(|| format!("reading {}", summary_path.display()))?;
+    let s: serde_json::Value = serde_json::from_str(&text)?;
+    std::fs::remove_dir_all(&out).ok();
+    let line = serde_json::json!({
+        "seconds": cli.seconds,
+        "tick_hz": s["tick_hz"],
+        "period_err_p50_us": s["period_err_p50_us"],
+        "period_err_p99_us": s["period_err_p99_us"],
+        "period_err_max_us": s["period_err_max_us"],
+        "lcp_p99_us_8": lcp8,
+        "lcp_p99_us_32": lcp32,
+        "lcp_iterations_mean_8": it8,
+        "lcp_iterations_mean_32": it32,
+        "lcp_p99_us_run": s["lcp_p99_us"],
+        "transport_p50_us": s["transport_p50_us"],
+        "transport_p99_us": s["transport_p99_us"],
+        "frame_age_p50_us": s["frame_age_p50_us"],
+        "frame_age_p99_us": s["frame_age_p99_us"],
+        "overruns": s["overruns"],
+        "contact_ticks": s["contact_ticks"],
+        "max_rendered_n": s["max_rendered_n"],
+        "fault_ticks": s["fault_ticks"],
+        "realtime": s["realtime"],
+        "loadavg_1m_before": load_before,
+        "loadavg_1m_after": load_after,
+        "cpus": std::thread::available_parallelism().map(|n| n.get()).unwrap_or(0),
+    });
+    println!("{line}");
+    Ok(())
+}

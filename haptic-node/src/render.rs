@@ -16,6 +16,22 @@ pub fn norm(v: [f64; 3]) -> f64 {
     (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
 }
 
+/// `f` scaled down (if needed) so its norm is at most `max`, exactly: the scaled vector's
+/// rounded norm can land one ulp above `max`, so it is nudged below.
+#[inline]
+fn clamp_norm(f: [f64; 3], max: f64) -> ([f64; 3], bool) {
+    let n = norm(f);
+    if n <= max {
+        return (f, false);
+    }
+    let s = max / n;
+    let mut g = [f[0] * s, f[1] * s, f[2] * s];
+    while norm(g) > max {
+        g = g.map(|v| v * (1.0 - 4.0 * f64::EPSILON));
+    }
+    (g, true)
+}
+
 /// Peak, continuous and rate limits, and the stale-frame ramp. Keeps the last rendered
 /// force; every output is within the peak clamp, whatever the input.
 #[derive(Debug)]
@@ -62,14 +78,21 @@ impl ForceLimiter {
 
     /// Rate-, peak- and continuous-limited step toward `target`. Returns the force to render
     /// and the fault bits that applied.
+    ///
+    /// Order: the target is clamped to the peak and to the (smooth) continuous allowance,
+    /// then approached under the rate limit, so neither clamp produces a step larger than
+    /// the rate limit; finally the strict continuous budget is enforced (reducing the force
+    /// is always safe; it only bites if the allowance fell faster than the rate limit).
     pub fn limit(&mut self, now_ns: u64, target: [f64; 3]) -> ([f64; 3], u32) {
         self.ramp_from = None;
         let mut faults = 0;
-        let mut f = target;
-        let n = norm(f);
-        if n > self.peak {
-            let s = self.peak / n;
-            f = [f[0] * s, f[1] * s, f[2] * s];
+        let (f, clamped) = clamp_norm(target, self.peak);
+        if clamped {
+            faults |= fault::FORCE_CLAMPED;
+        }
+        let (allowed_sq, budget_sq) = self.continuous_allowance();
+        let (f, clamped) = clamp_norm(f, allowed_sq.sqrt());
+        if clamped {
             faults |= fault::FORCE_CLAMPED;
         }
         // Rate limit: at most rate × (elapsed, capped at one period) per tick, so a late tick
@@ -81,6 +104,7 @@ impl ForceLimiter {
         let max_step = self.max_step_per_ns * elapsed as f64;
         let step = [f[0] - self.last[0], f[1] - self.last[1], f[2] - self.last[2]];
         let sn = norm(step);
+        let mut f = f;
         if sn > max_step {
             let s = max_step / sn;
             f = [
@@ -90,45 +114,35 @@ impl ForceLimiter {
             ];
             faults |= fault::RATE_LIMITED;
         }
-        faults |= self.continuous_clamp(&mut f);
+        let (f, clamped) = clamp_norm(f, budget_sq.sqrt());
+        if clamped {
+            faults |= fault::FORCE_CLAMPED;
+        }
         self.commit(now_ns, f);
         (f, faults)
     }
 
-    /// Scales `f` down so the averaged squared force (see `heat`) stays ≤ continuous².
-    /// Reducing the magnitude is always safe, so this wins over the rate limit.
-    ///
-    /// The budget B (the largest |F|² this tick may add without the average exceeding c²)
-    /// is only spent in part, c² + α·(B − c²): a long hard press fades smoothly to the
-    /// continuous level instead of burning the budget at peak force and dropping to zero
-    /// (an on–off cycle the hand would feel as a loss of contact).
-    fn continuous_clamp(&mut self, f: &mut [f64; 3]) -> u32 {
+    /// The continuous limit for this tick as squared magnitudes: (smooth allowance, strict
+    /// budget). The budget B is the largest |F|² this tick may add without the averaged
+    /// squared force (`heat`) exceeding c²; the allowance spends it only in part,
+    /// c² + α·(B − c²), so a long hard press fades smoothly to the continuous level instead
+    /// of burning the budget at peak force and dropping to zero (an on–off cycle the hand
+    /// would feel as a loss of contact).
+    fn continuous_allowance(&self) -> (f64, f64) {
         const SPEND: f64 = 0.05;
         let budget = ((self.continuous_sq - (1.0 - self.alpha) * self.heat) / self.alpha).max(0.0);
-        let allowed_sq = if budget > self.continuous_sq {
+        let allowed = if budget > self.continuous_sq {
             self.continuous_sq + SPEND * (budget - self.continuous_sq)
         } else {
             budget
         };
-        let sq = f[0] * f[0] + f[1] * f[1] + f[2] * f[2];
-        if sq > allowed_sq {
-            let s = (allowed_sq / sq).sqrt();
-            for v in f.iter_mut() {
-                *v *= s;
-            }
-            return fault::FORCE_CLAMPED;
-        }
-        0
+        (allowed, budget)
     }
 
     fn commit(&mut self, now_ns: u64, f: [f64; 3]) {
         // Final guard: whatever path produced f, never above the peak, never non-finite.
-        let mut f = if f.iter().all(|v| v.is_finite()) { f } else { [0.0; 3] };
-        let n = norm(f);
-        if n > self.peak {
-            let s = self.peak / n;
-            f = [f[0] * s, f[1] * s, f[2] * s];
-        }
+        let f = if f.iter().all(|v| v.is_finite()) { f } else { [0.0; 3] };
+        let (f, _) = clamp_norm(f, self.peak);
         let sq = f[0] * f[0] + f[1] * f[1] + f[2] * f[2];
         self.heat = (1.0 - self.alpha) * self.heat + self.alpha * sq;
         self.last = f;
@@ -494,7 +508,7 @@ mod tests {
         let mut f = boxed_frame();
         halfspace_frame(&mut f, 500.0, -1e-3, 0, 7, 1);
         r.accept_frame(&mut f);
-        // Rate limit 300 N/s → 0.3 N per tick: after 10 ticks the 0.5 N target is reached.
+        // Rate limit 400 N/s → 0.4 N per tick: after 10 ticks the 0.5 N target is reached.
         let out = run(&mut r, MS, 10, -1e-3);
         let last = out.last().unwrap();
         assert!((last.commanded[2] - 0.5).abs() < 1e-9, "{:?}", last.commanded);
@@ -526,7 +540,7 @@ mod tests {
         for i in 16..100u64 {
             let t = i * MS + MS / 3;
             let o = r.tick(t, &at(-1e-3), true);
-            assert!(norm(o.rendered) <= 3.3 + 1e-12);
+            assert!(norm(o.rendered) <= 3.3);
             if o.faults & fault::STALE_FRAME != 0 {
                 let t0 = *t_stale.get_or_insert(t);
                 if t >= t0 + 10 * MS {
@@ -553,7 +567,7 @@ mod tests {
                 r.accept_frame(&mut f);
                 let o = r.tick(t, &at(-8e-3), true);
                 assert!(o.faults & fault::STALE_FRAME == 0);
-                assert!(norm(o.rendered) <= 3.3 + 1e-12, "{:?}", o.rendered);
+                assert!(norm(o.rendered) <= 3.3, "{:?}", o.rendered);
             }
         }
         // Continuous limit: the 1 s average of |F|² ≤ 0.88² N², recomputed independently.
@@ -656,7 +670,7 @@ mod tests {
         for i in 10..20 {
             let o = r.tick(i * MS, &at(-1e10), true);
             assert!(o.rendered.iter().all(|v| v.is_finite()));
-            assert!(norm(o.rendered) <= 3.3 + 1e-12);
+            assert!(norm(o.rendered) <= 3.3);
         }
     }
 

@@ -21,6 +21,8 @@ pub struct DeviceConfig {
     /// Window of the continuous force limit, s (≤ 10 s).
     pub continuous_window_s: f64,
     /// Largest change of the rendered force, N/s (vector norm of the step per tick / tick).
+    /// 400 N/s lets the 10 ms stale ramp bring even the peak force to zero without
+    /// exceeding it.
     pub max_force_rate_n_per_s: f64,
     /// A contact frame older than this is stale, s.
     pub stale_frame_s: f64,
@@ -62,7 +64,7 @@ impl Default for DeviceConfig {
             peak_force_n: 3.3,
             continuous_force_n: 0.88,
             continuous_window_s: 1.0,
-            max_force_rate_n_per_s: 300.0,
+            max_force_rate_n_per_s: 400.0,
             stale_frame_s: 0.020,
             stale_ramp_s: 0.010,
             lcp_max_iterations: 50,

@@ -57,7 +57,10 @@ impl RecordingConfig {
     /// Checks ranges; returns a description of the first problem.
     pub fn validate(&self) -> Result<(), String> {
         if self.file_name.is_empty() || self.file_name.contains('/') {
-            return Err(format!("recording.file_name {:?} must be a plain file name", self.file_name));
+            return Err(format!(
+                "recording.file_name {:?} must be a plain file name",
+                self.file_name
+            ));
         }
         if !(self.flush_interval_s > 0.0 && self.flush_interval_s <= 1.0) {
             return Err(format!(
@@ -72,13 +75,22 @@ impl RecordingConfig {
             ));
         }
         if !(self.mesh_rate_hz >= 0.0 && self.mesh_rate_hz.is_finite()) {
-            return Err(format!("recording.mesh_rate_hz = {} must be ≥ 0", self.mesh_rate_hz));
+            return Err(format!(
+                "recording.mesh_rate_hz = {} must be ≥ 0",
+                self.mesh_rate_hz
+            ));
         }
         if self.zstd_level > 22 {
-            return Err(format!("recording.zstd_level = {} must be ≤ 22", self.zstd_level));
+            return Err(format!(
+                "recording.zstd_level = {} must be ≤ 22",
+                self.zstd_level
+            ));
         }
         if self.chunk_size_bytes < 1024 {
-            return Err(format!("recording.chunk_size_bytes = {} must be ≥ 1024", self.chunk_size_bytes));
+            return Err(format!(
+                "recording.chunk_size_bytes = {} must be ≥ 1024",
+                self.chunk_size_bytes
+            ));
         }
         Ok(())
     }
@@ -98,7 +110,8 @@ mod tests {
     #[test]
     fn unknown_keys_and_bad_ranges_are_rejected() {
         assert!(toml::from_str::<RecordingConfig>("flush_every = 1").is_err());
-        let c: RecordingConfig = toml::from_str("flush_interval_s = 2.0\ncompression = \"none\"").unwrap();
+        let c: RecordingConfig =
+            toml::from_str("flush_interval_s = 2.0\ncompression = \"none\"").unwrap();
         assert_eq!(c.compression, ChunkCompression::None);
         assert!(c.validate().is_err());
     }

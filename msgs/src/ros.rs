@@ -885,4 +885,92 @@ mod tests {
             assert!(marker.contains(dep), "{dep} missing");
         }
     }
+
+    /// Every definition this module exports, for whole-set checks.
+    fn all_defs() -> Vec<&'static MsgDef> {
+        vec![
+            &TIME_DEF,
+            &DURATION_DEF,
+            &HEADER_DEF,
+            &FLOAT64_DEF,
+            &STRING_DEF,
+            &COLOR_RGBA_DEF,
+            &POINT_DEF,
+            &VECTOR3_DEF,
+            &QUATERNION_DEF,
+            &POSE_DEF,
+            &POSE_STAMPED_DEF,
+            &WRENCH_DEF,
+            &WRENCH_STAMPED_DEF,
+            &TRANSFORM_DEF,
+            &TRANSFORM_STAMPED_DEF,
+            &TF_MESSAGE_DEF,
+            &JOINT_STATE_DEF,
+            &JOY_DEF,
+            &COMPRESSED_IMAGE_DEF,
+            &UV_COORDINATE_DEF,
+            &MESH_FILE_DEF,
+            &MARKER_DEF,
+            &MARKER_ARRAY_DEF,
+            &KEY_VALUE_DEF,
+            &DIAGNOSTIC_STATUS_DEF,
+            &DIAGNOSTIC_ARRAY_DEF,
+        ]
+    }
+
+    #[test]
+    fn every_complex_field_type_has_its_definition_in_the_schema() {
+        const PRIMITIVES: [&str; 14] = [
+            "bool", "byte", "char", "int8", "uint8", "int16", "uint16", "int32", "uint32", "int64",
+            "uint64", "float32", "float64", "string",
+        ];
+        for def in all_defs() {
+            let text = schema_text_of(def);
+            // Optional: dump for external parsers (rosbags, mcap_ros2) to check.
+            if let Ok(dir) = std::env::var("ARTHROSIM_SCHEMA_DUMP") {
+                let file = format!("{dir}/{}__{}.msg", def.package, def.name);
+                std::fs::write(file, &text).unwrap();
+            }
+            let sections: Vec<&str> = text.split(&"=".repeat(80)).collect();
+            let defined: Vec<&str> = sections[1..]
+                .iter()
+                .map(|s| {
+                    s.trim_start()
+                        .lines()
+                        .next()
+                        .unwrap()
+                        .trim_start_matches("MSG: ")
+                })
+                .collect();
+            for line in text
+                .lines()
+                .filter(|l| !l.is_empty() && !l.starts_with('=') && !l.starts_with("MSG:"))
+            {
+                let mut parts = line.split_whitespace();
+                let ty = parts.next().unwrap().trim_end_matches("[]");
+                let name = parts
+                    .next()
+                    .unwrap_or_else(|| panic!("{}: bad line {line:?}", def.name));
+                if name.contains('=') || PRIMITIVES.contains(&ty) {
+                    continue;
+                }
+                assert!(
+                    defined.contains(&ty),
+                    "{}: {ty} used but not defined",
+                    def.name
+                );
+            }
+            assert_eq!(
+                defined.len(),
+                {
+                    let mut d = defined.clone();
+                    d.sort();
+                    d.dedup();
+                    d.len()
+                },
+                "{}: a dependency is listed twice",
+                def.name
+            );
+        }
+    }
 }

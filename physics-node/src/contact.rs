@@ -330,6 +330,7 @@ impl ContactDetector {
         &mut self,
         probe: &Probe,
         surface: &TissueSurface,
+        support: Option<&TissueSurface>,
         positions: &[Point3<f64>],
         free_positions: &[Point3<f64>],
         tissue_motion: f64,
@@ -424,7 +425,7 @@ impl ContactDetector {
                     continue;
                 }
                 let weights = loc.barycentric_coordinates().unwrap_or([1.0 / 3.0; 3]);
-                self.push(i, t, weights, normal, radius, &c, &p0, &pf, surface, positions, free_positions);
+                self.push(i, t, weights, normal, radius, &c, &p0, &pf, surface, positions, free_positions, false);
             }
             if self.candidates.len() == first {
                 // Nothing but the nearest feature (numerically on an edge of a far side):
@@ -436,11 +437,14 @@ impl ContactDetector {
                     _ => pseudo.try_normalize(0.0).unwrap_or_else(|| surface.face_normal(tri)),
                 };
                 let weights = location.barycentric_coordinates().unwrap_or([1.0 / 3.0; 3]);
-                self.push(i, tri, weights, normal, radius, &c, &p0, &pf, surface, positions, free_positions);
+                self.push(i, tri, weights, normal, radius, &c, &p0, &pf, surface, positions, free_positions, false);
             } else if self.candidates[first..].iter().any(|k| k.triangle == tri) {
                 // Track the nearest triangle for the inside case.
                 self.tracked[i] = tri;
             }
+        }
+        if let Some(support) = support {
+            self.detect_support(probe, support, positions, free_positions);
         }
         // Keep the most violated ones (deterministic: gap, then sphere index).
         self.candidates.sort_unstable_by(|a, b| {
@@ -451,6 +455,54 @@ impl ContactDetector {
         });
         let n = self.candidates.len().min(self.params.max_contacts);
         self.contacts.extend_from_slice(&self.candidates[..n]);
+    }
+
+    /// Contacts with the rigid support (the bone under the held inferior surface): a one-sided
+    /// sheet whose normals point into the tissue. A probe crushing the tissue stops on it
+    /// instead of passing the inferior plane; below the sheet it is pushed back up.
+    fn detect_support(
+        &mut self,
+        probe: &Probe,
+        support: &TissueSurface,
+        positions: &[Point3<f64>],
+        free_positions: &[Point3<f64>],
+    ) {
+        let margin = (self.params.alarm_distance - self.params.contact_distance).max(0.0);
+        for i in 0..probe.spheres.len() {
+            let radius = if probe.spheres[i].radius > 0.0 {
+                probe.spheres[i].radius
+            } else {
+                self.params.contact_distance
+            };
+            let p0 = probe.sphere_world(i);
+            let pf = probe.sphere_world_free(i);
+            let reach = radius + margin + (pf - p0).norm();
+            if (0..3).any(|k| p0[k] < support.lo[k] - reach || p0[k] > support.hi[k] + reach) {
+                continue;
+            }
+            let first = self.candidates.len();
+            let aabb = Aabb::new(to_g(&(p0 - Vector3::repeat(reach))), to_g(&(p0 + Vector3::repeat(reach))));
+            for t in support.trimesh.bvh().intersect_aabb(&aabb) {
+                let (proj, loc) = support.trimesh.triangle(t).project_local_point_and_get_location(to_g(&p0), false);
+                let c = from_g(proj.point);
+                if (p0 - c).norm() > reach {
+                    continue;
+                }
+                // One-sided: always the (pseudo-)normal of the sheet, whichever side.
+                let normal = support
+                    .pseudo_normal(t, &loc)
+                    .try_normalize(0.0)
+                    .unwrap_or_else(|| support.face_normal(t));
+                let duplicate = self.candidates[first..]
+                    .iter()
+                    .any(|k| (k.point - c).norm_squared() < 1e-18 && (k.normal - normal).norm_squared() < 1e-12);
+                if duplicate {
+                    continue;
+                }
+                let weights = loc.barycentric_coordinates().unwrap_or([1.0 / 3.0; 3]);
+                self.push(i, t, weights, normal, radius, &c, &p0, &pf, support, positions, free_positions, true);
+            }
+        }
     }
 
     /// Sphere `i` is inside the surface at the start of the step: keep it on its tracked
@@ -484,7 +536,7 @@ impl ContactDetector {
         let t = best.0;
         let (c, w) = surface.project_on_triangle(t, p0);
         let n = surface.face_normal(t);
-        self.push(i, t, w, n, radius, &c, p0, pf, surface, positions, free_positions);
+        self.push(i, t, w, n, radius, &c, p0, pf, surface, positions, free_positions, false);
     }
 
     #[allow(clippy::too_many_arguments)]
@@ -501,6 +553,7 @@ impl ContactDetector {
         surface: &TissueSurface,
         positions: &[Point3<f64>],
         free_positions: &[Point3<f64>],
+        support: bool,
     ) {
         let nodes = surface.triangle_nodes(tri);
         let gap_start = normal.dot(&(p0 - c)) - radius;
@@ -512,12 +565,14 @@ impl ContactDetector {
         let gap_free = normal.dot(&(pf - c_free)) - radius;
         let alarm = (self.params.alarm_distance - self.params.contact_distance).max(0.0);
         if gap_start.min(gap_free) > alarm {
-            if gap_start > 0.0 {
+            if gap_start > 0.0 && !support {
                 self.tracked[i] = NO_TRIANGLE;
             }
             return;
         }
-        self.tracked[i] = tri;
+        if !support {
+            self.tracked[i] = tri;
+        }
         if self.candidates.len() == self.candidates.capacity() {
             // Fixed capacity (no allocation in the step); the remaining features of a sphere
             // this crowded are redundant.

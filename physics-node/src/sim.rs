@@ -58,6 +58,8 @@ pub struct Simulation {
     cache: ComplianceCache,
     correction: ConstraintCorrection,
     surface: TissueSurface,
+    /// Rigid support under the held inferior surface (bone), if anything is held.
+    support: Option<TissueSurface>,
     detector: ContactDetector,
     probe: Probe,
     friction: f64,
@@ -128,6 +130,13 @@ impl Simulation {
         let triangles = boundary_triangles(&mesh.tets);
         let surface = TissueSurface::new(triangles.clone(), &mesh.nodes)
             .ok_or_else(|| PhysicsError::Mesh("tet mesh has no boundary surface".into()))?;
+        // Support sheet: boundary triangles whose nodes are all held, turned to face the tissue.
+        let support_tris: Vec<[usize; 3]> = triangles
+            .iter()
+            .filter(|t| t.iter().all(|&n| rest.free_index(n).is_none()))
+            .map(|t| [t[0], t[2], t[1]])
+            .collect();
+        let support = TissueSurface::new(support_tris, &mesh.nodes);
         let free_index: Vec<u32> = (0..mesh.nodes.len())
             .map(|n| rest.free_index(n).map_or(crate::compliance::NONE, |i| i as u32))
             .collect();
@@ -183,6 +192,7 @@ impl Simulation {
             cache,
             correction: ConstraintCorrection::new(dim, MAX_CONTACTS),
             surface,
+            support,
             detector,
             probe,
             friction: c.friction,
@@ -307,7 +317,8 @@ impl Simulation {
         for &n in &self.surface.nodes {
             motion = motion.max((xf[n] - x0[n]).norm());
         }
-        self.detector.detect(&self.probe, &self.surface, x0, xf, motion);
+        self.detector
+            .detect(&self.probe, &self.surface, self.support.as_ref(), x0, xf, motion);
         let contacts = &self.detector.contacts;
         let m = contacts.len();
         let rows = 3 * m;

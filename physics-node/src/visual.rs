@@ -420,6 +420,31 @@ mod tests {
         for v in &mut stl.vertices {
             *v = frame.isometry * *v;
         }
+        // The same placement as a launch-file `visual_transform` on the raw file.
+        let placement = crate::mesh::Transform {
+            scale: 1e-3,
+            ..crate::mesh::Transform::identity()
+        }
+        .then(&crate::mesh::Transform::from_isometry(&frame.isometry))
+        .to_config();
+        eprintln!("visual_transform for the MRI surface: {placement:?}");
+        let via_config = launch_config::scene::MeniscusConfig {
+            mesh: "study:lateral".into(),
+            visual: Some(
+                data.join("meniscus/lateral_meniscus_visual.stl")
+                    .display()
+                    .to_string(),
+            ),
+            visual_transform: placement,
+            ..Default::default()
+        };
+        let loaded = crate::mesh::load_scene_mesh(&via_config, &data)
+            .unwrap()
+            .visual
+            .unwrap();
+        for (a, b) in loaded.vertices.iter().zip(&stl.vertices) {
+            assert!((a - b).norm() < 1e-9);
+        }
         let (lo, hi) = stl.bounding_box();
         let size = (hi - lo) * 1e3;
         assert!(
@@ -445,6 +470,12 @@ mod tests {
         for (p, q) in visual.positions.iter().zip(&stl.vertices) {
             assert!((p - q).norm() < 1e-12);
         }
+        // Per-step cost of following the tets (printed, not asserted).
+        let started = std::time::Instant::now();
+        for _ in 0..200 {
+            visual.update(&m.mesh.nodes);
+        }
+        eprintln!("visual update: {:.1} µs per step", started.elapsed().as_secs_f64() / 200.0 * 1e6);
         let r = Rotation3::from_axis_angle(&Vector3::y_axis(), 0.3);
         let t = Vector3::new(0.0, 0.01, 0.0);
         let moved: Vec<Point3<f64>> = m.mesh.nodes.iter().map(|p| r * p + t).collect();

@@ -199,11 +199,13 @@ impl ContactStep {
             self.constraint_directions.extend_from_slice(h);
         }
         self.free_violation.clear();
-        self.free_violation.extend_from_slice(&f.free_violation[..rows]);
+        self.free_violation
+            .extend_from_slice(&f.free_violation[..rows]);
         self.compliance.clear();
         for i in 0..rows {
             let start = i * msgs::MAX_ROWS;
-            self.compliance.extend_from_slice(&f.compliance[start..start + rows]);
+            self.compliance
+                .extend_from_slice(&f.compliance[start..start + rows]);
         }
         self.lambda.clear();
         self.lambda.extend_from_slice(&f.lambda[..rows]);
@@ -299,7 +301,10 @@ mod tests {
         let mut buf = Vec::new();
         ros::to_cdr(&t, &mut buf).unwrap();
         for cut in [0, 3, 4, 20, buf.len() - 1] {
-            assert!(ros::from_cdr::<ContactStep>(&buf[..cut]).is_err(), "cut {cut}");
+            assert!(
+                ros::from_cdr::<ContactStep>(&buf[..cut]).is_err(),
+                "cut {cut}"
+            );
         }
     }
 }

@@ -30,7 +30,9 @@ pub enum RecordingError {
         schema: String,
         encoding: String,
     },
-    #[error("{path}: message on {topic:?} (sequence {sequence}) does not decode as {schema}: {detail}")]
+    #[error(
+        "{path}: message on {topic:?} (sequence {sequence}) does not decode as {schema}: {detail}"
+    )]
     Decode {
         path: PathBuf,
         topic: String,

@@ -98,18 +98,18 @@ impl Scanner<'_> {
                 if self.out.channels.contains_key(&c.id) {
                     return Ok(());
                 }
-                let (schema_name, schema_encoding, schema_text) = match self.schemas.get(&c.schema_id)
-                {
-                    Some(s) => s.clone(),
-                    None => {
-                        return Err(RecordingError::UnknownSchema {
-                            path: self.path.clone(),
-                            topic: c.topic,
-                            schema: format!("id {}", c.schema_id),
-                            encoding: String::new(),
-                        })
-                    }
-                };
+                let (schema_name, schema_encoding, schema_text) =
+                    match self.schemas.get(&c.schema_id) {
+                        Some(s) => s.clone(),
+                        None => {
+                            return Err(RecordingError::UnknownSchema {
+                                path: self.path.clone(),
+                                topic: c.topic,
+                                schema: format!("id {}", c.schema_id),
+                                encoding: String::new(),
+                            })
+                        }
+                    };
                 if schema_encoding != SCHEMA_ENCODING || c.message_encoding != MESSAGE_ENCODING {
                     return Err(RecordingError::UnknownSchema {
                         path: self.path.clone(),
@@ -147,7 +147,8 @@ impl Scanner<'_> {
                     return Ok(());
                 }
                 if header.uncompressed_size > MAX_CHUNK_BYTES
-                    || header.uncompressed_size > (data.len() as u64).saturating_mul(1000) + (1 << 20)
+                    || header.uncompressed_size
+                        > (data.len() as u64).saturating_mul(1000) + (1 << 20)
                 {
                     self.out.skipped_chunks.push(format!(
                         "chunk claims {} bytes uncompressed from {} compressed",
@@ -161,13 +162,15 @@ impl Scanner<'_> {
                 // allocations).
                 let uncompressed = match header.compression.as_str() {
                     "" => data.into_owned(),
-                    "zstd" => match zstd::bulk::decompress(&data, header.uncompressed_size as usize) {
-                        Ok(d) => d,
-                        Err(e) => {
-                            self.out.skipped_chunks.push(format!("zstd: {e}"));
-                            return Ok(());
+                    "zstd" => {
+                        match zstd::bulk::decompress(&data, header.uncompressed_size as usize) {
+                            Ok(d) => d,
+                            Err(e) => {
+                                self.out.skipped_chunks.push(format!("zstd: {e}"));
+                                return Ok(());
+                            }
                         }
-                    },
+                    }
                     other => {
                         self.out
                             .skipped_chunks
@@ -183,7 +186,9 @@ impl Scanner<'_> {
                     ));
                     return Ok(());
                 }
-                if header.uncompressed_crc != 0 && crc32fast::hash(&uncompressed) != header.uncompressed_crc {
+                if header.uncompressed_crc != 0
+                    && crc32fast::hash(&uncompressed) != header.uncompressed_crc
+                {
                     self.out.skipped_chunks.push("chunk CRC mismatch".into());
                     return Ok(());
                 }
@@ -306,14 +311,20 @@ pub fn scan(
 
 /// Checks that `channel` carries exactly our definition of `T` (name and schema text), so
 /// its CDR payloads can be decoded positionally.
-pub fn check_schema<T: RosMessage>(path: &Path, channel: &ChannelInfo) -> Result<(), RecordingError> {
+pub fn check_schema<T: RosMessage>(
+    path: &Path,
+    channel: &ChannelInfo,
+) -> Result<(), RecordingError> {
     let expected_name = ros::type_name::<T>();
     if channel.schema_name != expected_name || channel.schema_text != ros::schema_text::<T>() {
         return Err(RecordingError::UnknownSchema {
             path: path.to_path_buf(),
             topic: channel.topic.clone(),
             schema: if channel.schema_name == expected_name {
-                format!("{} (definition differs from this build's)", channel.schema_name)
+                format!(
+                    "{} (definition differs from this build's)",
+                    channel.schema_name
+                )
             } else {
                 channel.schema_name.clone()
             },
@@ -448,8 +459,16 @@ pub fn info(path: &Path) -> Result<RecordingInfo, RecordingError> {
         }
         Ok(())
     })?;
-    let start_ns = acc.values().filter_map(|a| a.times.iter().min().copied()).min().unwrap_or(0);
-    let end_ns = acc.values().filter_map(|a| a.times.iter().max().copied()).max().unwrap_or(0);
+    let start_ns = acc
+        .values()
+        .filter_map(|a| a.times.iter().min().copied())
+        .min()
+        .unwrap_or(0);
+    let end_ns = acc
+        .values()
+        .filter_map(|a| a.times.iter().max().copied())
+        .max()
+        .unwrap_or(0);
     let mut topics = Vec::new();
     for (id, channel) in &outcome.channels {
         let (count, first_ns, last_ns, rate_hz, gaps, missing) = match acc.get_mut(id) {
@@ -459,7 +478,11 @@ pub fn info(path: &Path) -> Result<RecordingInfo, RecordingError> {
                 let last = *a.times.last().unwrap_or(&first);
                 let n = a.times.len() as u64;
                 let span = (last - first) as f64 * 1e-9;
-                let rate = if n > 1 && span > 0.0 { (n - 1) as f64 / span } else { 0.0 };
+                let rate = if n > 1 && span > 0.0 {
+                    (n - 1) as f64 / span
+                } else {
+                    0.0
+                };
                 let mut intervals: Vec<u64> = a.times.windows(2).map(|w| w[1] - w[0]).collect();
                 let gaps = if intervals.len() >= 2 {
                     let mut sorted = intervals.clone();
@@ -514,10 +537,22 @@ pub fn info(path: &Path) -> Result<RecordingInfo, RecordingError> {
 
 impl std::fmt::Display for RecordingInfo {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        writeln!(f, "file:      {} ({} bytes)", self.path.display(), self.bytes)?;
+        writeln!(
+            f,
+            "file:      {} ({} bytes)",
+            self.path.display(),
+            self.bytes
+        )?;
         writeln!(f, "profile:   {} ({})", self.profile, self.library)?;
         if let Some(s) = self.session.get("session") {
-            writeln!(f, "session:   {s} (source: {})", self.session.get("source").map(String::as_str).unwrap_or("?"))?;
+            writeln!(
+                f,
+                "session:   {s} (source: {})",
+                self.session
+                    .get("source")
+                    .map(String::as_str)
+                    .unwrap_or("?")
+            )?;
         }
         let state = if self.complete {
             "complete".to_string()
@@ -531,7 +566,11 @@ impl std::fmt::Display for RecordingInfo {
         if self.skipped_chunks > 0 {
             writeln!(f, "skipped:   {} damaged chunk(s)", self.skipped_chunks)?;
         }
-        writeln!(f, "duration:  {:.3} s, {} messages", self.duration_s, self.messages)?;
+        writeln!(
+            f,
+            "duration:  {:.3} s, {} messages",
+            self.duration_s, self.messages
+        )?;
         writeln!(f, "topics:")?;
         for t in &self.topics {
             write!(

@@ -119,7 +119,8 @@ impl Recorder {
             config: config.clone(),
             writer: Some(writer),
             ports: None,
-            realtime_offset_ns: msgs::clock::realtime_ns() as i128 - msgs::clock::monotonic_ns() as i128,
+            realtime_offset_ns: msgs::clock::realtime_ns() as i128
+                - msgs::clock::monotonic_ns() as i128,
             contact_seq: Continuity::default(),
             device_seq: Continuity::default(),
             stats: RecorderStats::default(),
@@ -137,10 +138,14 @@ impl Recorder {
             detail: e.to_string(),
         };
         let node = ipc::create_node(&format!("recorder-{}", std::process::id())).map_err(link)?;
-        let contact = ipc::subscriber::<ContactFrame>(&node, &self.session, Queue::Every).map_err(link)?;
-        let device = ipc::subscriber::<DeviceState>(&node, &self.session, Queue::Every).map_err(link)?;
-        let stats = ipc::subscriber::<HapticStats>(&node, &self.session, Queue::Every).map_err(link)?;
-        let surface = ipc::subscriber::<SurfaceFrame>(&node, &self.session, Queue::Every).map_err(link)?;
+        let contact =
+            ipc::subscriber::<ContactFrame>(&node, &self.session, Queue::Every).map_err(link)?;
+        let device =
+            ipc::subscriber::<DeviceState>(&node, &self.session, Queue::Every).map_err(link)?;
+        let stats =
+            ipc::subscriber::<HapticStats>(&node, &self.session, Queue::Every).map_err(link)?;
+        let surface =
+            ipc::subscriber::<SurfaceFrame>(&node, &self.session, Queue::Every).map_err(link)?;
         self.ports = Some(Ports {
             _node: node,
             contact,
@@ -258,7 +263,10 @@ impl Recorder {
                 extra.insert(k, v.to_string());
             }
         }
-        extra.insert("closed_ns".into(), self.log_time(msgs::clock::monotonic_ns()).to_string());
+        extra.insert(
+            "closed_ns".into(),
+            self.log_time(msgs::clock::monotonic_ns()).to_string(),
+        );
         writer.finish(extra).map(Some)
     }
 

@@ -30,15 +30,23 @@ pub struct RepairReport {
 
 /// Rewrites `path` into `out` (a different file; written to `out.partial` then renamed).
 pub fn repair(path: &Path, out: &Path) -> Result<RepairReport, RecordingError> {
-    if path == out || (out.exists() && std::fs::canonicalize(path).ok() == std::fs::canonicalize(out).ok()) {
-        return Err(RecordingError::write(out, "repair output must be a different file than its input"));
+    if path == out
+        || (out.exists() && std::fs::canonicalize(path).ok() == std::fs::canonicalize(out).ok())
+    {
+        return Err(RecordingError::write(
+            out,
+            "repair output must be a different file than its input",
+        ));
     }
     let tmp = out.with_extension("mcap.partial");
     let file = std::fs::File::create(&tmp).map_err(|e| RecordingError::io(&tmp, e))?;
     let werr = |e: mcap::McapError| RecordingError::write(out, e);
     let mut writer = mcap::WriteOptions::new()
         .profile(PROFILE)
-        .library(format!("arthrosim-recordings {} (repair)", env!("CARGO_PKG_VERSION")))
+        .library(format!(
+            "arthrosim-recordings {} (repair)",
+            env!("CARGO_PKG_VERSION")
+        ))
         .compression(Some(mcap::Compression::Zstd))
         .compression_threads(0)
         .create(BufWriter::new(file))
@@ -58,7 +66,8 @@ pub fn repair(path: &Path, out: &Path) -> Result<RepairReport, RecordingError> {
         if registered.contains_key(&c.id) {
             return Ok(());
         }
-        let schema_id = writer.add_schema(&c.schema_name, &c.schema_encoding, c.schema_text.as_bytes())?;
+        let schema_id =
+            writer.add_schema(&c.schema_name, &c.schema_encoding, c.schema_text.as_bytes())?;
         writer.add_channel_with_id(c.id, schema_id, &c.topic, &c.message_encoding, &c.metadata)?;
         registered.insert(c.id, schema_id);
         Ok(())
@@ -144,7 +153,10 @@ pub fn repair(path: &Path, out: &Path) -> Result<RepairReport, RecordingError> {
         "serialized_metadata".to_string(),
         crate::rosbag2::metadata_yaml(&file_name, &topics, start, end),
     );
-    rosbag2.insert("ROS_DISTRO".to_string(), crate::rosbag2::ROS_DISTRO.to_string());
+    rosbag2.insert(
+        "ROS_DISTRO".to_string(),
+        crate::rosbag2::ROS_DISTRO.to_string(),
+    );
     writer
         .write_metadata(&Metadata {
             name: ROSBAG2_METADATA.to_string(),

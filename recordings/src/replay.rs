@@ -82,7 +82,9 @@ impl ReplayReport {
 }
 
 fn same_bits(a: [f64; 3], b: [f64; 3]) -> bool {
-    a.iter().zip(b.iter()).all(|(x, y)| x.to_bits() == y.to_bits())
+    a.iter()
+        .zip(b.iter())
+        .all(|(x, y)| x.to_bits() == y.to_bits())
 }
 
 fn boxed_zeroed<T: Topic>() -> Box<T> {
@@ -105,12 +107,14 @@ pub fn recorded_scene(path: &Path) -> Result<Option<SceneConfig>, RecordingError
     })?;
     match text {
         None => Ok(None),
-        Some(t) => toml::from_str::<SceneConfig>(&t)
-            .map(Some)
-            .map_err(|e| RecordingError::Launch {
-                path: path.to_path_buf(),
-                detail: format!("attachment {ATTACHMENT_SCENE}: {e}"),
-            }),
+        Some(t) => {
+            toml::from_str::<SceneConfig>(&t)
+                .map(Some)
+                .map_err(|e| RecordingError::Launch {
+                    path: path.to_path_buf(),
+                    detail: format!("attachment {ATTACHMENT_SCENE}: {e}"),
+                })
+        }
     }
 }
 
@@ -124,7 +128,11 @@ pub fn device_state_of(t: &DeviceTick, out: &mut DeviceState) {
     out.proxy_pose = (&t.proxy_pose).into();
     out.proxy_velocity = t.proxy_velocity;
     out.joint_angles = t.joint_angles;
-    out.commanded_force = [t.commanded_force.x, t.commanded_force.y, t.commanded_force.z];
+    out.commanded_force = [
+        t.commanded_force.x,
+        t.commanded_force.y,
+        t.commanded_force.z,
+    ];
     out.rendered_force = [t.rendered_force.x, t.rendered_force.y, t.rendered_force.z];
     out.frame_sequence_used = t.frame_sequence_used;
     out.frame_instance_used = t.frame_instance_used;
@@ -171,7 +179,10 @@ pub fn replay(path: &Path, options: &ReplayOptions) -> Result<ReplayReport, Reco
     let starts_mid_session = steps[0].sequence != 1;
     ticks.sort_by_key(|t| t.sequence);
 
-    let data_dir = options.data_dir.clone().unwrap_or_else(launch_config::data_dir);
+    let data_dir = options
+        .data_dir
+        .clone()
+        .unwrap_or_else(launch_config::data_dir);
     let physics = |e: physics_node::error::PhysicsError| RecordingError::Physics {
         path: path.to_path_buf(),
         detail: e.to_string(),
@@ -182,7 +193,10 @@ pub fn replay(path: &Path, options: &ReplayOptions) -> Result<ReplayReport, Reco
     let mut writer = match &options.out {
         Some(out) => {
             let info = SessionInfo {
-                session: options.publish_session.clone().unwrap_or_else(|| "replay".into()),
+                session: options
+                    .publish_session
+                    .clone()
+                    .unwrap_or_else(|| "replay".into()),
                 launch_path: None,
                 launch_text: String::new(),
                 scene_toml: toml::to_string(&scene).unwrap_or_default(),
@@ -231,7 +245,8 @@ pub fn replay(path: &Path, options: &ReplayOptions) -> Result<ReplayReport, Reco
             break;
         }
         // Device ticks up to the one this step consumed, in order.
-        while next_tick < ticks.len() && ticks[next_tick].sequence <= recorded.device_sequence_used {
+        while next_tick < ticks.len() && ticks[next_tick].sequence <= recorded.device_sequence_used
+        {
             let t = &ticks[next_tick];
             device_state_of(t, &mut device);
             let log_ns = base_ns + (t.publish_ns.saturating_sub(ticks[0].publish_ns));
@@ -253,7 +268,11 @@ pub fn replay(path: &Path, options: &ReplayOptions) -> Result<ReplayReport, Reco
         replayed += 1;
 
         let force = sim.contact_force();
-        let recorded_force = [recorded.contact_force.x, recorded.contact_force.y, recorded.contact_force.z];
+        let recorded_force = [
+            recorded.contact_force.x,
+            recorded.contact_force.y,
+            recorded.contact_force.z,
+        ];
         if same_bits(force, recorded_force) && sim.contact_frame().sequence == recorded.sequence {
             identical += 1;
         } else if first_mismatch.is_none() {
@@ -288,7 +307,8 @@ pub fn replay(path: &Path, options: &ReplayOptions) -> Result<ReplayReport, Reco
             w.write_contact_frame(&frame, log_ns)?;
         }
         // The surface at the viewer rate, by simulation time.
-        let surface_due = (writer.is_some() || ports.is_some()) && sim.time() + 1e-9 >= next_surface_time;
+        let surface_due =
+            (writer.is_some() || ports.is_some()) && sim.time() + 1e-9 >= next_surface_time;
         if surface_due {
             next_surface_time = sim.time() + surface_period_s;
             surface_seq += 1;
@@ -329,7 +349,11 @@ pub fn replay(path: &Path, options: &ReplayOptions) -> Result<ReplayReport, Reco
         other_instance_steps,
         scene_source,
         wall_s,
-        steps_per_s: if wall_s > 0.0 { replayed as f64 / wall_s } else { 0.0 },
+        steps_per_s: if wall_s > 0.0 {
+            replayed as f64 / wall_s
+        } else {
+            0.0
+        },
         output,
     })
 }

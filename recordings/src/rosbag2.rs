@@ -24,24 +24,38 @@ pub fn metadata_yaml(file_name: &str, topics: &[TopicCount], start_ns: u64, end_
     y.push_str("  version: 5\n");
     y.push_str("  storage_identifier: mcap\n");
     y.push_str(&format!("  duration:\n    nanoseconds: {duration}\n"));
-    y.push_str(&format!("  starting_time:\n    nanoseconds_since_epoch: {start_ns}\n"));
+    y.push_str(&format!(
+        "  starting_time:\n    nanoseconds_since_epoch: {start_ns}\n"
+    ));
     y.push_str(&format!("  message_count: {total}\n"));
     y.push_str("  topics_with_message_count:\n");
     for t in topics {
         y.push_str("    - topic_metadata:\n");
         y.push_str(&format!("        name: {}\n", quoted(&t.topic)));
         y.push_str(&format!("        type: {}\n", quoted(&t.type_name)));
-        y.push_str(&format!("        serialization_format: {MESSAGE_ENCODING}\n"));
-        y.push_str(&format!("        offered_qos_profiles: {}\n", quoted(OFFERED_QOS_PROFILES)));
+        y.push_str(&format!(
+            "        serialization_format: {MESSAGE_ENCODING}\n"
+        ));
+        y.push_str(&format!(
+            "        offered_qos_profiles: {}\n",
+            quoted(OFFERED_QOS_PROFILES)
+        ));
         y.push_str(&format!("      message_count: {}\n", t.count));
     }
     y.push_str("  compression_format: \"\"\n");
     y.push_str("  compression_mode: \"\"\n");
-    y.push_str(&format!("  relative_file_paths:\n    - {}\n", quoted(file_name)));
+    y.push_str(&format!(
+        "  relative_file_paths:\n    - {}\n",
+        quoted(file_name)
+    ));
     y.push_str("  files:\n");
     y.push_str(&format!("    - path: {}\n", quoted(file_name)));
-    y.push_str(&format!("      starting_time:\n        nanoseconds_since_epoch: {start_ns}\n"));
-    y.push_str(&format!("      duration:\n        nanoseconds: {duration}\n"));
+    y.push_str(&format!(
+        "      starting_time:\n        nanoseconds_since_epoch: {start_ns}\n"
+    ));
+    y.push_str(&format!(
+        "      duration:\n        nanoseconds: {duration}\n"
+    ));
     y.push_str(&format!("      message_count: {total}\n"));
     y
 }

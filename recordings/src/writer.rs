@@ -130,7 +130,10 @@ impl SessionWriter {
         };
         let options = mcap::WriteOptions::new()
             .profile(PROFILE)
-            .library(format!("arthrosim-recordings {}", env!("CARGO_PKG_VERSION")))
+            .library(format!(
+                "arthrosim-recordings {}",
+                env!("CARGO_PKG_VERSION")
+            ))
             .compression(compression)
             .compression_level(config.zstd_level)
             // Single-threaded zstd: the recorder's CPU share stays its own thread's, and a
@@ -148,23 +151,24 @@ impl SessionWriter {
         .into_iter()
         .collect();
         let mut channels = Vec::new();
-        let mut add = |topic: &'static str, def: &'static ros::MsgDef| -> Result<(), RecordingError> {
-            let type_name = def.type_name();
-            let schema = ros::schema_text_of(def);
-            let schema_id = mcap
-                .add_schema(&type_name, SCHEMA_ENCODING, schema.as_bytes())
-                .map_err(|e| mcap_err(path, e))?;
-            let id = mcap
-                .add_channel(schema_id, topic, MESSAGE_ENCODING, &qos)
-                .map_err(|e| mcap_err(path, e))?;
-            channels.push(Channel {
-                id,
-                topic,
-                type_name,
-                count: 0,
-            });
-            Ok(())
-        };
+        let mut add =
+            |topic: &'static str, def: &'static ros::MsgDef| -> Result<(), RecordingError> {
+                let type_name = def.type_name();
+                let schema = ros::schema_text_of(def);
+                let schema_id = mcap
+                    .add_schema(&type_name, SCHEMA_ENCODING, schema.as_bytes())
+                    .map_err(|e| mcap_err(path, e))?;
+                let id = mcap
+                    .add_channel(schema_id, topic, MESSAGE_ENCODING, &qos)
+                    .map_err(|e| mcap_err(path, e))?;
+                channels.push(Channel {
+                    id,
+                    topic,
+                    type_name,
+                    count: 0,
+                });
+                Ok(())
+            };
         // Order must match `Ch`.
         add(TOPIC_CONTACT_STEP, ContactStep::DEF)?;
         add(TOPIC_DEVICE_TICK, DeviceTick::DEF)?;
@@ -202,8 +206,14 @@ impl SessionWriter {
         );
         meta.insert("source".to_string(), info.source.clone());
         meta.insert("created_ns".to_string(), now.to_string());
-        meta.insert("writer".to_string(), format!("arthrosim-recordings {}", env!("CARGO_PKG_VERSION")));
-        meta.insert("lossless_topics".to_string(), format!("{TOPIC_CONTACT_STEP} {TOPIC_DEVICE_TICK}"));
+        meta.insert(
+            "writer".to_string(),
+            format!("arthrosim-recordings {}", env!("CARGO_PKG_VERSION")),
+        );
+        meta.insert(
+            "lossless_topics".to_string(),
+            format!("{TOPIC_CONTACT_STEP} {TOPIC_DEVICE_TICK}"),
+        );
         mcap.write_metadata(&Metadata {
             name: SESSION_METADATA.to_string(),
             metadata: meta,
@@ -298,12 +308,24 @@ impl SessionWriter {
         .map_err(|e| mcap_err(path, e))
     }
 
-    fn write_msg<T: RosMessage>(&mut self, ch: Ch, msg: &T, log_ns: u64) -> Result<(), RecordingError> {
+    fn write_msg<T: RosMessage>(
+        &mut self,
+        ch: Ch,
+        msg: &T,
+        log_ns: u64,
+    ) -> Result<(), RecordingError> {
         let mcap = self
             .mcap
             .as_mut()
             .ok_or_else(|| RecordingError::write(&self.path, "writer already finished"))?;
-        Self::put(mcap, &mut self.payload, &mut self.channels[ch as usize], &self.path, msg, log_ns)?;
+        Self::put(
+            mcap,
+            &mut self.payload,
+            &mut self.channels[ch as usize],
+            &self.path,
+            msg,
+            log_ns,
+        )?;
         self.messages += 1;
         self.bounds = Some(match self.bounds {
             None => (log_ns, log_ns),
@@ -313,7 +335,11 @@ impl SessionWriter {
     }
 
     /// One physics step: the lossless ContactStep, the probe pose and wrench, and /tf.
-    pub fn write_contact_frame(&mut self, f: &ContactFrame, log_ns: u64) -> Result<(), RecordingError> {
+    pub fn write_contact_frame(
+        &mut self,
+        f: &ContactFrame,
+        log_ns: u64,
+    ) -> Result<(), RecordingError> {
         let mut s = std::mem::take(&mut self.scratch);
         let result = (|| {
             s.contact_step.fill_from(f, log_ns);
@@ -341,7 +367,11 @@ impl SessionWriter {
 
     /// One haptic tick: the lossless DeviceTick, the device wrench and joint states, and the
     /// buttons when they change.
-    pub fn write_device_state(&mut self, d: &DeviceState, log_ns: u64) -> Result<(), RecordingError> {
+    pub fn write_device_state(
+        &mut self,
+        d: &DeviceState,
+        log_ns: u64,
+    ) -> Result<(), RecordingError> {
         let mut s = std::mem::take(&mut self.scratch);
         let result = (|| {
             s.device_tick.fill_from(d, log_ns);
@@ -362,7 +392,9 @@ impl SessionWriter {
                 self.last_buttons = Some(d.buttons);
                 s.joy.header.stamp = stamp;
                 s.joy.buttons.clear();
-                s.joy.buttons.extend((0..2).map(|b| ((d.buttons >> b) & 1) as i32));
+                s.joy
+                    .buttons
+                    .extend((0..2).map(|b| ((d.buttons >> b) & 1) as i32));
                 self.write_msg(Ch::Buttons, &s.joy, log_ns)?;
             }
             Ok(())
@@ -372,7 +404,11 @@ impl SessionWriter {
     }
 
     /// Haptic loop statistics as a `/diagnostics` array.
-    pub fn write_haptic_stats(&mut self, h: &HapticStats, log_ns: u64) -> Result<(), RecordingError> {
+    pub fn write_haptic_stats(
+        &mut self,
+        h: &HapticStats,
+        log_ns: u64,
+    ) -> Result<(), RecordingError> {
         let level = if h.faults != 0 {
             ros::DiagnosticStatus::WARN
         } else {
@@ -403,9 +439,16 @@ impl SessionWriter {
         d.status.push(ros::DiagnosticStatus {
             level,
             name: "arthrosim/haptic".into(),
-            message: if level == ros::DiagnosticStatus::OK { "ok".into() } else { "faults".into() },
+            message: if level == ros::DiagnosticStatus::OK {
+                "ok".into()
+            } else {
+                "faults".into()
+            },
             hardware_id: format!("{:016x}", h.instance_id),
-            values: values.iter().map(|(k, v)| ros::KeyValue::new(k, v)).collect(),
+            values: values
+                .iter()
+                .map(|(k, v)| ros::KeyValue::new(k, v))
+                .collect(),
         });
         let result = self.write_msg(Ch::Diagnostics, &d, log_ns);
         self.scratch.diagnostics = d;
@@ -437,7 +480,8 @@ impl SessionWriter {
             if t.iter().all(|&i| (i as usize) < vertices) {
                 for &i in t {
                     let p = s.positions[i as usize];
-                    m.points.push([p[0] as f64, p[1] as f64, p[2] as f64].into());
+                    m.points
+                        .push([p[0] as f64, p[1] as f64, p[2] as f64].into());
                 }
             }
         }
@@ -482,7 +526,10 @@ impl SessionWriter {
 
     /// Writes the rosbag2 metadata record and `extra` session counters, the summary and
     /// index, closes the file and (if configured) writes `metadata.yaml` beside it.
-    pub fn finish(mut self, extra: BTreeMap<String, String>) -> Result<WriteSummary, RecordingError> {
+    pub fn finish(
+        mut self,
+        extra: BTreeMap<String, String>,
+    ) -> Result<WriteSummary, RecordingError> {
         let mut mcap = self
             .mcap
             .take()
@@ -497,7 +544,10 @@ impl SessionWriter {
         let yaml = crate::rosbag2::metadata_yaml(&file_name, &topics, start_ns, end_ns);
         let mut rosbag2 = BTreeMap::new();
         rosbag2.insert("serialized_metadata".to_string(), yaml.clone());
-        rosbag2.insert("ROS_DISTRO".to_string(), crate::rosbag2::ROS_DISTRO.to_string());
+        rosbag2.insert(
+            "ROS_DISTRO".to_string(),
+            crate::rosbag2::ROS_DISTRO.to_string(),
+        );
         mcap.write_metadata(&Metadata {
             name: ROSBAG2_METADATA.to_string(),
             metadata: rosbag2,

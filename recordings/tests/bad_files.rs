@@ -60,7 +60,12 @@ fn truncated_files_read_up_to_the_cut_or_fail_typed() {
     let good = small_session(&dir.join("good.mcap"));
     let path = dir.join("cut.mcap");
     let full = recordings::info(&dir.join("good.mcap")).unwrap();
-    let total_ticks = full.topics.iter().find(|t| t.topic == TOPIC_DEVICE_TICK).unwrap().count;
+    let total_ticks = full
+        .topics
+        .iter()
+        .find(|t| t.topic == TOPIC_DEVICE_TICK)
+        .unwrap()
+        .count;
     assert_eq!(total_ticks, 200);
     let mut last_ticks = 0;
     let step = (good.len() / 1500).max(1);
@@ -69,8 +74,15 @@ fn truncated_files_read_up_to_the_cut_or_fail_typed() {
         match recordings::info(&path) {
             Ok(info) => {
                 assert!(!info.complete || cut == good.len());
-                let ticks = info.topics.iter().find(|t| t.topic == TOPIC_DEVICE_TICK).map_or(0, |t| t.count);
-                assert!(ticks >= last_ticks, "a longer prefix never reads fewer messages");
+                let ticks = info
+                    .topics
+                    .iter()
+                    .find(|t| t.topic == TOPIC_DEVICE_TICK)
+                    .map_or(0, |t| t.count);
+                assert!(
+                    ticks >= last_ticks,
+                    "a longer prefix never reads fewer messages"
+                );
                 last_ticks = ticks;
             }
             Err(RecordingError::NotMcap { .. }) => assert!(cut < 8),
@@ -81,7 +93,10 @@ fn truncated_files_read_up_to_the_cut_or_fail_typed() {
             exercise(&path, &dir);
         }
     }
-    assert!(last_ticks > 150, "most of the file is readable from a prefix: {last_ticks}");
+    assert!(
+        last_ticks > 150,
+        "most of the file is readable from a prefix: {last_ticks}"
+    );
 }
 
 #[test]
@@ -115,12 +130,18 @@ fn corrupted_and_random_files_never_panic() {
     for len in [0usize, 1, 7, 8, 9, 100, 5000] {
         let mut bytes: Vec<u8> = (0..len).map(|_| rng.next() as u8).collect();
         std::fs::write(&path, &bytes).unwrap();
-        assert!(matches!(exercise(&path, &dir), Some(RecordingError::NotMcap { .. })));
+        assert!(matches!(
+            exercise(&path, &dir),
+            Some(RecordingError::NotMcap { .. })
+        ));
         // Random bytes behind a valid magic.
         if len >= 8 {
             bytes[..8].copy_from_slice(mcap::MAGIC);
             std::fs::write(&path, &bytes).unwrap();
-            assert!(exercise(&path, &dir).is_some(), "random body after magic is an error");
+            assert!(
+                exercise(&path, &dir).is_some(),
+                "random body after magic is an error"
+            );
         }
     }
 }
@@ -132,33 +153,51 @@ fn not_mcap_missing_file_wrong_profile_and_unknown_schema_are_typed_errors() {
     std::fs::write(&text, "time_s,force\n0,1\n").unwrap();
     let e = recordings::info(&text).unwrap_err();
     assert!(matches!(e, RecordingError::NotMcap { .. }), "{e}");
-    assert!(e.to_string().contains("notes.txt"), "error names the file: {e}");
-    assert!(matches!(recordings::export_csv(&text, &dir).unwrap_err(), RecordingError::NotMcap { .. }));
+    assert!(
+        e.to_string().contains("notes.txt"),
+        "error names the file: {e}"
+    );
+    assert!(matches!(
+        recordings::export_csv(&text, &dir).unwrap_err(),
+        RecordingError::NotMcap { .. }
+    ));
 
     let missing = dir.join("missing.mcap");
-    assert!(matches!(recordings::info(&missing).unwrap_err(), RecordingError::Io { .. }));
+    assert!(matches!(
+        recordings::info(&missing).unwrap_err(),
+        RecordingError::Io { .. }
+    ));
 
     // A valid MCAP with another profile.
     let other = dir.join("other.mcap");
     {
         let mut w = mcap::WriteOptions::new()
             .profile("ros1")
-            .create(std::io::BufWriter::new(std::fs::File::create(&other).unwrap()))
+            .create(std::io::BufWriter::new(
+                std::fs::File::create(&other).unwrap(),
+            ))
             .unwrap();
         w.finish().unwrap();
     }
     let e = recordings::info(&other).unwrap_err();
-    assert!(matches!(&e, RecordingError::WrongProfile { found, .. } if found == "ros1"), "{e}");
+    assert!(
+        matches!(&e, RecordingError::WrongProfile { found, .. } if found == "ros1"),
+        "{e}"
+    );
 
     // ros2 profile, but a channel with a JSON schema.
     let json = dir.join("json.mcap");
     {
         let mut w = mcap::WriteOptions::new()
             .profile("ros2")
-            .create(std::io::BufWriter::new(std::fs::File::create(&json).unwrap()))
+            .create(std::io::BufWriter::new(
+                std::fs::File::create(&json).unwrap(),
+            ))
             .unwrap();
         let s = w.add_schema("Thing", "jsonschema", b"{}").unwrap();
-        let c = w.add_channel(s, "/thing", "json", &BTreeMap::new()).unwrap();
+        let c = w
+            .add_channel(s, "/thing", "json", &BTreeMap::new())
+            .unwrap();
         w.write_to_known_channel(
             &mcap::records::MessageHeader {
                 channel_id: c,
@@ -172,17 +211,26 @@ fn not_mcap_missing_file_wrong_profile_and_unknown_schema_are_typed_errors() {
         w.finish().unwrap();
     }
     let e = recordings::info(&json).unwrap_err();
-    assert!(matches!(&e, RecordingError::UnknownSchema { topic, .. } if topic == "/thing"), "{e}");
+    assert!(
+        matches!(&e, RecordingError::UnknownSchema { topic, .. } if topic == "/thing"),
+        "{e}"
+    );
 
     // Our topic with a definition this build does not know: export refuses to guess.
     let foreign = dir.join("foreign.mcap");
     {
         let mut w = mcap::WriteOptions::new()
             .profile("ros2")
-            .create(std::io::BufWriter::new(std::fs::File::create(&foreign).unwrap()))
+            .create(std::io::BufWriter::new(
+                std::fs::File::create(&foreign).unwrap(),
+            ))
             .unwrap();
-        let s = w.add_schema(TYPE_CONTACT_STEP, "ros2msg", b"float64 force").unwrap();
-        let c = w.add_channel(s, TOPIC_CONTACT_STEP, "cdr", &BTreeMap::new()).unwrap();
+        let s = w
+            .add_schema(TYPE_CONTACT_STEP, "ros2msg", b"float64 force")
+            .unwrap();
+        let c = w
+            .add_channel(s, TOPIC_CONTACT_STEP, "cdr", &BTreeMap::new())
+            .unwrap();
         w.write_to_known_channel(
             &mcap::records::MessageHeader {
                 channel_id: c,
@@ -195,7 +243,10 @@ fn not_mcap_missing_file_wrong_profile_and_unknown_schema_are_typed_errors() {
         .unwrap();
         w.finish().unwrap();
     }
-    assert!(recordings::info(&foreign).is_ok(), "info lists foreign definitions");
+    assert!(
+        recordings::info(&foreign).is_ok(),
+        "info lists foreign definitions"
+    );
     let e = recordings::export_csv(&foreign, &dir.join("csv")).unwrap_err();
     assert!(matches!(e, RecordingError::UnknownSchema { .. }), "{e}");
 
@@ -206,7 +257,10 @@ fn not_mcap_missing_file_wrong_profile_and_unknown_schema_are_typed_errors() {
         .finish(BTreeMap::new())
         .unwrap();
     let e = recordings::export_csv(&empty, &dir.join("csv")).unwrap_err();
-    assert!(matches!(&e, RecordingError::MissingTopic { topic, .. } if topic == TOPIC_CONTACT_STEP), "{e}");
+    assert!(
+        matches!(&e, RecordingError::MissingTopic { topic, .. } if topic == TOPIC_CONTACT_STEP),
+        "{e}"
+    );
 
     // repair refuses to overwrite its input.
     assert!(recordings::repair(&empty, &empty).is_err());

@@ -68,25 +68,35 @@ fn replayed_contact_forces_are_bit_identical_to_the_recording() {
         device.proxy_pose = pose;
         device.region = site.region;
         device.probing_index = 1;
-        writer.write_device_state(&device, t0 + k * 10_000_000).unwrap();
+        writer
+            .write_device_state(&device, t0 + k * 10_000_000)
+            .unwrap();
         sim.set_device_sequence(k);
         sim.set_proxy_pose(&pose);
         sim.step().unwrap();
         let mut frame = boxed_zeroed::<msgs::physics_to_haptic::ContactFrame>();
         *frame = *sim.contact_frame();
         frame.publish_ns = msgs::clock::monotonic_ns();
-        writer.write_contact_frame(&frame, t0 + k * 10_000_000).unwrap();
+        writer
+            .write_contact_frame(&frame, t0 + k * 10_000_000)
+            .unwrap();
         if frame.contact_count > 0 {
             contact_steps += 1;
         }
         recorded.push(sim.contact_force());
     }
     writer.finish(BTreeMap::new()).unwrap();
-    assert!(contact_steps > 20, "the scripted probing touches the meniscus ({contact_steps} contact steps)");
+    assert!(
+        contact_steps > 20,
+        "the scripted probing touches the meniscus ({contact_steps} contact steps)"
+    );
     assert!(
         recorded.iter().any(|f| f[2].abs() > 1e-3),
         "a contact force develops: {:?}",
-        recorded.iter().map(|f| f[2]).fold(0.0f64, |a, b| a.max(b.abs()))
+        recorded
+            .iter()
+            .map(|f| f[2])
+            .fold(0.0f64, |a, b| a.max(b.abs()))
     );
 
     // Replay: the scene comes from the recording's scene.toml attachment.
@@ -111,7 +121,11 @@ fn replayed_contact_forces_are_bit_identical_to_the_recording() {
     assert_eq!(ticks.len() as u64, STEPS, "device trajectory re-recorded");
     for (s, f) in steps.iter().zip(&recorded) {
         assert_eq!(
-            [s.contact_force.x.to_bits(), s.contact_force.y.to_bits(), s.contact_force.z.to_bits()],
+            [
+                s.contact_force.x.to_bits(),
+                s.contact_force.y.to_bits(),
+                s.contact_force.z.to_bits()
+            ],
             [f[0].to_bits(), f[1].to_bits(), f[2].to_bits()]
         );
     }
@@ -134,5 +148,8 @@ fn replayed_contact_forces_are_bit_identical_to_the_recording() {
 
     // The device trajectory exports to the haptic node's replay CSV.
     let csv = dir.join("trajectory.csv");
-    assert_eq!(recordings::export_replay_csv(&file, &csv).unwrap() as u64, STEPS);
+    assert_eq!(
+        recordings::export_replay_csv(&file, &csv).unwrap() as u64,
+        STEPS
+    );
 }

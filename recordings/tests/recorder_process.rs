@@ -84,7 +84,11 @@ impl Recorder {
 /// Publishes like the haptic and physics nodes for `seconds`: 1 kHz device ticks, 100 Hz
 /// steps, 10 Hz stats, 20 Hz surfaces. `on_tick(seq)` may end the run early by returning
 /// false. Returns (ticks, steps, stats, surfaces) published.
-fn publish(session: &str, seconds: f64, mut on_tick: impl FnMut(u64) -> bool) -> (u64, u64, u64, u64) {
+fn publish(
+    session: &str,
+    seconds: f64,
+    mut on_tick: impl FnMut(u64) -> bool,
+) -> (u64, u64, u64, u64) {
     let node = ipc::create_node("rec-test-publisher").unwrap();
     let device_pub = ipc::publisher::<DeviceState>(&node, session).unwrap();
     let frame_pub = ipc::publisher::<ContactFrame>(&node, session).unwrap();
@@ -125,7 +129,11 @@ fn publish(session: &str, seconds: f64, mut on_tick: impl FnMut(u64) -> bool) ->
 }
 
 fn count(info: &recordings::RecordingInfo, topic: &str) -> u64 {
-    info.topics.iter().find(|t| t.topic == topic).map(|t| t.count).unwrap_or(0)
+    info.topics
+        .iter()
+        .find(|t| t.topic == topic)
+        .map(|t| t.count)
+        .unwrap_or(0)
 }
 
 #[test]
@@ -151,14 +159,27 @@ fn recorder_process_records_every_sample_at_full_rate() {
     assert_eq!(count(&info, TOPIC_PROBE_WRENCH), steps);
     assert_eq!(count(&info, TOPIC_DIAGNOSTICS), stats);
     let mesh = count(&info, TOPIC_MESH);
-    assert!(mesh >= 1 && mesh <= surfaces, "mesh {mesh} of {surfaces} (10 Hz of 20 Hz)");
-    let tick = info.topics.iter().find(|t| t.topic == TOPIC_DEVICE_TICK).unwrap();
+    assert!(
+        mesh >= 1 && mesh <= surfaces,
+        "mesh {mesh} of {surfaces} (10 Hz of 20 Hz)"
+    );
+    let tick = info
+        .topics
+        .iter()
+        .find(|t| t.topic == TOPIC_DEVICE_TICK)
+        .unwrap();
     assert_eq!(tick.sequence_missing, Some(0));
 
-    let Some(seen) = python_read(&file, true) else { return };
+    let Some(seen) = python_read(&file, true) else {
+        return;
+    };
     assert_python_counts(
         &seen,
-        &[(TOPIC_DEVICE_TICK, ticks), (TOPIC_CONTACT_STEP, steps), (TOPIC_DIAGNOSTICS, stats)],
+        &[
+            (TOPIC_DEVICE_TICK, ticks),
+            (TOPIC_CONTACT_STEP, steps),
+            (TOPIC_DIAGNOSTICS, stats),
+        ],
     );
     // Values as the publisher wrote them (synthetic, reproducible from the sequence).
     for reader in ["rosbags", "mcap"] {
@@ -167,14 +188,22 @@ fn recorder_process_records_every_sample_at_full_rate() {
             let mut f = boxed_zeroed::<ContactFrame>();
             fill_frame(&mut f, seq, 6, seq * 10);
             for k in 0..3 {
-                assert_eq!(row[1 + k].as_u64().unwrap(), f.contact_force[k].to_bits(), "{reader} step {seq}");
+                assert_eq!(
+                    row[1 + k].as_u64().unwrap(),
+                    f.contact_force[k].to_bits(),
+                    "{reader} step {seq}"
+                );
             }
         }
         for row in seen[reader]["device_tick"].as_array().unwrap() {
             let seq = row[0].as_u64().unwrap();
             let mut d = boxed_zeroed::<DeviceState>();
             fill_device(&mut d, seq, 5);
-            assert_eq!(row[3].as_u64().unwrap(), d.proxy_pose.position[2].to_bits(), "{reader} tick {seq}");
+            assert_eq!(
+                row[3].as_u64().unwrap(),
+                d.proxy_pose.position[2].to_bits(),
+                "{reader} tick {seq}"
+            );
             assert_eq!(row[4].as_u64().unwrap() as u32, d.region);
         }
     }
@@ -204,21 +233,35 @@ fn kill_9_leaves_a_file_readable_up_to_its_last_second_and_repair_completes_it()
 
     let file = dir.join("session.mcap");
     let info = recordings::info(&file).unwrap();
-    assert!(!info.complete, "a killed recorder leaves no summary: {info}");
+    assert!(
+        !info.complete,
+        "a killed recorder leaves no summary: {info}"
+    );
     let ticks = count(&info, TOPIC_DEVICE_TICK);
     // Flushed at least every 0.5 s: at most ~1 s of ticks may be lost.
     assert!(
         ticks + 1000 >= killed_at && ticks <= killed_at,
         "read {ticks} ticks of {killed_at} published before kill -9\n{info}"
     );
-    let tick = info.topics.iter().find(|t| t.topic == TOPIC_DEVICE_TICK).unwrap();
-    assert_eq!(tick.sequence_missing, Some(0), "readable part is contiguous");
+    let tick = info
+        .topics
+        .iter()
+        .find(|t| t.topic == TOPIC_DEVICE_TICK)
+        .unwrap();
+    assert_eq!(
+        tick.sequence_missing,
+        Some(0),
+        "readable part is contiguous"
+    );
     assert!(count(&info, TOPIC_CONTACT_STEP) + 100 >= killed_at / 10);
     assert!(info.attachments.contains(&"scene.toml".to_string()));
 
     // The study CSV works on the torn file too.
     let export = recordings::export_csv(&file, &dir.join("csv")).unwrap();
-    assert_eq!(export.files[0].rows as u64, count(&info, TOPIC_CONTACT_STEP));
+    assert_eq!(
+        export.files[0].rows as u64,
+        count(&info, TOPIC_CONTACT_STEP)
+    );
 
     let repaired = dir.join("repaired.mcap");
     let report = recordings::repair(&file, &repaired).unwrap();

@@ -60,15 +60,30 @@ fn write_session(dir: &std::path::Path) -> Written {
             stats.tick_hz = 1000.0;
             w.write_haptic_stats(&stats, log).unwrap();
             fill_surface(&mut surface, seq / 100);
-            assert!(w.write_surface(&surface, log).unwrap(), "10 Hz surface at 10 Hz mesh rate");
+            assert!(
+                w.write_surface(&surface, log).unwrap(),
+                "10 Hz surface at 10 Hz mesh rate"
+            );
             // A second frame right after is below the viewer rate and skipped.
             assert!(!w.write_surface(&surface, log + 1).unwrap());
         }
         w.maybe_flush(log).unwrap();
     }
     let summary = w.finish(BTreeMap::new()).unwrap();
-    assert_eq!(summary.topics.iter().find(|t| t.topic == TOPIC_DEVICE_TICK).unwrap().count, TICKS);
-    Written { file, frames, ticks }
+    assert_eq!(
+        summary
+            .topics
+            .iter()
+            .find(|t| t.topic == TOPIC_DEVICE_TICK)
+            .unwrap()
+            .count,
+        TICKS
+    );
+    Written {
+        file,
+        frames,
+        ticks,
+    }
 }
 
 #[test]
@@ -80,7 +95,13 @@ fn info_export_and_python_readers_agree_with_what_was_written() {
     let info = recordings::info(&w.file).unwrap();
     assert!(info.complete, "{info}");
     assert_eq!(info.profile, "ros2");
-    let count = |topic: &str| info.topics.iter().find(|t| t.topic == topic).map(|t| t.count).unwrap_or(0);
+    let count = |topic: &str| {
+        info.topics
+            .iter()
+            .find(|t| t.topic == topic)
+            .map(|t| t.count)
+            .unwrap_or(0)
+    };
     assert_eq!(count(TOPIC_DEVICE_TICK), TICKS);
     assert_eq!(count(TOPIC_CONTACT_STEP), STEPS);
     assert_eq!(count(TOPIC_PROBE_POSE), STEPS);
@@ -88,20 +109,38 @@ fn info_export_and_python_readers_agree_with_what_was_written() {
     assert_eq!(count(TOPIC_TF), STEPS);
     assert_eq!(count(TOPIC_DEVICE_WRENCH), TICKS);
     assert_eq!(count(TOPIC_JOINT_STATES), TICKS);
-    assert_eq!(count(TOPIC_BUTTONS), 7, "buttons only on change: 0 at 1, then every 500 ticks");
+    assert_eq!(
+        count(TOPIC_BUTTONS),
+        7,
+        "buttons only on change: 0 at 1, then every 500 ticks"
+    );
     assert_eq!(count(TOPIC_DIAGNOSTICS), STATS);
     assert_eq!(count(TOPIC_MESH), SURFACES);
-    let tick = info.topics.iter().find(|t| t.topic == TOPIC_DEVICE_TICK).unwrap();
+    let tick = info
+        .topics
+        .iter()
+        .find(|t| t.topic == TOPIC_DEVICE_TICK)
+        .unwrap();
     assert!((tick.rate_hz - 1000.0).abs() < 1e-6, "{}", tick.rate_hz);
     assert_eq!(tick.sequence_missing, Some(0));
     assert!(tick.gaps.is_empty());
-    assert!((info.duration_s - 2.999).abs() < 1e-9, "{}", info.duration_s);
+    assert!(
+        (info.duration_s - 2.999).abs() < 1e-9,
+        "{}",
+        info.duration_s
+    );
     assert!(info.attachments.contains(&"launch.toml".to_string()));
     assert!(info.attachments.contains(&"scene.toml".to_string()));
     assert!(info.metadata.contains(&"rosbag2".to_string()));
-    assert_eq!(info.session.get("session").map(String::as_str), Some("roundtrip"));
+    assert_eq!(
+        info.session.get("session").map(String::as_str),
+        Some("roundtrip")
+    );
     let text = info.to_string();
-    assert!(text.contains(TOPIC_CONTACT_STEP) && text.contains("complete"), "{text}");
+    assert!(
+        text.contains(TOPIC_CONTACT_STEP) && text.contains("complete"),
+        "{text}"
+    );
 
     // study CSV
     let csv_dir = dir.join("csv");
@@ -130,14 +169,27 @@ fn info_export_and_python_readers_agree_with_what_was_written() {
     assert_eq!(lines.next().unwrap(), recordings::export::STUDY_CSV_HEADER);
     for (line, f) in lines.zip(&w.frames) {
         let v: Vec<&str> = line.split(',').collect();
-        assert_eq!(v[0].parse::<f64>().unwrap().to_bits(), f.sim_time_s.to_bits());
+        assert_eq!(
+            v[0].parse::<f64>().unwrap().to_bits(),
+            f.sim_time_s.to_bits()
+        );
         for k in 0..3 {
-            assert_eq!(v[1 + k].parse::<f64>().unwrap().to_bits(), f.contact_force[k].to_bits(), "{line}");
+            assert_eq!(
+                v[1 + k].parse::<f64>().unwrap().to_bits(),
+                f.contact_force[k].to_bits(),
+                "{line}"
+            );
         }
         assert_eq!(v[4], if f.contact_count > 0 { "1" } else { "0" });
-        assert_eq!(v[6].parse::<f64>().unwrap().to_bits(), f.probe_pose.position[1].to_bits());
+        assert_eq!(
+            v[6].parse::<f64>().unwrap().to_bits(),
+            f.probe_pose.position[1].to_bits()
+        );
         let (region, probing, phase) = annotation(f.device_sequence_used);
-        assert_eq!(v[12..15], [region.to_string(), probing.to_string(), phase.to_string()]);
+        assert_eq!(
+            v[12..15],
+            [region.to_string(), probing.to_string(), phase.to_string()]
+        );
     }
     for f in &export.files[1..] {
         assert_eq!(f.rows, 100, "{}", f.path.display());
@@ -145,18 +197,34 @@ fn info_export_and_python_readers_agree_with_what_was_written() {
 
     // replay CSV of the device trajectory
     let replay_csv = dir.join("trajectory.csv");
-    assert_eq!(recordings::export_replay_csv(&w.file, &replay_csv).unwrap() as u64, TICKS);
+    assert_eq!(
+        recordings::export_replay_csv(&w.file, &replay_csv).unwrap() as u64,
+        TICKS
+    );
     let text = std::fs::read_to_string(&replay_csv).unwrap();
     let mut lines = text.lines();
     assert_eq!(lines.next().unwrap(), "t_s,px_m,py_m,pz_m,qx,qy,qz,qw");
-    let first: Vec<f64> = lines.next().unwrap().split(',').map(|v| v.parse().unwrap()).collect();
+    let first: Vec<f64> = lines
+        .next()
+        .unwrap()
+        .split(',')
+        .map(|v| v.parse().unwrap())
+        .collect();
     assert_eq!(first[0], 0.0);
-    assert_eq!(first[1].to_bits(), w.ticks[0].proxy_pose.position[0].to_bits());
-    assert_eq!(first[7].to_bits(), w.ticks[0].proxy_pose.orientation[3].to_bits());
+    assert_eq!(
+        first[1].to_bits(),
+        w.ticks[0].proxy_pose.position[0].to_bits()
+    );
+    assert_eq!(
+        first[7].to_bits(),
+        w.ticks[0].proxy_pose.orientation[3].to_bits()
+    );
 
     // Two independent Python readers, and rosbags on the rosbag2 folder (metadata.yaml).
     assert!(dir.join("metadata.yaml").exists());
-    let Some(seen) = python_read(&w.file, true) else { return };
+    let Some(seen) = python_read(&w.file, true) else {
+        return;
+    };
     assert_python_counts(
         &seen,
         &[
@@ -178,34 +246,62 @@ fn info_export_and_python_readers_agree_with_what_was_written() {
         for (row, f) in steps.iter().zip(&w.frames) {
             assert_eq!(row[0].as_u64().unwrap(), f.sequence);
             for k in 0..3 {
-                assert_eq!(row[1 + k].as_u64().unwrap(), f.contact_force[k].to_bits(), "{reader}");
+                assert_eq!(
+                    row[1 + k].as_u64().unwrap(),
+                    f.contact_force[k].to_bits(),
+                    "{reader}"
+                );
             }
             assert_eq!(row[4].as_u64().unwrap(), f.contact_count as u64);
-            assert_eq!(row[8].as_u64().unwrap(), (f.row_count * f.row_count) as u64, "W is rows²");
+            assert_eq!(
+                row[8].as_u64().unwrap(),
+                (f.row_count * f.row_count) as u64,
+                "W is rows²"
+            );
         }
         let ticks = r["device_tick"].as_array().unwrap();
         for (row, d) in ticks.iter().zip(&w.ticks) {
             assert_eq!(row[0].as_u64().unwrap(), d.sequence);
             for k in 0..3 {
-                assert_eq!(row[1 + k].as_u64().unwrap(), d.proxy_pose.position[k].to_bits(), "{reader}");
+                assert_eq!(
+                    row[1 + k].as_u64().unwrap(),
+                    d.proxy_pose.position[k].to_bits(),
+                    "{reader}"
+                );
             }
             assert_eq!(
-                (row[4].as_u64().unwrap() as u32, row[5].as_u64().unwrap() as u32, row[6].as_u64().unwrap() as u32),
+                (
+                    row[4].as_u64().unwrap() as u32,
+                    row[5].as_u64().unwrap() as u32,
+                    row[6].as_u64().unwrap() as u32
+                ),
                 (d.region, d.probing_index, d.phase)
             );
             assert_eq!(row[7].as_u64().unwrap(), d.proxy_velocity[0].to_bits());
         }
         let wrench = r["probe_wrench"].as_array().unwrap();
-        assert_eq!(wrench[2][2].as_u64().unwrap(), w.frames[2].contact_force[2].to_bits());
+        assert_eq!(
+            wrench[2][2].as_u64().unwrap(),
+            w.frames[2].contact_force[2].to_bits()
+        );
         assert_eq!(r["joint_positions_first"].as_array().unwrap().len(), 6);
         assert_eq!(r["mesh_points_first"].as_u64(), Some(6), "two triangles");
         assert_eq!(r["tf_children"], serde_json::json!(["probe", "proxy"]));
         assert_eq!(r["diagnostics_keys"][1], "tick_hz");
-        assert_eq!(r["types"][TOPIC_CONTACT_STEP], "arthrosim_msgs/msg/ContactStep");
+        assert_eq!(
+            r["types"][TOPIC_CONTACT_STEP],
+            "arthrosim_msgs/msg/ContactStep"
+        );
     }
     let m = &seen["mcap"];
     assert_eq!(m["profile"], "ros2");
     assert_eq!(m["qos"][TOPIC_TF], OFFERED_QOS_PROFILES);
-    assert!(m["metadata_names"].as_array().unwrap().contains(&serde_json::json!("rosbag2")));
-    assert_eq!(m["attachment_names"], serde_json::json!(["launch.toml", "scene.toml"]));
+    assert!(m["metadata_names"]
+        .as_array()
+        .unwrap()
+        .contains(&serde_json::json!("rosbag2")));
+    assert_eq!(
+        m["attachment_names"],
+        serde_json::json!(["launch.toml", "scene.toml"])
+    );
 }

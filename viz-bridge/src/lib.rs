@@ -39,29 +39,18 @@ pub struct NodeArgs {
     pub out: Option<PathBuf>,
 }
 
-#[derive(serde::Deserialize)]
-struct BridgeSection {
-    #[serde(default)]
-    bridge: BridgeConfig,
-}
-
-/// Reads the `[bridge]` section of a launch file (other sections are their nodes' business)
-/// and checks it.
+/// The `[bridge]` section of a launch file, loaded and validated with the whole file by
+/// `launch_config::load` (errors name the file, line and key); no file: defaults.
 pub fn load_config(path: Option<&Path>) -> anyhow::Result<BridgeConfig> {
     let config = match path {
         None => BridgeConfig::default(),
         Some(path) => {
-            let text = std::fs::read_to_string(path)
-                .with_context(|| format!("cannot read launch file {}", path.display()))?;
-            toml::from_str::<BridgeSection>(&text)
-                .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?
+            launch_config::load(path)
+                .with_context(|| format!("loading launch file {}", path.display()))?
                 .bridge
         }
     };
-    config.validate().map_err(|e| match path {
-        Some(p) => anyhow::anyhow!("{}: {e}", p.display()),
-        None => anyhow::anyhow!("{e}"),
-    })?;
+    config.validate()?;
     Ok(config)
 }
 
@@ -86,4 +75,37 @@ pub fn run_node(args: NodeArgs) -> anyhow::Result<()> {
     msgs::lifecycle::announce_ready("bridge");
     bridge.run(stop)?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn launch_file_bridge_section_is_read_and_errors_name_the_file() {
+        let dir = std::env::temp_dir().join(format!("viz-bridge-load-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let good = dir.join("good.toml");
+        std::fs::write(&good, "[bridge]\ndomain_id = 42\nnamespace = \"/lab\"\n").unwrap();
+        let config = load_config(Some(&good)).unwrap();
+        assert_eq!((config.domain_id, config.namespace.as_str()), (42, "/lab"));
+
+        let bad = dir.join("bad.toml");
+        std::fs::write(&bad, "[bridge]\nnamespace = \"lab/\"\n").unwrap();
+        let err = format!("{:#}", load_config(Some(&bad)).unwrap_err());
+        assert!(
+            err.contains("bad.toml") && err.contains("namespace"),
+            "{err}"
+        );
+
+        let unknown = dir.join("unknown.toml");
+        std::fs::write(&unknown, "[bridge]\ntopics = 3\n").unwrap();
+        let err = format!("{:#}", load_config(Some(&unknown)).unwrap_err());
+        assert!(
+            err.contains("unknown.toml") && err.contains("topics"),
+            "{err}"
+        );
+        assert_eq!(load_config(None).unwrap(), BridgeConfig::default());
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 }

@@ -158,17 +158,21 @@ fn cyclone_receives_every_topic_and_drives_the_probe_in_both_start_orders() {
     if !prerequisites_or_skip("cyclone interop") {
         return;
     }
-    let uri = cyclone_uri(&["127.0.0.1"], None);
-    for (i, order) in [Order::PeerFirst, Order::BridgeFirst]
-        .into_iter()
-        .enumerate()
-    {
+    let with_peer = cyclone_uri(&["127.0.0.1"], None);
+    let multicast_only = cyclone_uri(&[], None);
+    let cases = [
+        (Order::PeerFirst, &with_peer),
+        (Order::BridgeFirst, &with_peer),
+        // The namespace's loopback has MULTICAST on, so plain multicast discovery works too.
+        (Order::PeerFirst, &multicast_only),
+    ];
+    for (i, (order, uri)) in cases.into_iter().enumerate() {
         let ns = NetNs::loopback(&format!("lo{i}"));
         run_session(
             &format!("interop{i}"),
             &ns,
             &ns,
-            &uri,
+            uri,
             &ALL_TOPICS,
             true,
             order,

@@ -231,8 +231,8 @@ pub fn temp_dir(test: &str) -> PathBuf {
 }
 
 pub const PEAK: f64 = 3.3;
-/// Default rate limit 300 N/s at 1 kHz.
-pub const MAX_STEP: f64 = 0.3 + 1e-9;
+/// Default rate limit 400 N/s at 1 kHz.
+pub const MAX_STEP: f64 = 0.4 + 1e-9;
 
 /// Every rendered force within the clamp; consecutive ticks never step more than the rate
 /// limit (except quarantine, which zeroes at once).

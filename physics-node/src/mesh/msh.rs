@@ -286,6 +286,12 @@ pub fn parse_msh(text: &str, path: &Path) -> Result<MshMesh, MeshError> {
     })
 }
 
+/// Capacity to reserve for a count read from a header: a corrupt header must not make us
+/// allocate (or abort on) a huge buffer before the content proves it.
+fn reserve(count: i64) -> usize {
+    count.clamp(0, 1 << 20) as usize
+}
+
 fn parse_coord(cur: &Cursor, line: usize, t: &str, node: i64) -> Result<f64, MeshError> {
     let v: f64 = t
         .parse()
@@ -341,8 +347,8 @@ fn nodes_41(cur: &mut Cursor) -> Result<RawNodes, MeshError> {
         ));
     }
     let mut out = RawNodes {
-        positions: Vec::with_capacity(head[1] as usize),
-        tag_to_index: HashMap::with_capacity(head[1] as usize),
+        positions: Vec::with_capacity(reserve(head[1])),
+        tag_to_index: HashMap::with_capacity(reserve(head[1])),
     };
     for _ in 0..head[0] {
         let (bl, b) = cur.expect("a node entity block header")?;
@@ -354,7 +360,7 @@ fn nodes_41(cur: &mut Cursor) -> Result<RawNodes, MeshError> {
             ));
         }
         let n = block[3] as usize;
-        let mut tags = Vec::with_capacity(n);
+        let mut tags = Vec::with_capacity(reserve(n as i64));
         for _ in 0..n {
             let (tl, t) = cur.expect("a node tag")?;
             let v = cur.ints(tl, t, "node tag")?;
@@ -391,8 +397,8 @@ fn nodes_22(cur: &mut Cursor) -> Result<RawNodes, MeshError> {
     }
     let n = head[0] as usize;
     let mut out = RawNodes {
-        positions: Vec::with_capacity(n),
-        tag_to_index: HashMap::with_capacity(n),
+        positions: Vec::with_capacity(reserve(n as i64)),
+        tag_to_index: HashMap::with_capacity(reserve(n as i64)),
     };
     for _ in 0..n {
         let (l, t) = cur.expect("a node line")?;
@@ -415,7 +421,7 @@ fn elements_41(cur: &mut Cursor) -> Result<Vec<RawElement>, MeshError> {
             "$Elements header must be `numEntityBlocks numElements minElementTag maxElementTag`",
         ));
     }
-    let mut out = Vec::with_capacity(head[1] as usize);
+    let mut out = Vec::with_capacity(reserve(head[1]));
     for _ in 0..head[0] {
         let (bl, b) = cur.expect("an element block header")?;
         let block = cur.ints(bl, b, "element block header")?;
@@ -460,7 +466,7 @@ fn elements_22(cur: &mut Cursor) -> Result<Vec<RawElement>, MeshError> {
     if head.len() != 1 || head[0] < 0 {
         return Err(cur.err(hl, "$Elements must start with the element count"));
     }
-    let mut out = Vec::with_capacity(head[0] as usize);
+    let mut out = Vec::with_capacity(reserve(head[0]));
     for _ in 0..head[0] {
         let (l, t) = cur.expect("an element line")?;
         let v = cur.ints(l, t, "element")?;

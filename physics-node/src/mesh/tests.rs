@@ -210,6 +210,15 @@ fn rejects_missing_sections() {
     let e = err_text(read_msh(&write(&d, "nofmt.msh", &no_format)));
     assert!(e.contains("missing section $MeshFormat"), "{e}");
 
+    // A corrupt count is an error naming the header line, not a huge allocation.
+    let huge = full.replacen("1 8 1 8\n", "1 999999999999 1 8\n", 1);
+    assert_ne!(huge, full);
+    let e = err_text(read_msh(&write(&d, "huge.msh", &huge)));
+    assert!(
+        e.contains("huge.msh:5") && e.contains("999999999999 nodes, blocks hold 8"),
+        "{e}"
+    );
+
     // A section cut short is named with its line.
     let truncated = full[..full.find("$EndNodes").unwrap()].to_string();
     let e = err_text(read_msh(&write(&d, "short.msh", &truncated)));
@@ -478,6 +487,17 @@ fn transform_matches_the_config_convention() {
     assert!((p - Point3::new(1.0, 2.0, 5.0)).norm() < 1e-12, "{p}");
     let p = t.apply(&Point3::new(1.0, 0.0, 0.0));
     assert!((p - Point3::new(1.0, 4.0, 3.0)).norm() < 1e-12, "{p}");
+    // Round trip through the launch-file form, and composition.
+    let back = Transform::from_config(&t.to_config()).unwrap();
+    let q = Point3::new(0.3, -0.2, 0.7);
+    assert!((back.apply(&q) - t.apply(&q)).norm() < 1e-12);
+    let u = Transform::from_config(&launch_config::scene::TransformConfig {
+        scale: 0.5,
+        rotation_deg: [10.0, -20.0, 30.0],
+        translation: [0.1, 0.0, -0.1],
+    })
+    .unwrap();
+    assert!((t.then(&u).apply(&q) - u.apply(&t.apply(&q))).norm() < 1e-12);
     let bad = launch_config::scene::TransformConfig { scale: 0.0, ..cfg };
     assert!(Transform::from_config(&bad).is_err());
 }
@@ -586,7 +606,12 @@ fn study_medial_loads_in_canonical_frame() {
     );
     assert!(size.x > 25.0 && size.y > 15.0 && size.z < 20.0, "{size:?}");
     for s in &m.probing_sites {
-        eprintln!("site {} {:.1?} n {:.2?}", s.region, s.point.coords * 1e3, s.normal);
+        eprintln!(
+            "site {} {:.1?} n {:.2?}",
+            s.region,
+            s.point.coords * 1e3,
+            s.normal
+        );
         assert!(s.normal.z > 0.5, "{s:?}");
     }
     assert_eq!(m.probing_sites.len(), 15);

@@ -48,6 +48,25 @@ impl Transform {
         })
     }
 
+    /// The launch-file form: rotation as extrinsic x, y, z degrees (R = Rz · Ry · Rx).
+    pub fn to_config(&self) -> launch_config::scene::TransformConfig {
+        let (rx, ry, rz) = self.rotation.euler_angles();
+        launch_config::scene::TransformConfig {
+            scale: self.scale,
+            rotation_deg: [rx.to_degrees(), ry.to_degrees(), rz.to_degrees()],
+            translation: self.translation.into(),
+        }
+    }
+
+    /// `other` after `self`: x ↦ other(self(x)).
+    pub fn then(&self, other: &Transform) -> Transform {
+        Transform {
+            scale: self.scale * other.scale,
+            rotation: other.rotation * self.rotation,
+            translation: other.rotation * self.translation * other.scale + other.translation,
+        }
+    }
+
     pub fn from_isometry(iso: &Isometry3<f64>) -> Self {
         Transform {
             scale: 1.0,

@@ -38,7 +38,10 @@ struct Args {
 fn cpu_seconds(pid: u32) -> anyhow::Result<f64> {
     let stat = std::fs::read_to_string(format!("/proc/{pid}/stat"))?;
     // Fields after the parenthesised command name; utime and stime are fields 14 and 15.
-    let rest = stat.rsplit_once(')').map(|(_, r)| r).context("malformed /proc stat")?;
+    let rest = stat
+        .rsplit_once(')')
+        .map(|(_, r)| r)
+        .context("malformed /proc stat")?;
     let fields: Vec<&str> = rest.split_whitespace().collect();
     let ticks: f64 = fields[11].parse::<f64>()? + fields[12].parse::<f64>()?;
     // SAFETY: sysconf has no preconditions.
@@ -58,12 +61,14 @@ fn main() -> anyhow::Result<()> {
     let exe = std::env::current_exe()?;
     let recorder = exe.with_file_name("recorder");
     if !recorder.exists() {
-        bail!("{} not found: build it with `cargo build --release -p recordings`", recorder.display());
+        bail!(
+            "{} not found: build it with `cargo build --release -p recordings`",
+            recorder.display()
+        );
     }
-    let out = args
-        .out
-        .clone()
-        .unwrap_or_else(|| std::env::temp_dir().join(format!("recorder-bench-{}", std::process::id())));
+    let out = args.out.clone().unwrap_or_else(|| {
+        std::env::temp_dir().join(format!("recorder-bench-{}", std::process::id()))
+    });
     std::fs::create_dir_all(&out)?;
     let session = format!("recorder-bench-{}", std::process::id());
 
@@ -144,7 +149,8 @@ fn main() -> anyhow::Result<()> {
                         f.lambda[r] = 1e-3 * t / (r + 1) as f64;
                         f.constraint_directions[r] = [0.0, 0.0, 1.0, 0.0, t, 0.0];
                         for c in 0..rows {
-                            f.compliance[r * msgs::MAX_ROWS + c] = 1e-4 / (1 + r + c) as f64 + 1e-9 * t;
+                            f.compliance[r * msgs::MAX_ROWS + c] =
+                                1e-4 / (1 + r + c) as f64 + 1e-9 * t;
                         }
                     }
                 })?;
@@ -193,7 +199,8 @@ fn main() -> anyhow::Result<()> {
     let bytes = std::fs::metadata(&file)?.len();
     let get = |k: &str| recorded[k].as_u64().unwrap_or(0);
     let samples_published = ticks + steps + stats + surfaces;
-    let samples_received = get("device_states") + get("contact_frames") + get("haptic_stats") + get("surface_frames");
+    let samples_received =
+        get("device_states") + get("contact_frames") + get("haptic_stats") + get("surface_frames");
     let dropped = get("device_states_dropped")
         + get("contact_frames_dropped")
         + (ticks - get("device_states").min(ticks))

@@ -269,21 +269,40 @@ pub fn diagnose_data(input: String, model: String, data: &[TrialData], effects: 
     singles.sort_by(|a, b| a.score.total_cmp(&b.score));
     let mut ranking = singles.clone();
     if opts.pairs {
-        let top: Vec<&CandidateScore> = singles.iter().filter(|s| s.heldout_shrink > 0.02).take(4).collect();
-        let mut pairs = Vec::new();
-        for i in 0..top.len() {
-            for j in i + 1..top.len() {
-                let (a, b) = (Effect::parse(&top[i].effect).unwrap(), Effect::parse(&top[j].effect).unwrap());
-                if fit::pair_allowed(a, b) {
-                    let c = Candidate::pair(a, b);
-                    let theta_of = |e: Effect| if e == a { top[i].theta.clone() } else { top[j].theta.clone() };
-                    let init: Vec<f64> = c.0.iter().flat_map(|&e| theta_of(e)).collect();
-                    pairs.push((c, init));
+        // forward selection: each of the three best singles paired with every other effect
+        // (a second effect can be invisible alone while the first dominates the residual)
+        let top: Vec<&CandidateScore> = singles.iter().filter(|s| s.heldout_shrink > 0.0).take(3).collect();
+        let mut pairs: Vec<(Candidate, Vec<f64>)> = Vec::new();
+        for t in &top {
+            let a = Effect::parse(&t.effect).unwrap();
+            for o in &singles {
+                let b = Effect::parse(&o.effect).unwrap();
+                if !fit::pair_allowed(a, b) {
+                    continue;
                 }
+                let c = Candidate::pair(a, b);
+                if pairs.iter().any(|(p, _)| *p == c) {
+                    continue;
+                }
+                let theta_of = |e: Effect| if e == a { t.theta.clone() } else { o.theta.clone() };
+                let init: Vec<f64> = c.0.iter().flat_map(|&e| theta_of(e)).collect();
+                pairs.push((c, init));
             }
         }
-        let scored: Vec<CandidateScore> =
-            pairs.par_iter().map(|(c, init)| score_candidate(c, data, &folds, r0, bic0, std::slice::from_ref(init))).collect();
+        let bar = dataset::progress_bar(opts.progress, pairs.len() as u64, "pairs");
+        let scored: Vec<CandidateScore> = pairs
+            .par_iter()
+            .map(|(c, init)| {
+                let s = score_candidate(c, data, &folds, r0, bic0, std::slice::from_ref(init));
+                if let Some(b) = &bar {
+                    b.inc(1);
+                }
+                s
+            })
+            .collect();
+        if let Some(b) = bar {
+            b.finish_and_clear();
+        }
         ranking.extend(scored);
     }
     ranking.sort_by(|a, b| a.score.total_cmp(&b.score));
@@ -357,7 +376,7 @@ fn decide(singles: &[CandidateScore], ranking: &[CandidateScore], r0: f64, noise
     if best.heldout_rmse > 1.3 * noise {
         if let Some(pair) = ranking.iter().filter(|c| c.effect.contains('+')).min_by(|a, b| a.score.total_cmp(&b.score)) {
             let gain = 1.0 - pair.heldout_rmse / best.heldout_rmse;
-            if gain > 0.2 && pair.score < best.score && pair.effect.split('+').any(|e| e == best.effect) {
+            if gain > 0.2 && pair.score < best.score {
                 reason = format!(
                     "{} leaves {:.4} N (noise {:.4} N); the pair {} removes {:.0}% more ({:.4} N)",
                     best.effect, best.heldout_rmse, noise, pair.effect, 100.0 * gain, pair.heldout_rmse

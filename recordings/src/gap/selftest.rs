@@ -201,6 +201,9 @@ pub fn selftest_with(cases: usize, seed: u64, opts: &SelftestOptions, truth_mode
                 r.elapsed_s,
                 report.verdict.reason
             );
+            for c in report.ranking.iter().take(6) {
+                eprintln!("           {:24} held {:.4} shrink {:5.1}% score {:10.1}", c.effect, c.heldout_rmse, 100.0 * c.heldout_shrink, c.score);
+            }
         }
         out.push(r);
     }

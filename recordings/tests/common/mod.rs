@@ -17,7 +17,8 @@ pub fn boxed_zeroed<T: Topic>() -> Box<T> {
 
 /// A fresh directory under the target dir for one test.
 pub fn test_dir(name: &str) -> PathBuf {
-    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("{name}-{}", std::process::id()));
+    let dir =
+        PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
     dir
@@ -25,7 +26,11 @@ pub fn test_dir(name: &str) -> PathBuf {
 
 /// A session name no other test (or test run) uses.
 pub fn unique_session(name: &str) -> String {
-    format!("rec-{name}-{}-{}", std::process::id(), msgs::clock::monotonic_ns() % 1_000_000)
+    format!(
+        "rec-{name}-{}-{}",
+        std::process::id(),
+        msgs::clock::monotonic_ns() % 1_000_000
+    )
 }
 
 /// Protocol annotation of device tick `seq` in the synthetic sessions: three probings of
@@ -45,7 +50,11 @@ pub fn fill_device(d: &mut DeviceState, seq: u64, instance: u64) {
     d.publish_ns = msgs::clock::monotonic_ns();
     d.device_kind = 2;
     d.buttons = ((seq / 500) % 2) as u32;
-    d.proxy_pose.position = [0.01 * (t * 1.3).sin(), -0.004 + 1e-17 * seq as f64, 0.02 - t / 3.0];
+    d.proxy_pose.position = [
+        0.01 * (t * 1.3).sin(),
+        -0.004 + 1e-17 * seq as f64,
+        0.02 - t / 3.0,
+    ];
     d.proxy_pose.orientation = [0.0, 0.0, (t * 0.1).sin(), (t * 0.1).cos()];
     d.proxy_velocity = [t.cos() / 7.0, 0.0, -1.0 / 3.0, 0.0, 0.0, 0.1];
     d.joint_angles = [0.1, 0.2, 0.3, t, -t, 1.0 / 3.0];
@@ -74,7 +83,11 @@ pub fn fill_frame(f: &mut ContactFrame, seq: u64, instance: u64, device_seq: u64
     f.probe_pose.position = [0.001 * t, 1e-300, 0.02 - t / 7.1];
     f.probe_pose.orientation = [0.0, 0.0, 0.0, 1.0];
     f.probe_free_pose = f.probe_pose;
-    f.contact_force = if contacts > 0 { [0.1 / 3.0, -t / 11.0, 0.5 + t.sin()] } else { [0.0; 3] };
+    f.contact_force = if contacts > 0 {
+        [0.1 / 3.0, -t / 11.0, 0.5 + t.sin()]
+    } else {
+        [0.0; 3]
+    };
     f.contact_torque = [0.0, 0.0, f.contact_force[2] * 1e-3];
     for r in 0..(contacts as usize * 3) {
         f.free_violation[r] = -1e-4 * r as f64;
@@ -91,7 +104,12 @@ pub fn fill_surface(s: &mut SurfaceFrame, seq: u64) {
     s.publish_ns = msgs::clock::monotonic_ns();
     s.vertex_count = 4;
     s.triangle_count = 2;
-    s.positions[..4].copy_from_slice(&[[0.0, 0.0, 0.0], [0.01, 0.0, 0.0], [0.0, 0.01, 0.0], [0.01, 0.01, 0.001]]);
+    s.positions[..4].copy_from_slice(&[
+        [0.0, 0.0, 0.0],
+        [0.01, 0.0, 0.0],
+        [0.0, 0.01, 0.0],
+        [0.01, 0.01, 0.001],
+    ]);
     s.triangles[..2].copy_from_slice(&[[0, 1, 2], [1, 3, 2]]);
 }
 
@@ -133,7 +151,10 @@ pub fn assert_python_counts(seen: &serde_json::Value, expected: &[(&str, u64)]) 
     for reader in ["rosbags", "mcap", "rosbags_folder"] {
         let Some(r) = seen.get(reader) else { continue };
         for (topic, count) in expected {
-            let got = r["counts"].get(*topic).and_then(|v| v.as_u64()).unwrap_or(0);
+            let got = r["counts"]
+                .get(*topic)
+                .and_then(|v| v.as_u64())
+                .unwrap_or(0);
             assert_eq!(got, *count, "{reader}: {topic}");
         }
     }

@@ -144,7 +144,10 @@ fn main() -> anyhow::Result<()> {
     let root = unsafe { libc::geteuid() } == 0;
     let netns = if root && !args.no_netns {
         let name = format!("arthro-bench-{pid}");
-        let _ = Command::new("ip").args(["netns", "del", &name]).status();
+        let _ = Command::new("ip")
+            .args(["netns", "del", &name])
+            .stderr(Stdio::null())
+            .status();
         ip(&["netns", "add", &name])?;
         let ns = NetNs(name);
         ip(&["-n", &ns.0, "link", "set", "lo", "up"])?;

@@ -144,12 +144,19 @@ pub fn veth_pair(tag: &str, net: u8) -> (NetNs, NetNs) {
     (a, b)
 }
 
-/// Cyclone configuration with explicit unicast peers (discovery robust in either start order).
+/// Cyclone configuration: explicit unicast peers make discovery robust in either start order;
+/// no peers leaves multicast discovery only.
 pub fn cyclone_uri(peers: &[&str], interface: Option<&str>) -> String {
     let peers: String = peers
         .iter()
         .map(|p| format!("<Peer address=\"{p}\"/>"))
         .collect();
+    // No peers: multicast discovery only.
+    let peers = if peers.is_empty() {
+        String::new()
+    } else {
+        format!("<Peers>{peers}</Peers>")
+    };
     let iface = interface
         .map(|i| {
             format!("<General><Interfaces><NetworkInterface name=\"{i}\"/></Interfaces></General>")
@@ -157,7 +164,7 @@ pub fn cyclone_uri(peers: &[&str], interface: Option<&str>) -> String {
         .unwrap_or_default();
     format!(
         "<CycloneDDS><Domain Id=\"any\">{iface}<Discovery><ParticipantIndex>auto</ParticipantIndex>\
-         <Peers>{peers}</Peers></Discovery></Domain></CycloneDDS>"
+         {peers}</Discovery></Domain></CycloneDDS>"
     )
 }
 

@@ -6,6 +6,9 @@ Modes
   check  --expect FILE : subscribe to the bridge's topics, compare values with FILE (JSON
                          written by the Rust test), publish a probe target pose and a
                          degeneration grade; print one JSON result line; exit 0 when all pass.
+  drive --target x,y,z,qx,qy,qz,qw : publish a probe target pose at 20 Hz and record the
+                         probe pose / wrench values received (compared by the Rust test with
+                         what the real physics node published).
   bench                : count probe pose / wrench samples (position.x / force.x carry the
                          sample number, -1 warm-up, -2 end), measure latency from the header
                          stamp to receipt; print one JSON line.
@@ -452,9 +455,42 @@ def run_bench(args):
     return 0
 
 
+def run_drive(args):
+    """Drive the probe: publish a target pose at 20 Hz; record the pose and wrench samples the
+    bridge publishes (values only), for comparison with what physics published."""
+    ns = args.namespace
+    target = [float(v) for v in args.target.split(",")]
+    dp = DomainParticipant(args.domain)
+    pose_r = DataReader(dp, Topic(dp, topic_of(ns, "probe/pose"), PoseStamped), qos=qos(1000))
+    wrench_r = DataReader(dp, Topic(dp, topic_of(ns, "probe/wrench"), WrenchStamped), qos=qos(1000))
+    writer = DataWriter(dp, Topic(dp, topic_of(ns, "probe/target_pose"), PoseStamped), qos=qos(10))
+    print("READY", flush=True)
+    poses, wrenches = [], []
+    end = time.monotonic() + args.seconds
+    next_cmd = 0.0
+    while time.monotonic() < end:
+        now = time.monotonic()
+        if now >= next_cmd:
+            next_cmd = now + 0.05
+            ts = time.time_ns()
+            writer.write(PoseStamped(
+                header=Header(stamp=Time(ts // 1_000_000_000, ts % 1_000_000_000), frame_id="world"),
+                pose=Pose(position=Point(*target[:3]), orientation=Quaternion(*target[3:7]))))
+        for m in pose_r.take(N=256):
+            poses.append(vec(m.pose.position) + quat(m.pose.orientation))
+        for m in wrench_r.take(N=256):
+            wrenches.append(vec(m.wrench.force) + vec(m.wrench.torque))
+        time.sleep(0.005)
+    print(json.dumps({"poses": poses[-400:], "wrenches": wrenches[-400:],
+                      "pose_count": len(poses), "wrench_count": len(wrenches)}), flush=True)
+    return 0
+
+
 def main():
     ap = argparse.ArgumentParser()
-    ap.add_argument("mode", choices=["check", "bench"])
+    ap.add_argument("mode", choices=["check", "bench", "drive"])
+    ap.add_argument("--target", default="0,0,0.05,0,0,0,1")
+    ap.add_argument("--seconds", type=float, default=6.0)
     ap.add_argument("--expect")
     ap.add_argument("--domain", type=int, default=0)
     ap.add_argument("--namespace", default="/arthrosim")
@@ -465,6 +501,8 @@ def main():
         if not args.expect:
             ap.error("check needs --expect FILE")
         return run_check(args)
+    if args.mode == "drive":
+        return run_drive(args)
     return run_bench(args)
 
 

@@ -133,7 +133,10 @@ pub struct GapArgs {
     #[command(subcommand)]
     pub command: Option<GapCommand>,
     /// Experiment folder (experiment.toml and one CSV per trial) or an MCAP recording.
-    #[arg(value_name = "EXPERIMENT_DIR", required_unless_present = "force_displacement")]
+    #[arg(
+        value_name = "EXPERIMENT_DIR",
+        required_unless_present = "force_displacement"
+    )]
     pub experiment: Option<PathBuf>,
     /// A force–displacement table (like the cadaver one) instead of an experiment folder.
     #[arg(long, value_name = "FILE.csv", conflicts_with = "experiment")]

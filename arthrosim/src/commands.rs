@@ -1,12 +1,12 @@
 //! What each subcommand does. Returns the process exit code.
 
 use crate::cli::{
-    Cli, Command, GapArgs, GapCommand, NodeCommand, RealityArgs, RecordingsCommand, ReplayArgs, RunArgs,
-    ValidateArgs,
+    Cli, Command, GapArgs, GapCommand, NodeCommand, RealityArgs, RecordingsCommand, ReplayArgs,
+    RunArgs, ValidateArgs,
 };
-use recordings::gap;
 use anyhow::{bail, Context, Result};
 use launch_config::launcher::{self, EndReason, LiveMode, RunOptions};
+use recordings::gap;
 use std::path::{Path, PathBuf};
 
 pub fn dispatch(cli: Cli) -> Result<i32> {
@@ -54,7 +54,10 @@ fn run(args: RunArgs) -> Result<i32> {
     let (mut launch, origin) = match &args.file {
         Some(path) => (launch_config::load(path)?, path.display().to_string()),
         None => (
-            launch_config::load_str(launch_config::DEFAULT_LAUNCH, launch_config::DEFAULT_LAUNCH_ORIGIN)?,
+            launch_config::load_str(
+                launch_config::DEFAULT_LAUNCH,
+                launch_config::DEFAULT_LAUNCH_ORIGIN,
+            )?,
             launch_config::DEFAULT_LAUNCH_ORIGIN.to_string(),
         ),
     };
@@ -67,7 +70,9 @@ fn run(args: RunArgs) -> Result<i32> {
     let session = msgs::ipc::session_name(Some(&session))?;
     launch.session.name = session.clone();
     let seconds = match args.seconds {
-        Some(s) if !(s.is_finite() && s >= 0.0) => bail!("--seconds {s}: must be a finite number ≥ 0"),
+        Some(s) if !(s.is_finite() && s >= 0.0) => {
+            bail!("--seconds {s}: must be a finite number ≥ 0")
+        }
         Some(s) => s,
         None => launch.session.seconds,
     };
@@ -97,17 +102,29 @@ fn run(args: RunArgs) -> Result<i32> {
                 EndReason::Completed => "completed".to_string(),
                 EndReason::Interrupted => "stopped by signal".to_string(),
                 EndReason::NodeFinished { node } => format!("{} finished", node_name(node)),
-                EndReason::NodeFailed { node, exit } => format!("{} failed ({exit})", node_name(node)),
+                EndReason::NodeFailed { node, exit } =>
+                    format!("{} failed ({exit})", node_name(node)),
             }
         );
         println!("{}", report.summary);
         for n in &report.nodes {
-            let restarts = if n.restarts > 0 { format!(", {} restart(s)", n.restarts) } else { String::new() };
-            let killed = if n.killed { ", killed after the grace period" } else { "" };
+            let restarts = if n.restarts > 0 {
+                format!(", {} restart(s)", n.restarts)
+            } else {
+                String::new()
+            };
+            let killed = if n.killed {
+                ", killed after the grace period"
+            } else {
+                ""
+            };
             println!("  {:<8} {}{restarts}{killed}", node_name(&n.node), n.exit);
         }
         if report.frames_missed > 0 {
-            println!("  launcher missed {} physics steps (summary is partial)", report.frames_missed);
+            println!(
+                "  launcher missed {} physics steps (summary is partial)",
+                report.frames_missed
+            );
         }
         println!("files: {}", report.out_dir);
     }
@@ -156,7 +173,11 @@ fn replay(args: ReplayArgs) -> Result<i32> {
             );
         }
         if let Some(out) = &report.output {
-            println!("written: {} ({} messages)", out.path.display(), out.messages);
+            println!(
+                "written: {} ({} messages)",
+                out.path.display(),
+                out.messages
+            );
         }
     }
     Ok(0)
@@ -179,7 +200,10 @@ fn recordings(cmd: RecordingsCommand) -> Result<i32> {
                 println!("{} ({} rows)", f.path.display(), f.rows);
             }
             if summary.unannotated_steps > 0 {
-                println!("{} steps without region annotation", summary.unannotated_steps);
+                println!(
+                    "{} steps without region annotation",
+                    summary.unannotated_steps
+                );
             }
         }
         RecordingsCommand::Repair { file, out } => {
@@ -202,13 +226,23 @@ fn recordings(cmd: RecordingsCommand) -> Result<i32> {
 }
 
 fn repaired_name(file: &Path) -> PathBuf {
-    let stem = file.file_stem().and_then(|s| s.to_str()).unwrap_or("recording");
+    let stem = file
+        .file_stem()
+        .and_then(|s| s.to_str())
+        .unwrap_or("recording");
     file.with_file_name(format!("{stem}.repaired.mcap"))
 }
 
 /// `arthrosim gap …`.
 fn gap_command(args: GapArgs) -> Result<i32> {
-    if let Some(GapCommand::Selftest { cases, seed, keep, verbose, json }) = args.command {
+    if let Some(GapCommand::Selftest {
+        cases,
+        seed,
+        keep,
+        verbose,
+        json,
+    }) = args.command
+    {
         if cases == 0 {
             bail!("--cases must be at least 1");
         }
@@ -241,12 +275,12 @@ fn gap_command(args: GapArgs) -> Result<i32> {
     let report = match (&args.experiment, &args.force_displacement) {
         (_, Some(table)) => gap::diagnose_force_displacement(table, &opts)
             .with_context(|| format!("diagnosing {}", table.display()))?,
-        (Some(dir), None) => {
-            gap::diagnose_dir(dir, &opts).with_context(|| format!("diagnosing {}", dir.display()))?
-        }
+        (Some(dir), None) => gap::diagnose_dir(dir, &opts)
+            .with_context(|| format!("diagnosing {}", dir.display()))?,
         (None, None) => bail!("give an EXPERIMENT_DIR or --force-displacement FILE.csv"),
     };
-    gap::write_report(&report, &out).with_context(|| format!("writing the report to {}", out.display()))?;
+    gap::write_report(&report, &out)
+        .with_context(|| format!("writing the report to {}", out.display()))?;
     if args.json {
         println!("{}", serde_json::to_string(&report.verdict)?);
     } else {

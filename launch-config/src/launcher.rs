@@ -85,7 +85,11 @@ pub enum ExitDecision {
 /// The restart policy as a pure function: a node that exits 0 has finished (e.g. the
 /// protocol ended) and ends the session normally; a failing node is restarted with doubling
 /// backoff while the policy and its restart budget allow.
-pub fn decide_on_exit(config: &LauncherConfig, success: bool, restarts_so_far: u32) -> ExitDecision {
+pub fn decide_on_exit(
+    config: &LauncherConfig,
+    success: bool,
+    restarts_so_far: u32,
+) -> ExitDecision {
     if success {
         return ExitDecision::EndSession { failed: false };
     }
@@ -228,7 +232,10 @@ pub struct SessionReport {
     pub launch_origin: String,
     pub out_dir: String,
     pub started_unix_s: f64,
+    /// From the nodes being ready to the last one stopped, s.
     pub wall_seconds: f64,
+    /// From the launcher's start until every node was ready, s.
+    pub startup_seconds: f64,
     pub requested_seconds: Option<f64>,
     pub end: EndReason,
     pub nodes: Vec<NodeReport>,
@@ -288,12 +295,17 @@ impl Display {
                     Some(s) => {
                         let bar = ProgressBar::new((s * 10.0).round().max(1.0) as u64);
                         bar.set_style(
-                            ProgressStyle::with_template("{bar:30.cyan/blue} {elapsed:>4}/{len_s} {msg}")
-                                .unwrap_or_else(|_| ProgressStyle::default_bar())
-                                .with_key("len_s", move |_: &indicatif::ProgressState, w: &mut dyn std::fmt::Write| {
+                            ProgressStyle::with_template(
+                                "{bar:30.cyan/blue} {elapsed:>4}/{len_s} {msg}",
+                            )
+                            .unwrap_or_else(|_| ProgressStyle::default_bar())
+                            .with_key(
+                                "len_s",
+                                move |_: &indicatif::ProgressState, w: &mut dyn std::fmt::Write| {
                                     let _ = write!(w, "{s:.0}s");
-                                })
-                                .progress_chars("=> "),
+                                },
+                            )
+                            .progress_chars("=> "),
                         );
                         bar
                     }
@@ -344,6 +356,15 @@ impl Display {
         }
     }
 
+    /// The session proper starts now (the nodes are ready): the bar counts from here.
+    fn start(&mut self) {
+        if let Some(bar) = &self.bar {
+            bar.reset_elapsed();
+            bar.set_position(0);
+        }
+        self.last_plain = Instant::now() - Duration::from_secs(1);
+    }
+
     fn finish(&self) {
         if let Some(bar) = &self.bar {
             bar.finish_and_clear();
@@ -386,7 +407,13 @@ impl Session<'_> {
         // SAFETY: only async-signal-safe calls (prctl, getppid, _exit) between fork and exec.
         unsafe {
             cmd.pre_exec(move || {
-                libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM as libc::c_ulong, 0, 0, 0);
+                libc::prctl(
+                    libc::PR_SET_PDEATHSIG,
+                    libc::SIGTERM as libc::c_ulong,
+                    0,
+                    0,
+                    0,
+                );
                 if libc::getppid() != parent {
                     libc::_exit(1); // the launcher died before the death signal was armed
                 }
@@ -414,12 +441,24 @@ impl Session<'_> {
         let generation = node.generation;
         if let Some(out) = child.stdout.take() {
             let log = log.try_clone().ok();
-            self.readers
-                .push(forward_lines(out, kind, generation, log, self.events_tx.clone(), true));
+            self.readers.push(forward_lines(
+                out,
+                kind,
+                generation,
+                log,
+                self.events_tx.clone(),
+                true,
+            ));
         }
         if let Some(err) = child.stderr.take() {
-            self.readers
-                .push(forward_lines(err, kind, generation, Some(log), self.events_tx.clone(), false));
+            self.readers.push(forward_lines(
+                err,
+                kind,
+                generation,
+                Some(log),
+                self.events_tx.clone(),
+                false,
+            ));
         }
         node.child = Some(child);
         Ok(())
@@ -460,15 +499,22 @@ impl Session<'_> {
 
     /// Starts node `index` and waits for its READY line, applying the restart policy to a
     /// node that dies while starting.
-    fn start_and_wait(&mut self, index: usize) -> Result<(), LauncherError> {
+    fn start_and_wait(
+        &mut self,
+        index: usize,
+        drain: &mut dyn FnMut(),
+    ) -> Result<(), LauncherError> {
         let stop = msgs::lifecycle::stop_flag();
         let cfg = &self.opts.launch.launcher;
         self.spawn(index)?;
         loop {
             if stop.load(Ordering::SeqCst) {
-                return Err(LauncherError::InterruptedDuringStart(self.nodes[index].kind.name()));
+                return Err(LauncherError::InterruptedDuringStart(
+                    self.nodes[index].kind.name(),
+                ));
             }
             self.pump_events(Duration::from_millis(20));
+            drain();
             let node = &mut self.nodes[index];
             if node.ready {
                 return Ok(());
@@ -630,7 +676,11 @@ pub fn utc_stamp(unix_s: u64) -> String {
 }
 
 /// Writes the resolved launch file into the session folder and returns its path.
-pub fn write_resolved_launch(out_dir: &Path, file: &LaunchFile, origin: &str) -> Result<PathBuf, LauncherError> {
+pub fn write_resolved_launch(
+    out_dir: &Path,
+    file: &LaunchFile,
+    origin: &str,
+) -> Result<PathBuf, LauncherError> {
     let text = toml::to_string(file).map_err(|e| LauncherError::Io {
         what: "serialise the resolved launch file".into(),
         source: std::io::Error::other(e.to_string()),
@@ -690,7 +740,10 @@ pub fn run(opts: &RunOptions) -> Result<SessionReport, LauncherError> {
                 exit: None,
                 killed: false,
                 stopped_by_us: false,
-                log: opts.out_dir.join("logs").join(format!("{}.log", kind.name())),
+                log: opts
+                    .out_dir
+                    .join("logs")
+                    .join(format!("{}.log", kind.name())),
             })
             .collect(),
         events_tx,
@@ -706,11 +759,14 @@ pub fn run(opts: &RunOptions) -> Result<SessionReport, LauncherError> {
 
     let mut start_error = None;
     for index in 0..session.nodes.len() {
-        if let Err(e) = session.start_and_wait(index) {
+        // Keep reading the streams of the nodes already running while the next one starts.
+        let mut drain = || {
+            let _ = monitor.poll(&mut record);
+        };
+        if let Err(e) = session.start_and_wait(index, &mut drain) {
             start_error = Some(e);
             break;
         }
-        let _ = monitor.poll(&mut record);
     }
 
     let mut end = EndReason::Completed;
@@ -720,12 +776,19 @@ pub fn run(opts: &RunOptions) -> Result<SessionReport, LauncherError> {
             session.display.line(&format!(
                 "launcher: session {:?} running ({}), folder {}",
                 opts.session,
-                kinds.iter().map(|k| k.name()).collect::<Vec<_>>().join(", "),
+                kinds
+                    .iter()
+                    .map(|k| k.name())
+                    .collect::<Vec<_>>()
+                    .join(", "),
                 opts.out_dir.display()
             ));
         }
         session_start = Instant::now();
-        let deadline = opts.seconds.map(|s| session_start + Duration::from_secs_f64(s));
+        session.display.start();
+        let deadline = opts
+            .seconds
+            .map(|s| session_start + Duration::from_secs_f64(s));
         let cfg = &opts.launch.launcher;
         let period = Duration::from_secs_f64(cfg.status_period_s.clamp(0.02, 5.0));
         let mut next_status = Instant::now();
@@ -759,9 +822,7 @@ pub fn run(opts: &RunOptions) -> Result<SessionReport, LauncherError> {
                     continue;
                 };
                 let Ok(Some(status)) = child.try_wait() else {
-                    if !node.ready
-                        && node.started.elapsed().as_secs_f64() > cfg.ready_timeout_s
-                    {
+                    if !node.ready && node.started.elapsed().as_secs_f64() > cfg.ready_timeout_s {
                         session.display.line(&format!(
                             "launcher: restarted {} not ready within {} s",
                             kind.name(),
@@ -856,7 +917,11 @@ pub fn run(opts: &RunOptions) -> Result<SessionReport, LauncherError> {
         .nodes
         .iter()
         .map(|n| {
-            let exit = n.exit.as_ref().map(describe).unwrap_or_else(|| "not started".into());
+            let exit = n
+                .exit
+                .as_ref()
+                .map(describe)
+                .unwrap_or_else(|| "not started".into());
             let clean_stop = !n.killed && n.exit.as_ref().is_some_and(|s| s.success());
             NodeReport {
                 node: n.kind,
@@ -873,7 +938,10 @@ pub fn run(opts: &RunOptions) -> Result<SessionReport, LauncherError> {
         launch_origin: opts.origin.clone(),
         out_dir: opts.out_dir.display().to_string(),
         started_unix_s,
-        wall_seconds: session_start.elapsed().as_secs_f64().min(started.elapsed().as_secs_f64()),
+        wall_seconds: session_start.elapsed().as_secs_f64(),
+        startup_seconds: session_start
+            .saturating_duration_since(started)
+            .as_secs_f64(),
         requested_seconds: opts.seconds,
         end,
         nodes,
@@ -910,21 +978,34 @@ mod tests {
         let c = cfg(RestartPolicy::OnFailure, 2);
         assert_eq!(
             decide_on_exit(&c, false, 0),
-            ExitDecision::Restart { after: Duration::from_millis(500) }
+            ExitDecision::Restart {
+                after: Duration::from_millis(500)
+            }
         );
         assert_eq!(
             decide_on_exit(&c, false, 1),
-            ExitDecision::Restart { after: Duration::from_millis(1000) }
+            ExitDecision::Restart {
+                after: Duration::from_millis(1000)
+            }
         );
-        assert_eq!(decide_on_exit(&c, false, 2), ExitDecision::EndSession { failed: true });
+        assert_eq!(
+            decide_on_exit(&c, false, 2),
+            ExitDecision::EndSession { failed: true }
+        );
     }
 
     #[test]
     fn restart_policy_never_and_clean_exit_end_the_session() {
         let never = cfg(RestartPolicy::Never, 5);
-        assert_eq!(decide_on_exit(&never, false, 0), ExitDecision::EndSession { failed: true });
+        assert_eq!(
+            decide_on_exit(&never, false, 0),
+            ExitDecision::EndSession { failed: true }
+        );
         let on = cfg(RestartPolicy::OnFailure, 5);
-        assert_eq!(decide_on_exit(&on, true, 0), ExitDecision::EndSession { failed: false });
+        assert_eq!(
+            decide_on_exit(&on, true, 0),
+            ExitDecision::EndSession { failed: false }
+        );
     }
 
     #[test]

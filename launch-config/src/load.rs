@@ -4,11 +4,11 @@
 //! and dotted key, using the spans of toml's `DeTable` document.
 
 use crate::LaunchFile;
-use toml::Spanned;
 use std::fmt;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 use toml::de::{DeTable, DeValue};
+use toml::Spanned;
 
 /// One problem in a launch file.
 #[derive(Debug, Clone, PartialEq)]
@@ -189,7 +189,9 @@ fn syntax_issue(text: &str, e: &toml::de::Error) -> Issue {
     let key = match (e.span(), DeTable::parse_recoverable(text)) {
         (Some(span), (doc, _)) => {
             let index = SpanIndex::new(doc.get_ref());
-            index.key_on_line(text, span.start).unwrap_or_else(|| "<document>".into())
+            index
+                .key_on_line(text, span.start)
+                .unwrap_or_else(|| "<document>".into())
         }
         _ => "<document>".into(),
     };

@@ -32,6 +32,11 @@ pub struct RecordingConfig {
     pub drain_period_s: f64,
     /// Rate of the meniscus surface marker in the file, Hz (0: not recorded).
     pub mesh_rate_hz: f64,
+    /// Also record each physics step's contact problem (H rows, δ_free, W, λ for the active
+    /// rows) in the ContactStep messages. Lossless for the haptic re-solve and the gap
+    /// diagnosis, but W grows with rows² (up to 73 kB per step): off by default; force,
+    /// poses and contact count are always recorded.
+    pub contact_problem: bool,
     /// Also write `metadata.yaml` beside the file, making the output directory a rosbag2
     /// folder that `ros2 bag info/play` open.
     pub rosbag2_folder: bool,
@@ -48,6 +53,7 @@ impl Default for RecordingConfig {
             chunk_size_bytes: 4 << 20,
             drain_period_s: 0.002,
             mesh_rate_hz: 10.0,
+            contact_problem: false,
             rosbag2_folder: true,
         }
     }

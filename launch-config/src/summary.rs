@@ -48,7 +48,10 @@ impl ContactSample {
         for k in 0..contacts {
             let row = k * msgs::ROWS_PER_CONTACT;
             let w = frame.lambda[row].max(0.0);
-            for (a, n) in weighted.iter_mut().zip(&frame.constraint_directions[row][..3]) {
+            for (a, n) in weighted
+                .iter_mut()
+                .zip(&frame.constraint_directions[row][..3])
+            {
                 *a += w * n;
             }
         }
@@ -120,7 +123,13 @@ impl SessionRecord {
     }
 
     /// Counts one device state and records its annotation when it changed.
-    pub fn push_device(&mut self, instance_id: u64, publish_ns: u64, region: u32, probing_index: u32) {
+    pub fn push_device(
+        &mut self,
+        instance_id: u64,
+        publish_ns: u64,
+        region: u32,
+        probing_index: u32,
+    ) {
         if instance_id != self.device_instance || self.device_ticks == 0 {
             self.device_span_ns += self.device_last_ns.saturating_sub(self.device_first_ns);
             self.device_instance = instance_id;
@@ -192,7 +201,8 @@ pub struct SessionSummary {
 }
 
 /// One sentence per convention, stored with every summary.
-pub const CONVENTIONS: &str = "normal force F_n = -f.n with f the eq. (1) contact force on the probe \
+pub const CONVENTIONS: &str =
+    "normal force F_n = -f.n with f the eq. (1) contact force on the probe \
 (world frame) and n the outward tissue normal: negative in compression, as the study reports \
 (-4.0 N measured, -4.16 N simulated); mean over physics steps in contact. Probe displacement: \
 (x0 - x).n0 from the probe position x0 and normal n0 at the probing's first contact, maximum \
@@ -327,7 +337,8 @@ pub fn summarize(record: &SessionRecord) -> SessionSummary {
             r.peak_normal_force_n = acc.normal_min;
             r.mean_force_magnitude_n = Some(acc.magnitude_sum / steps);
             r.max_probe_displacement_m = acc.probing_max.iter().copied().reduce(f64::max);
-            r.mean_probe_displacement_m = Some(acc.probing_max.iter().sum::<f64>() / probings as f64);
+            r.mean_probe_displacement_m =
+                Some(acc.probing_max.iter().sum::<f64>() / probings as f64);
         }
         out.push(r);
     }
@@ -350,7 +361,14 @@ pub fn summarize(record: &SessionRecord) -> SessionSummary {
                 e.4 = e.4.max(s.sim_time_s);
                 e.5 += 1;
             }
-            None => instances.push((s.instance_id, s.publish_ns, s.publish_ns, s.sim_time_s, s.sim_time_s, 1)),
+            None => instances.push((
+                s.instance_id,
+                s.publish_ns,
+                s.publish_ns,
+                s.sim_time_s,
+                s.sim_time_s,
+                1,
+            )),
         }
     }
     let wall_ns: u64 = instances.iter().map(|e| e.2 - e.1).sum();
@@ -387,7 +405,13 @@ impl fmt::Display for SessionSummary {
         writeln!(
             f,
             "{:<11} {:>8} {:>10} {:>14} {:>12} {:>16} {:>16}",
-            "region", "probings", "contact s", "mean F_n [N]", "peak F_n [N]", "max displ. [mm]", "mean displ. [mm]"
+            "region",
+            "probings",
+            "contact s",
+            "mean F_n [N]",
+            "peak F_n [N]",
+            "max displ. [mm]",
+            "mean displ. [mm]"
         )?;
         for r in &self.regions {
             writeln!(
@@ -465,7 +489,11 @@ mod tests {
             let t = step * 10 + 5;
             let phase = t % 100;
             let contact = (20..80).contains(&phase);
-            let depth = if contact { (phase - 20) as f64 * 1e-4 } else { 0.0 };
+            let depth = if contact {
+                (phase - 20) as f64 * 1e-4
+            } else {
+                0.0
+            };
             let force = if contact { 1.0 + (t / 100) as f64 } else { 0.0 };
             rec.contacts.push(sample(t, contact, force, 0.01 - depth));
         }
@@ -475,15 +503,24 @@ mod tests {
     #[test]
     fn regions_get_their_own_forces_displacements_and_probings() {
         let s = summarize(&region_record());
-        assert_eq!(s.regions_with_contact(), vec!["posterior", "mid", "anterior"]);
+        assert_eq!(
+            s.regions_with_contact(),
+            vec!["posterior", "mid", "anterior"]
+        );
         for (name, force) in [("posterior", 1.0), ("mid", 2.0), ("anterior", 3.0)] {
             let r = s.region(name).unwrap();
             assert_eq!(r.probings, 1, "{name}");
             assert_eq!(r.contact_steps, 6, "{name}");
             // Tissue pushes the probe along +n: compression is negative in the study's sign.
-            assert!((r.mean_normal_force_n.unwrap() + force).abs() < 1e-12, "{name}");
+            assert!(
+                (r.mean_normal_force_n.unwrap() + force).abs() < 1e-12,
+                "{name}"
+            );
             // Contact steps at phases 25..75: displacement from phase 25 to 75 = 50 × 1e-4.
-            assert!((r.max_probe_displacement_m.unwrap() - 5e-3).abs() < 1e-12, "{name}");
+            assert!(
+                (r.max_probe_displacement_m.unwrap() - 5e-3).abs() < 1e-12,
+                "{name}"
+            );
             assert!((r.contact_time_s - 0.06).abs() < 1e-12);
         }
         assert!(s.region("unlabelled").is_none());
@@ -501,7 +538,12 @@ mod tests {
         let mut t = 0;
         for episode in 0..3 {
             for k in 0..5 {
-                rec.contacts.push(sample(t, true, 2.0, -(k as f64) * 1e-3 * (episode + 1) as f64));
+                rec.contacts.push(sample(
+                    t,
+                    true,
+                    2.0,
+                    -(k as f64) * 1e-3 * (episode + 1) as f64,
+                ));
                 t += 10;
             }
             rec.contacts.push(sample(t, false, 0.0, 0.0));

@@ -36,7 +36,11 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
             ),
         );
     }
-    v.non_negative("session.seconds", file.session.seconds, "s; 0 runs until Ctrl-C");
+    v.non_negative(
+        "session.seconds",
+        file.session.seconds,
+        "s; 0 runs until Ctrl-C",
+    );
 
     // [nodes]
     let n = &file.nodes;
@@ -86,7 +90,11 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
     );
 
     let mat = &s.material;
-    v.one_of("scene.material.preset", &mat.preset, &["lateral", "medial", "custom"]);
+    v.one_of(
+        "scene.material.preset",
+        &mat.preset,
+        &["lateral", "medial", "custom"],
+    );
     if mat.preset == "custom" {
         if mat.youngs_modulus.is_none() {
             v.push(
@@ -102,7 +110,11 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
         }
     }
     if let Some(e) = mat.youngs_modulus {
-        v.positive("scene.material.youngs_modulus", e, "Pa (lateral meniscus 3.5e6)");
+        v.positive(
+            "scene.material.youngs_modulus",
+            e,
+            "Pa (lateral meniscus 3.5e6)",
+        );
     }
     if let Some(nu) = mat.poisson_ratio {
         if !(nu.is_finite() && (0.0..0.5).contains(&nu)) {
@@ -112,22 +124,44 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
             );
         }
     }
-    v.positive("scene.material.density", mat.density, "kg/m³ (meniscus 1090)");
-    v.one_of("scene.material.model", &mat.model, &["corotational", "neo-hookean"]);
+    v.positive(
+        "scene.material.density",
+        mat.density,
+        "kg/m³ (meniscus 1090)",
+    );
+    v.one_of(
+        "scene.material.model",
+        &mat.model,
+        &["corotational", "neo-hookean"],
+    );
     if !(mat.degeneration_grade.is_finite() && (0.0..=2.0).contains(&mat.degeneration_grade)) {
         v.push(
             "scene.material.degeneration_grade",
-            format!("{} is out of range; allowed: 0 ≤ grade ≤ 2", mat.degeneration_grade),
+            format!(
+                "{} is out of range; allowed: 0 ≤ grade ≤ 2",
+                mat.degeneration_grade
+            ),
         );
     }
-    v.positive("scene.material.modulus_scale", mat.modulus_scale, "(1 = nominal)");
+    v.positive(
+        "scene.material.modulus_scale",
+        mat.modulus_scale,
+        "(1 = nominal)",
+    );
     v.non_negative("scene.material.rayleigh_mass", mat.rayleigh_mass, "1/s");
-    v.non_negative("scene.material.rayleigh_stiffness", mat.rayleigh_stiffness, "s");
+    v.non_negative(
+        "scene.material.rayleigh_stiffness",
+        mat.rayleigh_stiffness,
+        "s",
+    );
 
     let sol = &s.solver;
     v.one_of("scene.solver.kind", &sol.kind, &["cg", "direct"]);
     if sol.cg_iterations == 0 {
-        v.push("scene.solver.cg_iterations", "must be > 0 (the study uses 25)");
+        v.push(
+            "scene.solver.cg_iterations",
+            "must be > 0 (the study uses 25)",
+        );
     }
     v.positive("scene.solver.cg_tolerance", sol.cg_tolerance, "");
 
@@ -174,7 +208,11 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
     v.transform("scene.probe.transform", &p.transform);
     v.positive("scene.probe.mass", p.mass, "kg (the study's probe: 0.035)");
     v.positive("scene.probe.tip_radius", p.tip_radius, "m");
-    v.positive("scene.probe.coupling_stiffness", p.coupling_stiffness, "N/m");
+    v.positive(
+        "scene.probe.coupling_stiffness",
+        p.coupling_stiffness,
+        "N/m",
+    );
     v.positive(
         "scene.probe.coupling_angular_stiffness",
         p.coupling_angular_stiffness,
@@ -191,13 +229,29 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
 
     // [device]
     let d = &file.device;
-    v.one_of("device.backend", &d.backend, &["touch", "emulated", "replay"]);
-    v.positive("device.rate_hz", d.rate_hz, "Hz (the Touch servo loop runs at 1000)");
+    v.one_of(
+        "device.backend",
+        &d.backend,
+        &["touch", "emulated", "replay"],
+    );
+    v.positive(
+        "device.rate_hz",
+        d.rate_hz,
+        "Hz (the Touch servo loop runs at 1000)",
+    );
     v.positive("device.force_scale", d.force_scale, "(1 = physical)");
     v.positive("device.peak_force_n", d.peak_force_n, "N (Touch: 3.3)");
-    v.positive("device.continuous_force_n", d.continuous_force_n, "N (Touch: 0.88)");
+    v.positive(
+        "device.continuous_force_n",
+        d.continuous_force_n,
+        "N (Touch: 0.88)",
+    );
     v.positive("device.continuous_window_s", d.continuous_window_s, "s");
-    v.positive("device.max_force_rate_n_per_s", d.max_force_rate_n_per_s, "N/s");
+    v.positive(
+        "device.max_force_rate_n_per_s",
+        d.max_force_rate_n_per_s,
+        "N/s",
+    );
     v.positive("device.stale_frame_s", d.stale_frame_s, "s");
     v.non_negative("device.stale_ramp_s", d.stale_ramp_s, "s");
     v.positive("device.stats_rate_hz", d.stats_rate_hz, "Hz");
@@ -211,10 +265,21 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
     let e = &d.emulated;
     v.one_of("device.emulated.sites", &e.sites, &["scene", "plane"]);
     if e.probings_per_region == 0 {
-        v.push("device.emulated.probings_per_region", "must be ≥ 1 (the study: 5)");
+        v.push(
+            "device.emulated.probings_per_region",
+            "must be ≥ 1 (the study: 5)",
+        );
     }
-    v.positive("device.emulated.approach_speed_m_per_s", e.approach_speed_m_per_s, "m/s");
-    v.positive("device.emulated.press_speed_m_per_s", e.press_speed_m_per_s, "m/s");
+    v.positive(
+        "device.emulated.approach_speed_m_per_s",
+        e.approach_speed_m_per_s,
+        "m/s",
+    );
+    v.positive(
+        "device.emulated.press_speed_m_per_s",
+        e.press_speed_m_per_s,
+        "m/s",
+    );
     v.non_negative("device.emulated.hover_m", e.hover_m, "m");
     v.non_negative("device.emulated.press_depth_m", e.press_depth_m, "m");
     v.non_negative("device.emulated.hold_s", e.hold_s, "s");
@@ -233,7 +298,11 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
             );
         }
     }
-    v.positive("device.replay.time_scale", d.replay.time_scale, "(1 = recorded speed)");
+    v.positive(
+        "device.replay.time_scale",
+        d.replay.time_scale,
+        "(1 = recorded speed)",
+    );
 
     // [bridge] and [recording]: their owners' checks; the key leads each message.
     if let Err(e) = file.bridge.validate() {
@@ -313,20 +382,29 @@ impl Checks {
 
     fn positive(&mut self, key: &str, value: f64, unit: &str) {
         if !(value.is_finite() && value > 0.0) {
-            self.push(key, format!("{value} is not allowed; must be finite and > 0 {unit}"));
+            self.push(
+                key,
+                format!("{value} is not allowed; must be finite and > 0 {unit}"),
+            );
         }
     }
 
     fn non_negative(&mut self, key: &str, value: f64, unit: &str) {
         if !(value.is_finite() && value >= 0.0) {
-            self.push(key, format!("{value} is not allowed; must be finite and ≥ 0 {unit}"));
+            self.push(
+                key,
+                format!("{value} is not allowed; must be finite and ≥ 0 {unit}"),
+            );
         }
     }
 
     fn finite_array(&mut self, key: &str, values: &[f64], unit: &str) {
         for (i, x) in values.iter().enumerate() {
             if !x.is_finite() {
-                self.push(&format!("{key}[{i}]"), format!("{x} is not allowed; must be finite ({unit})"));
+                self.push(
+                    &format!("{key}[{i}]"),
+                    format!("{x} is not allowed; must be finite ({unit})"),
+                );
             }
         }
     }
@@ -334,7 +412,10 @@ impl Checks {
     fn one_of(&mut self, key: &str, value: &str, allowed: &[&str]) {
         if !allowed.contains(&value) {
             let list: Vec<String> = allowed.iter().map(|a| format!("`{a}`")).collect();
-            self.push(key, format!("{value:?} is not allowed; allowed: {}", list.join(", ")));
+            self.push(
+                key,
+                format!("{value:?} is not allowed; allowed: {}", list.join(", ")),
+            );
         }
     }
 
@@ -376,7 +457,10 @@ impl Checks {
             }
         }
         if !p.is_file() {
-            self.push(key, format!("file {} does not exist; {allowed}", p.display()));
+            self.push(
+                key,
+                format!("file {} does not exist; {allowed}", p.display()),
+            );
         }
     }
 }

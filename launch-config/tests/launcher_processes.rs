@@ -22,7 +22,12 @@ fn session_dir(name: &str) -> PathBuf {
     dir
 }
 
-fn options(name: &str, script: &str, seconds: Option<f64>, tweak: impl FnOnce(&mut LaunchFile)) -> RunOptions {
+fn options(
+    name: &str,
+    script: &str,
+    seconds: Option<f64>,
+    tweak: impl FnOnce(&mut LaunchFile),
+) -> RunOptions {
     let mut launch = LaunchFile::default();
     launch.launcher.ready_timeout_s = 5.0;
     launch.launcher.stop_grace_s = 1.0;
@@ -67,17 +72,24 @@ fn session_starts_all_nodes_and_stops_them_haptic_first_recorder_last() {
     assert!(report.success(), "{report:?}");
     assert_eq!(report.nodes.len(), 4);
     assert!(report.nodes.iter().all(|n| n.clean_stop && n.restarts == 0));
-    assert_eq!(lines(&opts.out_dir.join("stops")), ["haptic", "bridge", "physics", "recorder"]);
+    assert_eq!(
+        lines(&opts.out_dir.join("stops")),
+        ["haptic", "bridge", "physics", "recorder"]
+    );
     assert_no_node_left(&opts.out_dir);
     // Session folder: resolved launch file, summary, one log per node with its output.
     let launch = launch_config::load(opts.out_dir.join("launch.toml")).unwrap();
     assert_eq!(launch.launcher.stop_grace_s, 1.0);
     let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(opts.out_dir.join("summary.json")).unwrap()).unwrap();
+        serde_json::from_str(&std::fs::read_to_string(opts.out_dir.join("summary.json")).unwrap())
+            .unwrap();
     assert_eq!(summary["end"]["kind"], "completed");
     assert_eq!(summary["summary"]["regions"][0]["region"], "posterior");
     let log = std::fs::read_to_string(opts.out_dir.join("logs/physics.log")).unwrap();
-    assert!(log.contains("starting physics") && log.contains("READY physics"), "{log}");
+    assert!(
+        log.contains("starting physics") && log.contains("READY physics"),
+        "{log}"
+    );
 }
 
 #[test]
@@ -113,7 +125,11 @@ fn crashed_node_is_restarted_under_on_failure() {
     });
     let report = launcher::run(&opts).unwrap();
     assert_eq!(report.end, EndReason::Completed);
-    let physics = report.nodes.iter().find(|n| n.node == NodeKind::Physics).unwrap();
+    let physics = report
+        .nodes
+        .iter()
+        .find(|n| n.node == NodeKind::Physics)
+        .unwrap();
     assert_eq!(physics.restarts, 1);
     assert!(physics.clean_stop, "the restarted instance stops cleanly");
     assert!(report.success());
@@ -129,7 +145,10 @@ fn crashed_node_ends_the_session_under_never() {
     });
     let started = std::time::Instant::now();
     let report = launcher::run(&opts).unwrap();
-    assert!(started.elapsed().as_secs_f64() < 4.0, "session should end at the crash");
+    assert!(
+        started.elapsed().as_secs_f64() < 4.0,
+        "session should end at the crash"
+    );
     assert_eq!(
         report.end,
         EndReason::NodeFailed {
@@ -139,7 +158,10 @@ fn crashed_node_ends_the_session_under_never() {
     );
     assert!(!report.success());
     // The others were still stopped in order.
-    assert_eq!(lines(&opts.out_dir.join("stops")), ["haptic", "bridge", "recorder"]);
+    assert_eq!(
+        lines(&opts.out_dir.join("stops")),
+        ["haptic", "bridge", "recorder"]
+    );
     assert_no_node_left(&opts.out_dir);
 }
 
@@ -158,7 +180,16 @@ fn ready_timeout_names_the_node_and_stops_the_started_ones() {
         l.launcher.ready_timeout_s = 0.5;
     });
     let err = launcher::run(&opts).unwrap_err();
-    assert!(matches!(err, LauncherError::ReadyTimeout { node: "recorder", .. }), "{err}");
+    assert!(
+        matches!(
+            err,
+            LauncherError::ReadyTimeout {
+                node: "recorder",
+                ..
+            }
+        ),
+        "{err}"
+    );
     assert!(err.to_string().contains("READY recorder"), "{err}");
     // Physics had started (it is first) and was stopped; haptic never started.
     assert_eq!(lines(&opts.out_dir.join("stops")), ["physics", "recorder"]);
@@ -180,11 +211,18 @@ fn straggler_is_killed_after_the_grace_period() {
         l.launcher.stop_grace_s = 0.3;
     });
     let report = launcher::run(&opts).unwrap();
-    let bridge = report.nodes.iter().find(|n| n.node == NodeKind::Bridge).unwrap();
+    let bridge = report
+        .nodes
+        .iter()
+        .find(|n| n.node == NodeKind::Bridge)
+        .unwrap();
     assert!(bridge.killed, "{bridge:?}");
     assert!(!bridge.clean_stop);
     assert!(!report.success(), "a killed node is not a clean session");
-    assert_eq!(lines(&opts.out_dir.join("stops")), ["haptic", "physics", "recorder"]);
+    assert_eq!(
+        lines(&opts.out_dir.join("stops")),
+        ["haptic", "physics", "recorder"]
+    );
     assert_no_node_left(&opts.out_dir);
 }
 
@@ -202,9 +240,17 @@ while true; do sleep 0.02; done
 fn node_that_finishes_ends_the_session_cleanly() {
     let opts = options("finish", HAPTIC_FINISHES, None, |_| {});
     let report = launcher::run(&opts).unwrap();
-    assert_eq!(report.end, EndReason::NodeFinished { node: NodeKind::Haptic });
+    assert_eq!(
+        report.end,
+        EndReason::NodeFinished {
+            node: NodeKind::Haptic
+        }
+    );
     assert!(report.success(), "{report:?}");
-    assert_eq!(lines(&opts.out_dir.join("stops")), ["bridge", "physics", "recorder"]);
+    assert_eq!(
+        lines(&opts.out_dir.join("stops")),
+        ["bridge", "physics", "recorder"]
+    );
 }
 
 #[test]
@@ -214,7 +260,16 @@ fn node_that_dies_before_ready_is_reported_with_its_log() {
         l.launcher.restart = RestartPolicy::Never;
     });
     let err = launcher::run(&opts).unwrap_err();
-    assert!(matches!(err, LauncherError::DiedBeforeReady { node: "physics", .. }), "{err}");
+    assert!(
+        matches!(
+            err,
+            LauncherError::DiedBeforeReady {
+                node: "physics",
+                ..
+            }
+        ),
+        "{err}"
+    );
     let log = std::fs::read_to_string(opts.out_dir.join("logs/physics.log")).unwrap();
     assert!(log.contains("cannot open mesh"));
 }

@@ -44,6 +44,24 @@ impl RestSolver for RestFactor<'_> {
     }
 }
 
+/// Wall time spent per phase of the step, accumulated since start (ns): the built-in profile
+/// the bench reports.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct PhaseTimes {
+    /// Collision surface refit and nodal rotations.
+    pub prepare_ns: u64,
+    /// FEM free motion (assembly + linear solve) and probe free motion.
+    pub free_motion_ns: u64,
+    /// Proximity queries.
+    pub detection_ns: u64,
+    /// W assembly (including compliance cache misses).
+    pub compliance_ns: u64,
+    /// LCP solve.
+    pub lcp_ns: u64,
+    /// Corrected motion and commit.
+    pub correction_ns: u64,
+}
+
 /// A meniscus–probe simulation.
 pub struct Simulation {
     scene: SceneConfig,
@@ -81,6 +99,7 @@ pub struct Simulation {
     degeneration_grade: f64,
     /// Reduced dimension of the rest system (3 × free nodes).
     dim: usize,
+    times: PhaseTimes,
 }
 
 impl Simulation {
@@ -216,6 +235,7 @@ impl Simulation {
             sites,
             degeneration_grade: scene.material.degeneration_grade,
             dim,
+            times: PhaseTimes::default(),
         })
     }
 
@@ -297,9 +317,17 @@ impl Simulation {
     /// One FreeMotionAnimationLoop step. Allocation-free.
     pub fn step(&mut self) -> Result<(), PhysicsError> {
         let dt = self.dt;
+        let clock = std::time::Instant::now();
+        let lap = |acc: &mut u64, last: &mut std::time::Instant| {
+            let now = std::time::Instant::now();
+            *acc += (now - *last).as_nanos() as u64;
+            *last = now;
+        };
+        let mut last = clock;
         // Start-of-step geometry: collision surface and nodal rotations of the committed state.
         self.surface.refit(self.fem.positions());
         self.fem.update_node_rotations();
+        lap(&mut self.times.prepare_ns, &mut last);
 
         // 1. Free motion.
         self.fem
@@ -309,6 +337,7 @@ impl Simulation {
                 detail: e.to_string(),
             })?;
         self.probe.free_motion(dt, &self.gravity);
+        lap(&mut self.times.free_motion_ns, &mut last);
 
         // 2. Proximity queries.
         let x0 = self.fem.positions();
@@ -319,6 +348,15 @@ impl Simulation {
         }
         self.detector
             .detect(&self.probe, &self.surface, self.support.as_ref(), x0, xf, motion);
+        // A kinematic probe against held nodes only is a rigid–rigid contact: nothing can
+        // move to resolve it (W = 0), so it carries no constraint.
+        if self.probe.drive == crate::probe::ProbeDrive::Kinematic {
+            let cache = &self.cache;
+            self.detector.contacts.retain(|c| {
+                (0..3).any(|a| c.weights[a] > 1e-9 && cache.free_index(c.nodes[a]) != crate::compliance::NONE)
+            });
+        }
+        lap(&mut self.times.detection_ns, &mut last);
         let contacts = &self.detector.contacts;
         let m = contacts.len();
         let rows = 3 * m;
@@ -357,6 +395,7 @@ impl Simulation {
             frame.contact_points[k] = [c.point.x, c.point.y, c.point.z];
         }
 
+        lap(&mut self.times.compliance_ns, &mut last);
         // 4. LCP.
         let mut iterations = 0;
         let mut residual = 0.0;
@@ -387,6 +426,7 @@ impl Simulation {
             self.warm[c.sphere] = [self.lambda[3 * k], self.lambda[3 * k + 1], self.lambda[3 * k + 2]];
         }
 
+        lap(&mut self.times.lcp_ns, &mut last);
         // 5. Corrected motion.
         let mut impulse = Vector3::zeros();
         let mut angular = Vector3::zeros();
@@ -411,6 +451,7 @@ impl Simulation {
                 })?;
         }
         self.fem.commit();
+        lap(&mut self.times.correction_ns, &mut last);
         self.time = (self.sequence + 1) as f64 * dt;
         self.sequence += 1;
 
@@ -529,6 +570,11 @@ impl Simulation {
             crate::probe::ProbeDrive::Kinematic => 0.0,
         };
         tissue + self.probe.kinetic_energy() + probe_gravity + coupling
+    }
+
+    /// Accumulated wall time per phase of the step.
+    pub fn phase_times(&self) -> PhaseTimes {
+        self.times
     }
 
     /// Number of cache slots and whether the whole surface is cached.

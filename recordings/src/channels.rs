@@ -4,7 +4,8 @@
 //! Lossless channels (full rate, float64 bit-exact, ROS-typed so any ROS 2 tool opens them):
 //! - `/arthrosim/recording/contact_step` (`arthrosim_msgs/msg/ContactStep`): one per physics
 //!   step: proxy pose, probe free/corrected pose, contact force (eq. (1)) and torque, contact
-//!   count, and the step's contact problem (H rows, δ_free, W, λ) for the active rows.
+//!   count, and (with `[recording] contact_problem`) the step's contact problem (H rows,
+//!   δ_free, W, λ) for the active rows.
 //! - `/arthrosim/recording/device_tick` (`arthrosim_msgs/msg/DeviceTick`): one per haptic
 //!   tick: proxy pose/twist, joint angles, commanded and rendered force, frame used, faults,
 //!   and the protocol annotations (probing index, region, phase).
@@ -72,6 +73,7 @@ geometry_msgs/Pose probe_pose
 # eq. (1): f = H^T lambda / dt on the probe, world frame, N
 geometry_msgs/Vector3 contact_force
 geometry_msgs/Vector3 contact_torque
+# the contact problem below is recorded when [recording] contact_problem = true, else empty
 # contact points on the tissue, world m: 3 per contact
 float64[] contact_points
 # H rows [linear xyz, angular xyz]: 6 per row
@@ -169,9 +171,23 @@ pub struct ContactStep {
 impl ContactStep {
     /// Copies a physics step into `self`, reusing its vectors (the recorder keeps one).
     /// Counts are clamped to the wire capacity, so a corrupt frame cannot index out of range.
-    pub fn fill_from(&mut self, f: &msgs::physics_to_haptic::ContactFrame, stamp_ns: u64) {
-        let contacts = (f.contact_count as usize).min(msgs::MAX_CONTACTS);
-        let rows = (f.row_count as usize).min(msgs::MAX_ROWS);
+    /// `with_problem`: also copy H, δ_free, W and λ of the active rows (else left empty).
+    pub fn fill_from(
+        &mut self,
+        f: &msgs::physics_to_haptic::ContactFrame,
+        stamp_ns: u64,
+        with_problem: bool,
+    ) {
+        let contacts = if with_problem {
+            (f.contact_count as usize).min(msgs::MAX_CONTACTS)
+        } else {
+            0
+        };
+        let rows = if with_problem {
+            (f.row_count as usize).min(msgs::MAX_ROWS)
+        } else {
+            0
+        };
         stamp_header(&mut self.header, stamp_ns);
         self.instance_id = f.instance_id;
         self.sequence = f.sequence;
@@ -290,6 +306,32 @@ mod tests {
         let back: DeviceTick = ros::from_cdr(&buf).unwrap();
         assert_eq!(back.proxy_pose.position.z.to_bits(), 0x3ff0_0000_0000_0001);
         assert_eq!(back, t);
+    }
+
+    #[test]
+    fn contact_problem_is_copied_only_when_asked() {
+        let mut slot = Box::new(core::mem::MaybeUninit::<
+            msgs::physics_to_haptic::ContactFrame,
+        >::uninit());
+        let f = <msgs::physics_to_haptic::ContactFrame as msgs::Topic>::zeroed_in(&mut slot);
+        f.contact_count = 2;
+        f.row_count = 6;
+        f.compliance[msgs::MAX_ROWS + 1] = 2.5;
+        f.contact_force = [0.0, 0.0, 1.5];
+        let mut step = ContactStep::default();
+        step.fill_from(f, 1, true);
+        assert_eq!(step.compliance.len(), 36);
+        assert_eq!(
+            step.compliance[6 + 1],
+            2.5,
+            "row-major with stride row_count"
+        );
+        assert_eq!(step.contact_points.len(), 6);
+        step.fill_from(f, 1, false);
+        assert!(
+            step.compliance.is_empty() && step.lambda.is_empty() && step.contact_points.is_empty()
+        );
+        assert_eq!((step.contact_count, step.contact_force.z), (2, 1.5));
     }
 
     #[test]

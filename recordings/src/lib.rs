@@ -32,7 +32,9 @@
 //! `[recording] mesh_rate_hz`), `/tf` (world→probe, world→proxy each step), `/diagnostics`
 //! (haptic loop statistics); and the two lossless channels replay, export and the gap
 //! diagnosis read: `/arthrosim/recording/contact_step` (arthrosim_msgs/msg/ContactStep) and
-//! `/arthrosim/recording/device_tick` (arthrosim_msgs/msg/DeviceTick). Attachments
+//! `/arthrosim/recording/device_tick` (arthrosim_msgs/msg/DeviceTick); ContactStep carries the
+//! step's contact problem (H, δ_free, W, λ) only with `[recording] contact_problem = true`
+//! (W is rows², up to 73 kB per step). Attachments
 //! `launch.toml` and `scene.toml`; metadata `arthrosim_session` (start), `rosbag2` and
 //! `arthrosim_session_end` (counters, dropped samples) at close.
 //!

@@ -106,6 +106,7 @@ pub struct SessionWriter {
     bounds: Option<(u64, u64)>,
     messages: u64,
     write_rosbag2_folder: bool,
+    contact_problem: bool,
 }
 
 fn mcap_err(path: &Path, e: mcap::McapError) -> RecordingError {
@@ -273,6 +274,7 @@ impl SessionWriter {
             bounds: None,
             messages: 0,
             write_rosbag2_folder: config.rosbag2_folder,
+            contact_problem: config.contact_problem,
         })
     }
 
@@ -342,7 +344,7 @@ impl SessionWriter {
     ) -> Result<(), RecordingError> {
         let mut s = std::mem::take(&mut self.scratch);
         let result = (|| {
-            s.contact_step.fill_from(f, log_ns);
+            s.contact_step.fill_from(f, log_ns, self.contact_problem);
             self.write_msg(Ch::ContactStep, &s.contact_step, log_ns)?;
 
             let stamp = ros::Time::from_nanos(log_ns);
@@ -567,7 +569,24 @@ impl SessionWriter {
         if self.write_rosbag2_folder {
             let dir = self.path.parent().unwrap_or(Path::new("."));
             let yaml_path = dir.join("metadata.yaml");
-            std::fs::write(&yaml_path, &yaml).map_err(|e| RecordingError::io(&yaml_path, e))?;
+            // A folder is one rosbag2 bag: never replace the metadata of another file in it
+            // (e.g. a replay written beside the session it replays).
+            let foreign = std::fs::read_to_string(&yaml_path)
+                .map(|old| {
+                    !old.contains(&format!(
+                        "- path: {}",
+                        serde_json::to_string(&file_name).unwrap_or_default()
+                    ))
+                })
+                .unwrap_or(false);
+            if foreign {
+                tracing::warn!(
+                    path = %yaml_path.display(),
+                    "metadata.yaml belongs to another recording; not replaced"
+                );
+            } else {
+                std::fs::write(&yaml_path, &yaml).map_err(|e| RecordingError::io(&yaml_path, e))?;
+            }
         }
         let bytes = std::fs::metadata(&self.path)
             .map_err(|e| RecordingError::io(&self.path, e))?

@@ -37,9 +37,8 @@ fn proxy_at(site_point: [f64; 3], normal: [f64; 3], k: u64) -> msgs::Pose {
     }
 }
 
-#[test]
-fn replayed_contact_forces_are_bit_identical_to_the_recording() {
-    let dir = test_dir("determinism");
+/// Records the scripted probing into `dir/session.mcap`; returns the forces per step.
+fn record_scripted(dir: &std::path::Path) -> Vec<[f64; 3]> {
     let file = dir.join("session.mcap");
     let scene = SceneConfig::default();
     let data_dir = launch_config::data_dir();
@@ -99,6 +98,17 @@ fn replayed_contact_forces_are_bit_identical_to_the_recording() {
             .fold(0.0f64, |a, b| a.max(b.abs()))
     );
 
+    recorded
+}
+
+#[test]
+fn replayed_contact_forces_are_bit_identical_to_the_recording() {
+    let dir = test_dir("determinism");
+    let file = dir.join("session.mcap");
+    let scene = SceneConfig::default();
+    let data_dir = launch_config::data_dir();
+    let recorded = record_scripted(&dir);
+
     // Replay: the scene comes from the recording's scene.toml attachment.
     let out = dir.join("replay.mcap");
     let report = replay(
@@ -114,6 +124,12 @@ fn replayed_contact_forces_are_bit_identical_to_the_recording() {
     assert_eq!(report.steps, STEPS);
     assert!(report.bit_identical(), "{report:#?}");
     assert_eq!(report.max_force_difference_n, 0.0);
+
+    // The replay was written beside the session: the folder's metadata.yaml still
+    // describes the session, not the replay.
+    let yaml = std::fs::read_to_string(dir.join("metadata.yaml")).unwrap();
+    assert!(yaml.contains("- path: \"session.mcap\""), "{yaml}");
+    assert!(!yaml.contains("replay.mcap"));
 
     // The replay's own recording carries the same forces, bit for bit.
     let (steps, ticks) = recordings::export::read_lossless(&out).unwrap();
@@ -152,4 +168,47 @@ fn replayed_contact_forces_are_bit_identical_to_the_recording() {
         recordings::export_replay_csv(&file, &csv).unwrap() as u64,
         STEPS
     );
+}
+
+/// Replay re-publishes over iceoryx2 (as for a bridge); the real recorder process records
+/// the replayed session, and its contact forces equal the original recording's bit for bit.
+#[test]
+fn replay_republished_through_the_recorder_process_is_bit_identical() {
+    let dir = test_dir("determinism-live");
+    let recorded = record_scripted(&dir);
+    let live_dir = dir.join("live");
+    let session = unique_session("replay-live");
+    let recorder = Recorder::start(&session, &live_dir);
+    let report = replay(
+        &dir.join("session.mcap"),
+        &ReplayOptions {
+            publish_session: Some(session.clone()),
+            data_dir: Some(launch_config::data_dir()),
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    assert!(report.bit_identical(), "{report:#?}");
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    let stats = recorder.stop();
+    assert_eq!(stats["contact_frames_dropped"].as_u64(), Some(0), "{stats}");
+    let (steps, ticks) = recordings::export::read_lossless(&live_dir.join("session.mcap")).unwrap();
+    assert_eq!(
+        steps.len() as u64,
+        STEPS,
+        "every replayed step went through shared memory"
+    );
+    assert_eq!(ticks.len() as u64, STEPS, "and every recorded device state");
+    for (s, f) in steps.iter().zip(&recorded) {
+        assert_eq!(
+            [
+                s.contact_force.x.to_bits(),
+                s.contact_force.y.to_bits(),
+                s.contact_force.z.to_bits()
+            ],
+            [f[0].to_bits(), f[1].to_bits(), f[2].to_bits()],
+            "step {}",
+            s.sequence
+        );
+    }
 }

@@ -43,12 +43,16 @@ fn explore_paths() {
     use gap::model::{ForceModel, Variant};
     let model = gap::SimForceModel::from_scene(launch_config::SceneConfig::default(), &gap::data_dir());
     let sim = model.simulation(&Variant::default(), 0.01).unwrap();
-    let sites = sim.probing_sites().to_vec();
+    let sites: Vec<_> = sim.probing_sites().iter().step_by(2).cloned().collect();
     for s in &sites {
         for (depth, slide) in [(1.6e-3, false), (2.8e-3, false), (2.2e-3, true)] {
             let n = [s.normal.x, s.normal.y, s.normal.z];
             let sl = slide.then_some([n[2], 0.0, -n[0]]);
-            let path = gap::reality::protocol_path([s.point.x, s.point.y, s.point.z], n, depth, sl, 0.01);
+            let mut path = gap::reality::protocol_path([s.point.x, s.point.y, s.point.z], n, depth, sl, 0.01);
+            if let Ok(q) = std::env::var("GAP_Q") {
+                let q: Vec<f64> = q.split(',').map(|v| v.parse().unwrap()).collect();
+                path.poses.iter_mut().for_each(|p| p.orientation = [q[0], q[1], q[2], q[3]]);
+            }
             let t = Instant::now();
             let r = model.replay_untilted(&Variant::default(), &path);
             match r {

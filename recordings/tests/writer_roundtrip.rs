@@ -34,7 +34,10 @@ fn write_session(dir: &std::path::Path) -> Written {
         scene_toml: toml::to_string(&launch_config::SceneConfig::default()).unwrap(),
         source: "test".into(),
     };
-    let config = RecordingConfig::default();
+    let config = RecordingConfig {
+        contact_problem: true,
+        ..Default::default()
+    };
     let mut w = SessionWriter::create(&file, &config, &info).unwrap();
     let t0 = 1_700_000_000_000_000_000u64;
     let mut frames = Vec::new();

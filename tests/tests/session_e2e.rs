@@ -7,7 +7,10 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 fn workspace_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap().to_path_buf()
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .unwrap()
+        .to_path_buf()
 }
 
 /// The `arthrosim` binary of this test's profile, built (or brought up to date) first.
@@ -17,7 +20,9 @@ fn arthrosim_binary() -> PathBuf {
     let profile_dir = exe.parent().and_then(Path::parent).unwrap().to_path_buf();
     let release = profile_dir.file_name().is_some_and(|n| n == "release");
     let mut build = Command::new(env!("CARGO"));
-    build.current_dir(workspace_root()).args(["build", "-p", "arthrosim"]);
+    build
+        .current_dir(workspace_root())
+        .args(["build", "-p", "arthrosim"]);
     if release {
         build.arg("--release");
     }
@@ -46,7 +51,10 @@ fn processes_of_session(session: &str) -> Vec<(u32, String)> {
             .split(|b| *b == 0)
             .map(|a| String::from_utf8_lossy(a).into_owned())
             .collect();
-        if args.windows(2).any(|w| w[0] == "--session" && w[1] == session) {
+        if args
+            .windows(2)
+            .any(|w| w[0] == "--session" && w[1] == session)
+        {
             found.push((pid, args.join(" ")));
         }
     }
@@ -72,8 +80,10 @@ fn bounded_default_session_covers_three_regions_and_leaves_nothing_running() {
     // Read the output on threads so full pipes never stall the session.
     let stdout = child.stdout.take().unwrap();
     let stderr = child.stderr.take().unwrap();
-    let out_reader = std::thread::spawn(move || std::io::read_to_string(stdout).unwrap_or_default());
-    let err_reader = std::thread::spawn(move || std::io::read_to_string(stderr).unwrap_or_default());
+    let out_reader =
+        std::thread::spawn(move || std::io::read_to_string(stdout).unwrap_or_default());
+    let err_reader =
+        std::thread::spawn(move || std::io::read_to_string(stderr).unwrap_or_default());
 
     // 20 s of session plus start-up (mesh, compliance) and ordered shutdown, bounded.
     let deadline = Instant::now() + Duration::from_secs(240);
@@ -98,10 +108,19 @@ fn bounded_default_session_covers_three_regions_and_leaves_nothing_running() {
         // SAFETY-free cleanup through kill(1), so a failure here does not leak processes.
         let _ = Command::new("kill").args(["-9", &pid.to_string()]).status();
     }
-    assert!(left.is_empty(), "node processes left running: {left:?}\n{context}");
+    assert!(
+        left.is_empty(),
+        "node processes left running: {left:?}\n{context}"
+    );
 
-    assert!(status.success(), "arthrosim run exited with {status}\n{context}");
-    assert!(stdout.contains("posterior") && stdout.contains("anterior"), "{context}");
+    assert!(
+        status.success(),
+        "arthrosim run exited with {status}\n{context}"
+    );
+    assert!(
+        stdout.contains("posterior") && stdout.contains("anterior"),
+        "{context}"
+    );
 
     let summary: serde_json::Value = serde_json::from_str(
         &std::fs::read_to_string(out.join("summary.json")).expect("summary.json written"),
@@ -123,7 +142,10 @@ fn bounded_default_session_covers_three_regions_and_leaves_nothing_running() {
         );
         assert!(region["probings"].as_u64().unwrap() >= 1, "{summary:#}");
         let f_n = region["mean_normal_force_n"].as_f64().unwrap();
-        assert!(f_n < 0.0, "normal force during contact is compressive (negative): {f_n}");
+        assert!(
+            f_n < 0.0,
+            "normal force during contact is compressive (negative): {f_n}"
+        );
         let d = region["max_probe_displacement_m"].as_f64().unwrap();
         assert!(d > 0.0 && d < 0.02, "probe displacement {d} m");
     }

@@ -76,6 +76,7 @@ fn main() -> anyhow::Result<()> {
     let mut in_contact = 0u64;
     let mut force_sum = 0.0;
     let misses_before = sim.compliance_misses();
+    let times_before = sim.phase_times();
     let t0 = Instant::now();
     while t0.elapsed().as_secs_f64() < args.seconds {
         sim.set_proxy_pose(&physics_node::probe::pose(path(sim.time()), q));
@@ -94,6 +95,16 @@ fn main() -> anyhow::Result<()> {
     durations.sort_unstable();
     let pct = |p: f64| durations[((p * (steps - 1) as f64).round() as usize).min(steps - 1)] as f64 / 1e3;
     let (slots, complete) = sim.compliance_cache_info();
+    let t1 = sim.phase_times();
+    let per_step = |a: u64, b: u64| (a - b) as f64 / 1e3 / steps as f64;
+    let phases = serde_json::json!({
+        "prepare": per_step(t1.prepare_ns, times_before.prepare_ns),
+        "free_motion": per_step(t1.free_motion_ns, times_before.free_motion_ns),
+        "detection": per_step(t1.detection_ns, times_before.detection_ns),
+        "compliance": per_step(t1.compliance_ns, times_before.compliance_ns),
+        "lcp": per_step(t1.lcp_ns, times_before.lcp_ns),
+        "correction": per_step(t1.correction_ns, times_before.correction_ns),
+    });
     let json = serde_json::json!({
         "mesh": args.mesh,
         "nodes": sim.node_count(),
@@ -113,6 +124,7 @@ fn main() -> anyhow::Result<()> {
         "compliance_complete": complete,
         "compliance_misses": sim.compliance_misses() - misses_before,
         "build_s": build_s,
+        "phase_mean_us": phases,
     });
     println!("{json}");
     Ok(())

@@ -2,7 +2,7 @@
 //! the stable neo-Hookean element. Each kernel returns the elastic nodal forces and the 4×4
 //! grid of 3×3 stiffness blocks (K = −∂f/∂x), so both materials share one assembly.
 
-use nalgebra::{Matrix3, SMatrix, SymmetricEigen, UnitQuaternion, Vector3};
+use nalgebra::{Matrix3, Quaternion, SMatrix, SymmetricEigen, UnitQuaternion, Vector3};
 
 /// Rest data of one tet: shape-function gradients g_a (F = Σ x_a g_aᵀ) and volume.
 #[derive(Debug, Clone, Copy)]
@@ -46,7 +46,12 @@ impl TetRest {
 /// inverted elements (where polar decomposition would give a reflection); converges in one
 /// or two iterations when `q` is last step's rotation.
 #[inline]
-pub(crate) fn extract_rotation(a: &Matrix3<f64>, q: &mut UnitQuaternion<f64>, max_iter: usize) {
+pub(crate) fn extract_rotation(
+    a: &Matrix3<f64>,
+    q: &mut UnitQuaternion<f64>,
+    max_iter: usize,
+    tolerance: f64,
+) {
     for _ in 0..max_iter {
         let r = q.to_rotation_matrix();
         let r = r.matrix();
@@ -60,15 +65,17 @@ pub(crate) fn extract_rotation(a: &Matrix3<f64>, q: &mut UnitQuaternion<f64>, ma
             + 1.0e-9;
         let omega = num / den;
         let w = omega.norm();
-        if !w.is_finite() {
+        if !w.is_finite() || w <= tolerance {
             break;
         }
-        *q = UnitQuaternion::from_scaled_axis(omega) * *q;
-        q.renormalize();
-        // 1e-10 rad: far below what the elastic forces can resolve.
-        if w < 1.0e-10 {
-            break;
-        }
+        *q = if w < 0.05 {
+            // Small step: first-order quaternion, no sin/cos (the iteration absorbs the
+            // O(w³) error).
+            UnitQuaternion::new_normalize(Quaternion::new(1.0, 0.5 * omega.x, 0.5 * omega.y, 0.5 * omega.z))
+        } else {
+            UnitQuaternion::from_scaled_axis(omega)
+        } * *q;
+        q.renormalize_fast();
     }
 }
 

@@ -273,10 +273,14 @@ impl std::fmt::Debug for FemModel {
     }
 }
 
-/// Rotation extraction cap in the step (warm-started: one or two iterations are typical).
-const ROTATION_ITERATIONS: usize = 8;
-/// Cap for cold starts outside the step (energies, forces, static solves).
-const ROTATION_ITERATIONS_COLD: usize = 50;
+/// Rotation extraction in the step: warm-started from last step, one or two iterations are
+/// typical; 1e-7 rad is a spurious strain far below anything the contact resolves, and the
+/// next step continues from there.
+const ROTATION_ITERATIONS: usize = 4;
+const ROTATION_TOLERANCE: f64 = 1e-7;
+/// Cold starts outside the step (energies, forces, static solves): converge fully.
+const ROTATION_ITERATIONS_COLD: usize = 100;
+const ROTATION_TOLERANCE_COLD: f64 = 1e-12;
 
 impl FemModel {
     /// Builds the model. `fixed` are held in place, or supported by springs when
@@ -535,10 +539,17 @@ impl FemModel {
     /// One pass over the elements at positions `self.x` (or at rest): elastic forces into
     /// `self.force`, `k_scale · K` into `self.a` (zeroed first), and K·v into `self.kv`.
     fn assemble(&mut self, at_rest: bool, k_scale: f64, want_k: bool) {
-        self.assemble_with(at_rest, k_scale, want_k, ROTATION_ITERATIONS)
+        self.assemble_with(at_rest, k_scale, want_k, ROTATION_ITERATIONS, ROTATION_TOLERANCE)
     }
 
-    fn assemble_with(&mut self, at_rest: bool, k_scale: f64, want_k: bool, rot_iters: usize) {
+    fn assemble_with(
+        &mut self,
+        at_rest: bool,
+        k_scale: f64,
+        want_k: bool,
+        rot_iters: usize,
+        rot_tol: f64,
+    ) {
         let FemModel {
             tets,
             rest_elems,
@@ -578,14 +589,14 @@ impl FemModel {
                     let rot = if at_rest {
                         Matrix3::identity()
                     } else {
-                        element::extract_rotation(&f, &mut elem_rot[e], rot_iters);
+                        element::extract_rotation(&f, &mut elem_rot[e], rot_iters, rot_tol);
                         elem_rot[e].to_rotation_matrix().into_inner()
                     };
                     element::corotational(re, &f, &rot, mu, lambda, want_k, &mut out);
                 }
                 MaterialModel::StableNeoHookean => {
                     if !at_rest {
-                        element::extract_rotation(&f, &mut elem_rot[e], rot_iters);
+                        element::extract_rotation(&f, &mut elem_rot[e], rot_iters, rot_tol);
                     }
                     element::stable_neo_hookean(
                         re,
@@ -889,17 +900,18 @@ impl FemModel {
         let mut rz = dot(&self.r, &self.z);
         while iterations < max_iter {
             iterations += 1;
-            self.pattern.mul(&self.a, &self.p, &mut self.q);
-            let pq = dot(&self.p, &self.q);
+            let pq = self.pattern.mul_dot(&self.a, &self.p, &mut self.q);
             if !(pq > 0.0) {
                 break;
             }
             let alpha = rz / pq;
-            for i in 0..self.dv.len() {
-                self.dv[i] += alpha * self.p[i];
-                self.r[i] -= alpha * self.q[i];
+            let mut rr = 0.0;
+            for (((dv, r), p), q) in self.dv.iter_mut().zip(self.r.iter_mut()).zip(&self.p).zip(&self.q) {
+                *dv += alpha * p;
+                *r -= alpha * q;
+                rr += *r * *r;
             }
-            r_norm = dot(&self.r, &self.r).sqrt();
+            r_norm = rr.sqrt();
             if r_norm / b_norm <= tol {
                 break;
             }
@@ -907,8 +919,8 @@ impl FemModel {
             let rz_new = dot(&self.r, &self.z);
             let beta = rz_new / rz;
             rz = rz_new;
-            for i in 0..self.p.len() {
-                self.p[i] = self.z[i] + beta * self.p[i];
+            for (p, z) in self.p.iter_mut().zip(&self.z) {
+                *p = z + beta * *p;
             }
         }
         SolveStats {
@@ -935,7 +947,12 @@ impl FemModel {
             }
         }
         for i in 0..self.x.len() {
-            element::extract_rotation(&self.node_rot_sum[i], &mut self.node_rot_q[i], ROTATION_ITERATIONS);
+            element::extract_rotation(
+                &self.node_rot_sum[i],
+                &mut self.node_rot_q[i],
+                ROTATION_ITERATIONS,
+                ROTATION_TOLERANCE,
+            );
             self.node_rot[i] = self.node_rot_q[i].to_rotation_matrix().into_inner();
         }
     }
@@ -961,7 +978,7 @@ impl FemModel {
             match self.material.model {
                 MaterialModel::Corotational => {
                     let mut q = self.elem_rot[e];
-                    element::extract_rotation(&f, &mut q, ROTATION_ITERATIONS_COLD);
+                    element::extract_rotation(&f, &mut q, ROTATION_ITERATIONS_COLD, ROTATION_TOLERANCE_COLD);
                     let rot = q.to_rotation_matrix().into_inner();
                     element::corotational(re, &f, &rot, self.mu, self.lambda, false, &mut out);
                 }
@@ -1000,7 +1017,7 @@ impl FemModel {
         if out.len() != self.x.len() {
             return Err(FemError::Input("elastic_forces: wrong output length".into()));
         }
-        self.assemble_with(false, 0.0, false, ROTATION_ITERATIONS_COLD);
+        self.assemble_with(false, 0.0, false, ROTATION_ITERATIONS_COLD, ROTATION_TOLERANCE_COLD);
         for i in 0..out.len() {
             out[i] = self.force[i] - (self.x[i] - self.rest[i]) * self.support[i];
         }
@@ -1072,7 +1089,7 @@ impl FemModel {
             "static solve did not converge in {max_iterations} Newton iterations"
         )));
         for it in 1..=max_iterations {
-            self.assemble_with(false, 1.0, true, ROTATION_ITERATIONS_COLD);
+            self.assemble_with(false, 1.0, true, ROTATION_ITERATIONS_COLD, ROTATION_TOLERANCE_COLD);
             for (row, &node) in self.free_nodes.iter().enumerate() {
                 let ks = self.support[node];
                 let blk = &mut self.a[self.pattern.diag[row]];

@@ -20,13 +20,15 @@ pub(crate) const NO_BLOCK: u32 = u32::MAX;
 
 /// Symmetric 3×3-block CSR pattern (both triangles stored, so products are one pass).
 #[derive(Debug, Clone)]
+/// Fields are crate-private so the invariants (sorted rows, column indices < n) that the
+/// unchecked product relies on cannot be broken from outside.
 pub struct BlockPattern {
     /// Number of block rows (free nodes).
-    pub n: usize,
-    pub row_ptr: Vec<usize>,
-    pub cols: Vec<u32>,
+    pub(crate) n: usize,
+    pub(crate) row_ptr: Vec<usize>,
+    pub(crate) cols: Vec<u32>,
     /// Position of the diagonal block of each row in `cols`.
-    pub diag: Vec<usize>,
+    pub(crate) diag: Vec<usize>,
 }
 
 impl BlockPattern {
@@ -96,22 +98,60 @@ impl BlockPattern {
         self.row_ptr[row] + s.binary_search(&(col as u32)).expect("block in pattern")
     }
 
+    /// Number of block rows (free nodes).
+    pub fn block_rows(&self) -> usize {
+        self.n
+    }
+    /// Row pointers into [`Self::block_cols`].
+    pub fn row_ptr(&self) -> &[usize] {
+        &self.row_ptr
+    }
+    /// Block column of each stored block.
+    pub fn block_cols(&self) -> &[u32] {
+        &self.cols
+    }
+    /// Index of each row's diagonal block.
+    pub fn diagonal(&self) -> &[usize] {
+        &self.diag
+    }
+
     pub fn nnz_blocks(&self) -> usize {
         self.cols.len()
     }
 
     /// y = A x for block values `a` on this pattern (flat vectors, 3 per row).
     pub fn mul(&self, a: &[Matrix3<f64>], x: &[f64], y: &mut [f64]) {
-        for i in 0..self.n {
-            let mut acc = Vector3::zeros();
-            for k in self.row_ptr[i]..self.row_ptr[i + 1] {
-                let j = self.cols[k] as usize * 3;
-                acc += a[k] * Vector3::new(x[j], x[j + 1], x[j + 2]);
+        self.mul_dot(a, x, y);
+    }
+
+    /// y = A x, returning x·y (CG needs both; one pass over memory).
+    pub fn mul_dot(&self, a: &[Matrix3<f64>], x: &[f64], y: &mut [f64]) -> f64 {
+        let n = self.n;
+        assert!(a.len() >= self.cols.len() && x.len() >= 3 * n && y.len() >= 3 * n);
+        assert!(self.row_ptr.len() == n + 1 && self.row_ptr[n] <= self.cols.len());
+        let mut dot = 0.0;
+        for i in 0..n {
+            let (mut s0, mut s1, mut s2) = (0.0, 0.0, 0.0);
+            // SAFETY: row_ptr is non-decreasing and ends within `cols`/`a` (asserted above and
+            // by construction), every column index is < n, and x has 3n entries.
+            unsafe {
+                let (k0, k1) = (*self.row_ptr.get_unchecked(i), *self.row_ptr.get_unchecked(i + 1));
+                for k in k0..k1 {
+                    let j = *self.cols.get_unchecked(k) as usize * 3;
+                    let m = a.get_unchecked(k).as_slice();
+                    let (x0, x1, x2) = (*x.get_unchecked(j), *x.get_unchecked(j + 1), *x.get_unchecked(j + 2));
+                    // Column-major 3×3.
+                    s0 += m[0] * x0 + m[3] * x1 + m[6] * x2;
+                    s1 += m[1] * x0 + m[4] * x1 + m[7] * x2;
+                    s2 += m[2] * x0 + m[5] * x1 + m[8] * x2;
+                }
             }
-            y[3 * i] = acc.x;
-            y[3 * i + 1] = acc.y;
-            y[3 * i + 2] = acc.z;
+            y[3 * i] = s0;
+            y[3 * i + 1] = s1;
+            y[3 * i + 2] = s2;
+            dot += s0 * x[3 * i] + s1 * x[3 * i + 1] + s2 * x[3 * i + 2];
         }
+        dot
     }
 }
 

@@ -50,15 +50,23 @@ pub fn grid_path(trial: &Trial, dt: f64) -> ProbePath {
     let poses = (0..n)
         .map(|k| {
             let t = t0 + k as f64 * dt;
-            let i = trial.t.partition_point(|&v| v <= t).saturating_sub(1).min(trial.t.len() - 2);
+            let i = trial
+                .t
+                .partition_point(|&v| v <= t)
+                .saturating_sub(1)
+                .min(trial.t.len() - 2);
             // before the first sample (lead-in) the first motion is extended backwards
-            let w = ((t - trial.t[i]) / (trial.t[i + 1] - trial.t[i])).clamp(if i == 0 { f64::NEG_INFINITY } else { 0.0 }, 1.0);
+            let w = ((t - trial.t[i]) / (trial.t[i + 1] - trial.t[i]))
+                .clamp(if i == 0 { f64::NEG_INFINITY } else { 0.0 }, 1.0);
             let (a, b) = (&trial.pose[i], &trial.pose[i + 1]);
             let mut p = [0.0; 3];
             for q in 0..3 {
                 p[q] = a.position[q] + w * (b.position[q] - a.position[q]);
             }
-            Pose { position: p, orientation: nlerp(a.orientation, b.orientation, w.max(0.0)) }
+            Pose {
+                position: p,
+                orientation: nlerp(a.orientation, b.orientation, w.max(0.0)),
+            }
         })
         .collect();
     ProbePath { t0, dt, poses }
@@ -74,7 +82,12 @@ pub struct BuildOptions {
 }
 
 /// Replay every trial at baseline and at each re-simulation the `effects` need, in parallel.
-pub fn build(exp: &Experiment, model: &dyn ForceModel, effects: &[Effect], opts: &BuildOptions) -> Result<Vec<TrialData>, GapError> {
+pub fn build(
+    exp: &Experiment,
+    model: &dyn ForceModel,
+    effects: &[Effect],
+    opts: &BuildOptions,
+) -> Result<Vec<TrialData>, GapError> {
     let paths: Vec<ProbePath> = exp.trials.iter().map(|t| grid_path(t, opts.dt)).collect();
     let mut variants: Vec<(Option<Effect>, Variant)> = vec![(None, Variant::default())];
     for &e in effects {
@@ -82,13 +95,21 @@ pub fn build(exp: &Experiment, model: &dyn ForceModel, effects: &[Effect], opts:
             variants.push((Some(e), v));
         }
     }
-    let jobs: Vec<(usize, usize)> =
-        (0..variants.len()).flat_map(|v| (0..paths.len()).map(move |t| (v, t))).collect();
+    let jobs: Vec<(usize, usize)> = (0..variants.len())
+        .flat_map(|v| (0..paths.len()).map(move |t| (v, t)))
+        .collect();
     let bar = progress_bar(opts.progress, jobs.len() as u64, "replaying");
     let results: Vec<Result<Vec<[f64; 3]>, GapError>> = jobs
         .par_iter()
         .map(|&(v, t)| {
-            let r = replay(model, &variants[v].1, &paths[t]);
+            let r = replay(model, &variants[v].1, &paths[t]).map_err(|e| {
+                GapError::Sim(format!(
+                    "trial {} ({}), {}: {e}",
+                    exp.trials[t].name,
+                    exp.trials[t].file.display(),
+                    variants[v].1.label()
+                ))
+            });
             if let Some(b) = &bar {
                 b.inc(1);
             }
@@ -107,7 +128,10 @@ pub fn build(exp: &Experiment, model: &dyn ForceModel, effects: &[Effect], opts:
         let base = forces[0][ti].take().unwrap();
         let mut resims: HashMap<Effect, Vec<Vec<[f64; 3]>>> = HashMap::new();
         for (vi, (e, _)) in variants.iter().enumerate().skip(1) {
-            resims.entry(e.unwrap()).or_default().push(forces[vi][ti].take().unwrap());
+            resims
+                .entry(e.unwrap())
+                .or_default()
+                .push(forces[vi][ti].take().unwrap());
         }
         out.push(prepare(trial, path, base, resims));
     }
@@ -129,13 +153,21 @@ pub fn progress_bar(show: bool, len: u64, msg: &'static str) -> Option<indicatif
 }
 
 /// Geometry and phases of a trial once its baseline replay is known.
-pub fn prepare(trial: &Trial, path: ProbePath, base: Vec<[f64; 3]>, resims: HashMap<Effect, Vec<Vec<[f64; 3]>>>) -> TrialData {
+pub fn prepare(
+    trial: &Trial,
+    path: ProbePath,
+    base: Vec<[f64; 3]>,
+    resims: HashMap<Effect, Vec<Vec<[f64; 3]>>>,
+) -> TrialData {
     let pos: Vec<[f64; 3]> = path.poses.iter().map(|p| p.position).collect();
     let normal = trial_normal(&base, &trial.force);
     let depth_grid = depth_series(&pos, &base, normal);
     let peak = base.iter().map(|f| norm(*f)).fold(0.0, f64::max);
-    let contact: Vec<bool> =
-        base.iter().zip(&depth_grid).map(|(f, d)| norm(*f) > (0.03 * peak).max(0.01) || *d > 0.0).collect();
+    let contact: Vec<bool> = base
+        .iter()
+        .zip(&depth_grid)
+        .map(|(f, d)| norm(*f) > (0.03 * peak).max(0.01) || *d > 0.0)
+        .collect();
     let ph_grid = phases(&pos, &depth_grid, normal, path.dt, &contact);
     let dt = path.dt;
     let n = pos.len();

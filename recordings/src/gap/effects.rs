@@ -39,7 +39,14 @@ pub struct ParamSpec {
 }
 
 const fn p(name: &'static str, unit: &'static str, lo: f64, hi: f64, neutral: f64, log: bool) -> ParamSpec {
-    ParamSpec { name, unit, lo, hi, neutral, log }
+    ParamSpec {
+        name,
+        unit,
+        lo,
+        hi,
+        neutral,
+        log,
+    }
 }
 
 /// Tilt re-simulation step (rad) for the quadratic interpolation.
@@ -88,7 +95,10 @@ impl Effect {
                 p("prony_tau1", "s", 0.05, 10.0, 1.0, true),
             ],
             Effect::Friction => vec![p("mu", "", 0.0, 0.8, 0.0, false)],
-            Effect::Tilt => vec![p("tilt_x", "deg", -15.0, 15.0, 0.0, false), p("tilt_y", "deg", -15.0, 15.0, 0.0, false)],
+            Effect::Tilt => vec![
+                p("tilt_x", "deg", -15.0, 15.0, 0.0, false),
+                p("tilt_y", "deg", -15.0, 15.0, 0.0, false),
+            ],
             Effect::Device => vec![
                 p("bias_x", "N", -3.0, 3.0, 0.0, false),
                 p("bias_y", "N", -3.0, 3.0, 0.0, false),
@@ -97,7 +107,10 @@ impl Effect {
             ],
             Effect::Support => vec![p("support_compliance", "m/N per node", 0.0, 2.0e-3, 0.0, false)],
             Effect::Mesh => vec![],
-            Effect::Sensor => vec![p("delay", "s", 0.0, 0.3, 0.0, false), p("lowpass_tau", "s", 0.0, 0.3, 0.0, false)],
+            Effect::Sensor => vec![
+                p("delay", "s", 0.0, 0.3, 0.0, false),
+                p("lowpass_tau", "s", 0.0, 0.3, 0.0, false),
+            ],
         }
     }
     /// Effects that only make sense with a time history.
@@ -112,15 +125,37 @@ impl Effect {
     pub fn resims(self) -> Vec<Variant> {
         let v = Variant::default();
         match self {
-            Effect::Friction => FRICTION_KNOTS.iter().map(|&mu| Variant { friction: mu, ..v.clone() }).collect(),
-            Effect::Support => {
-                SUPPORT_KNOTS.iter().map(|&c| Variant { support_stiffness: 1.0 / c, ..v.clone() }).collect()
-            }
+            Effect::Friction => FRICTION_KNOTS
+                .iter()
+                .map(|&mu| Variant {
+                    friction: mu,
+                    ..v.clone()
+                })
+                .collect(),
+            Effect::Support => SUPPORT_KNOTS
+                .iter()
+                .map(|&c| Variant {
+                    support_stiffness: 1.0 / c,
+                    ..v.clone()
+                })
+                .collect(),
             Effect::Tilt => vec![
-                Variant { tilt: [TILT_STEP, 0.0], ..v.clone() },
-                Variant { tilt: [-TILT_STEP, 0.0], ..v.clone() },
-                Variant { tilt: [0.0, TILT_STEP], ..v.clone() },
-                Variant { tilt: [0.0, -TILT_STEP], ..v.clone() },
+                Variant {
+                    tilt: [TILT_STEP, 0.0],
+                    ..v.clone()
+                },
+                Variant {
+                    tilt: [-TILT_STEP, 0.0],
+                    ..v.clone()
+                },
+                Variant {
+                    tilt: [0.0, TILT_STEP],
+                    ..v.clone()
+                },
+                Variant {
+                    tilt: [0.0, -TILT_STEP],
+                    ..v.clone()
+                },
             ],
             Effect::Mesh => vec![Variant { fine_mesh: true, ..v }],
             _ => vec![],
@@ -148,7 +183,10 @@ impl Candidate {
         v.iter().map(|e| e.name()).collect::<Vec<_>>().join("+")
     }
     pub fn params(&self) -> Vec<(Effect, ParamSpec)> {
-        self.0.iter().flat_map(|&e| e.params().into_iter().map(move |p| (e, p))).collect()
+        self.0
+            .iter()
+            .flat_map(|&e| e.params().into_iter().map(move |p| (e, p)))
+            .collect()
     }
     pub fn neutral(&self) -> Vec<f64> {
         self.params().iter().map(|(_, p)| p.neutral).collect()
@@ -238,7 +276,10 @@ pub fn predict(c: &Candidate, theta: &[f64], td: &TrialData, grid: &mut Vec<[f64
         }
     }
     out.clear();
-    out.extend(td.t.iter().map(|&t| sample_uniform(td.path.t0, td.path.dt, grid, t - delay)));
+    out.extend(
+        td.t.iter()
+            .map(|&t| sample_uniform(td.path.t0, td.path.dt, grid, t - delay)),
+    );
 }
 
 /// Quasi-linear viscoelasticity with one Prony term, G(t) = (1 − g) + g e^{−t/τ} (G(0) = 1):
@@ -283,8 +324,14 @@ mod tests {
 
     #[test]
     fn candidate_names_follow_issue_order() {
-        assert_eq!(Candidate::pair(Effect::Sensor, Effect::Modulus).name(), "modulus+sensor");
-        assert_eq!(Candidate::pair(Effect::Tilt, Effect::Hardening).name(), "hardening+tilt");
+        assert_eq!(
+            Candidate::pair(Effect::Sensor, Effect::Modulus).name(),
+            "modulus+sensor"
+        );
+        assert_eq!(
+            Candidate::pair(Effect::Tilt, Effect::Hardening).name(),
+            "hardening+tilt"
+        );
         for e in Effect::ALL {
             assert_eq!(Effect::parse(e.name()), Some(e));
             for p in e.params() {

@@ -90,7 +90,11 @@ fn default_fixed() -> String {
 }
 impl Default for SpecimenSpec {
     fn default() -> Self {
-        SpecimenSpec { mesh: default_mesh(), fixed: default_fixed(), transform: None }
+        SpecimenSpec {
+            mesh: default_mesh(),
+            fixed: default_fixed(),
+            transform: None,
+        }
     }
 }
 
@@ -109,7 +113,11 @@ fn default_preset() -> String {
 }
 impl Default for MaterialSpec {
     fn default() -> Self {
-        MaterialSpec { preset: default_preset(), youngs_modulus: None, poisson_ratio: None }
+        MaterialSpec {
+            preset: default_preset(),
+            youngs_modulus: None,
+            poisson_ratio: None,
+        }
     }
 }
 
@@ -129,7 +137,10 @@ fn default_probe_mass() -> f64 {
 }
 impl Default for ProbeSpec {
     fn default() -> Self {
-        ProbeSpec { tip_radius: default_tip(), mass: default_probe_mass() }
+        ProbeSpec {
+            tip_radius: default_tip(),
+            mass: default_probe_mass(),
+        }
     }
 }
 
@@ -202,8 +213,9 @@ pub struct Experiment {
     pub quasi_static: bool,
 }
 
-pub const CSV_COLUMNS: [&str; 11] =
-    ["t_s", "fx_N", "fy_N", "fz_N", "px_m", "py_m", "pz_m", "qx", "qy", "qz", "qw"];
+pub const CSV_COLUMNS: [&str; 11] = [
+    "t_s", "fx_N", "fy_N", "fz_N", "px_m", "py_m", "pz_m", "qx", "qy", "qz", "qw",
+];
 
 pub(crate) fn line_of(text: &str, offset: usize) -> usize {
     text[..offset.min(text.len())].bytes().filter(|&b| b == b'\n').count() + 1
@@ -215,7 +227,11 @@ pub fn load_experiment(dir: &Path, data_dir: &Path) -> Result<Experiment, GapErr
     let text = std::fs::read_to_string(&toml_path).map_err(|e| GapError::Io(toml_path.clone(), e))?;
     let raw: RawSpec = toml::from_str(&text).map_err(|e| {
         let line = e.span().map(|s| line_of(&text, s.start)).unwrap_or(0);
-        GapError::Line { file: toml_path.clone(), line, msg: e.message().to_string() }
+        GapError::Line {
+            file: toml_path.clone(),
+            line,
+            msg: e.message().to_string(),
+        }
     })?;
     let (specimen, specimen_line) = match raw.specimen {
         Some(s) => {
@@ -224,10 +240,16 @@ pub fn load_experiment(dir: &Path, data_dir: &Path) -> Result<Experiment, GapErr
         }
         None => (SpecimenSpec::default(), 0),
     };
-    check_mesh(&specimen, dir, data_dir)
-        .map_err(|msg| GapError::Line { file: toml_path.clone(), line: specimen_line, msg })?;
+    check_mesh(&specimen, dir, data_dir).map_err(|msg| GapError::Line {
+        file: toml_path.clone(),
+        line: specimen_line,
+        msg,
+    })?;
     if raw.trials.is_empty() {
-        return Err(GapError::Input { file: toml_path.clone(), msg: "no [[trial]] entries".into() });
+        return Err(GapError::Input {
+            file: toml_path.clone(),
+            msg: "no [[trial]] entries".into(),
+        });
     }
     let mut trials = Vec::new();
     let mut specs = Vec::new();
@@ -239,10 +261,7 @@ pub fn load_experiment(dir: &Path, data_dir: &Path) -> Result<Experiment, GapErr
             Some(r) => Some(Region::parse(r.get_ref()).ok_or_else(|| GapError::Line {
                 file: toml_path.clone(),
                 line: line_of(&text, r.span().start),
-                msg: format!(
-                    "unknown region {:?} (expected posterior, mid or anterior)",
-                    r.get_ref()
-                ),
+                msg: format!("unknown region {:?} (expected posterior, mid or anterior)", r.get_ref()),
             })?),
         };
         let path = dir.join(&rt.file);
@@ -258,12 +277,36 @@ pub fn load_experiment(dir: &Path, data_dir: &Path) -> Result<Experiment, GapErr
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_else(|| rt.file.clone());
-        specs.push(TrialSpec { file: rt.file.clone(), region: region.map(|r| r.name().to_string()) });
-        trials.push(Trial { name, file: path, region, t, force, pose, lead_in: 0.0 });
+        specs.push(TrialSpec {
+            file: rt.file.clone(),
+            region: region.map(|r| r.name().to_string()),
+        });
+        trials.push(Trial {
+            name,
+            file: path,
+            region,
+            t,
+            force,
+            pose,
+            lead_in: 0.0,
+        });
     }
-    let spec = ExperimentSpec { specimen, material: raw.material, probe: raw.probe, trials: specs };
-    check_material(&spec).map_err(|msg| GapError::Input { file: toml_path.clone(), msg })?;
-    Ok(Experiment { dir: dir.to_path_buf(), spec, trials, quasi_static: false })
+    let spec = ExperimentSpec {
+        specimen,
+        material: raw.material,
+        probe: raw.probe,
+        trials: specs,
+    };
+    check_material(&spec).map_err(|msg| GapError::Input {
+        file: toml_path.clone(),
+        msg,
+    })?;
+    Ok(Experiment {
+        dir: dir.to_path_buf(),
+        spec,
+        trials,
+        quasi_static: false,
+    })
 }
 
 fn check_material(spec: &ExperimentSpec) -> Result<(), String> {
@@ -290,15 +333,11 @@ fn check_material(spec: &ExperimentSpec) -> Result<(), String> {
 pub fn check_mesh(s: &SpecimenSpec, dir: &Path, data_dir: &Path) -> Result<(), String> {
     let m = s.mesh.as_str();
     if let Some(rest) = m.strip_prefix("default:") {
-        let ok = matches!(
-            rest,
-            "lateral" | "medial" | "coarse" | "fine" | "finest"
-        ) || rest
-            .split_once(':')
-            .map(|(side, lvl)| {
-                matches!(side, "lateral" | "medial") && matches!(lvl, "coarse" | "fine" | "finest")
-            })
-            .unwrap_or(false);
+        let ok = matches!(rest, "lateral" | "medial" | "coarse" | "fine" | "finest")
+            || rest
+                .split_once(':')
+                .map(|(side, lvl)| matches!(side, "lateral" | "medial") && matches!(lvl, "coarse" | "fine" | "finest"))
+                .unwrap_or(false);
         if !ok {
             return Err(format!("mesh not found: unknown built-in mesh {m:?}"));
         }
@@ -333,7 +372,11 @@ pub fn read_trial_csv(path: &Path) -> Result<TrialColumns, GapError> {
 }
 
 pub fn parse_trial_csv(text: &str, path: &Path) -> Result<TrialColumns, GapError> {
-    let err = |line: usize, msg: String| GapError::Line { file: path.to_path_buf(), line, msg };
+    let err = |line: usize, msg: String| GapError::Line {
+        file: path.to_path_buf(),
+        line,
+        msg,
+    };
     let mut lines = text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty());
     let (hline, header) = lines.next().ok_or_else(|| err(1, "empty file".into()))?;
     let names: Vec<&str> = header.split(',').map(|s| s.trim()).collect();
@@ -353,7 +396,10 @@ pub fn parse_trial_csv(text: &str, path: &Path) -> Result<TrialColumns, GapError
         let lineno = ln + 1;
         let cells: Vec<&str> = line.split(',').map(|s| s.trim()).collect();
         if cells.len() != names.len() {
-            return Err(err(lineno, format!("{} fields, header has {}", cells.len(), names.len())));
+            return Err(err(
+                lineno,
+                format!("{} fields, header has {}", cells.len(), names.len()),
+            ));
         }
         let mut v = [0.0f64; 11];
         for k in 0..11 {
@@ -399,8 +445,17 @@ pub fn write_trial_csv(path: &Path, t: &[f64], force: &[[f64; 3]], pose: &[Pose]
         let _ = writeln!(
             s,
             "{:.6},{:.6},{:.6},{:.6},{:.8},{:.8},{:.8},{:.8},{:.8},{:.8},{:.8}",
-            t[i], fo[0], fo[1], fo[2], po.position[0], po.position[1], po.position[2],
-            po.orientation[0], po.orientation[1], po.orientation[2], po.orientation[3]
+            t[i],
+            fo[0],
+            fo[1],
+            fo[2],
+            po.position[0],
+            po.position[1],
+            po.position[2],
+            po.orientation[0],
+            po.orientation[1],
+            po.orientation[2],
+            po.orientation[3]
         );
     }
     std::fs::write(path, s).map_err(|e| GapError::Io(path.to_path_buf(), e))
@@ -418,7 +473,11 @@ pub struct ForceDisplacement {
 
 pub fn read_force_displacement(path: &Path) -> Result<ForceDisplacement, GapError> {
     let text = std::fs::read_to_string(path).map_err(|e| GapError::Io(path.to_path_buf(), e))?;
-    let err = |line: usize, msg: String| GapError::Line { file: path.to_path_buf(), line, msg };
+    let err = |line: usize, msg: String| GapError::Line {
+        file: path.to_path_buf(),
+        line,
+        msg,
+    };
     let mut lines = text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty());
     let (hl, header) = lines.next().ok_or_else(|| err(1, "empty file".into()))?;
     let names: Vec<&str> = header.split(',').map(|s| s.trim()).collect();
@@ -432,10 +491,15 @@ pub fn read_force_displacement(path: &Path) -> Result<ForceDisplacement, GapErro
     for (ln, line) in lines {
         let cells: Vec<&str> = line.split(',').map(|s| s.trim()).collect();
         if cells.len() != names.len() {
-            return Err(err(ln + 1, format!("{} fields, header has {}", cells.len(), names.len())));
+            return Err(err(
+                ln + 1,
+                format!("{} fields, header has {}", cells.len(), names.len()),
+            ));
         }
         let parse = |c: &str, col: &str| -> Result<f64, GapError> {
-            let x: f64 = c.parse().map_err(|_| err(ln + 1, format!("column {col}: not a number: {c:?}")))?;
+            let x: f64 = c
+                .parse()
+                .map_err(|_| err(ln + 1, format!("column {col}: not a number: {c:?}")))?;
             if !x.is_finite() {
                 return Err(err(ln + 1, format!("column {col}: non-finite value {c}")));
             }
@@ -454,5 +518,9 @@ pub fn read_force_displacement(path: &Path) -> Result<ForceDisplacement, GapErro
     if d.len() < 4 {
         return Err(err(hl + 1, format!("only {} rows (need at least 4)", d.len())));
     }
-    Ok(ForceDisplacement { file: path.to_path_buf(), displacement_mm: d, force_n: f })
+    Ok(ForceDisplacement {
+        file: path.to_path_buf(),
+        displacement_mm: d,
+        force_n: f,
+    })
 }

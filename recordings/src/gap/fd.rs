@@ -8,7 +8,7 @@
 //! the simulated force direction at the same depth (the table has no direction).
 use super::experiment::{read_force_displacement, Experiment, ExperimentSpec, Region, SpecimenSpec, Trial, TrialSpec};
 use super::model::{replay, ForceModel, ProbePath, Variant};
-use super::signal::{add, dot, interp, norm, scale};
+use super::signal::{add, interp, norm, scale};
 use super::sim_model::SimForceModel;
 use super::{GapError, Options, Report};
 use msgs::Pose;
@@ -30,7 +30,13 @@ pub struct TableConvention {
 
 impl Default for TableConvention {
     fn default() -> Self {
-        TableConvention { displacement_scale: 2.0 / 3.0, subtract_first_row: true, mesh: "study:lateral".into(), region: Region::Mid, speed: 1.0e-3 }
+        TableConvention {
+            displacement_scale: 2.0 / 3.0,
+            subtract_first_row: true,
+            mesh: "study:lateral".into(),
+            region: Region::Mid,
+            speed: 1.0e-3,
+        }
     }
 }
 
@@ -41,18 +47,34 @@ pub fn diagnose_force_displacement(file: &Path, opts: &Options) -> Result<Report
     let mut scene = launch_config::SceneConfig::default();
     scene.meniscus.mesh = conv.mesh.clone();
     let model = SimForceModel::from_scene(scene, &data);
-    let sites = model.sites().map_err(|e| GapError::Input { file: file.to_path_buf(), msg: format!("{} ({e})", conv.mesh) })?;
+    let sites = model.sites().map_err(|e| GapError::Input {
+        file: file.to_path_buf(),
+        msg: format!("{} ({e})", conv.mesh),
+    })?;
     let mid: Vec<_> = sites.iter().filter(|s| s.region == conv.region).collect();
-    let site = mid.get(mid.len() / 2).ok_or_else(|| GapError::Sim(format!("no {} probing site on {}", conv.region.name(), conv.mesh)))?;
+    let site = mid
+        .get(mid.len() / 2)
+        .ok_or_else(|| GapError::Sim(format!("no {} probing site on {}", conv.region.name(), conv.mesh)))?;
     diagnose_table_with(file, &conv, &model, site.point, site.normal, opts)
 }
 
 /// Same with any model and probing site (point on the surface, outward normal).
-pub fn diagnose_table_with(file: &Path, conv: &TableConvention, model: &dyn ForceModel, point: [f64; 3], normal: [f64; 3], opts: &Options) -> Result<Report, GapError> {
+pub fn diagnose_table_with(
+    file: &Path,
+    conv: &TableConvention,
+    model: &dyn ForceModel,
+    point: [f64; 3],
+    normal: [f64; 3],
+    opts: &Options,
+) -> Result<Report, GapError> {
     let start = std::time::Instant::now();
     let table = read_force_displacement(file)?;
     let offset = if conv.subtract_first_row { table.force_n[0] } else { 0.0 };
-    let depth_m: Vec<f64> = table.displacement_mm.iter().map(|d| d * conv.displacement_scale * 1e-3).collect();
+    let depth_m: Vec<f64> = table
+        .displacement_mm
+        .iter()
+        .map(|d| d * conv.displacement_scale * 1e-3)
+        .collect();
     let dmax = *depth_m.last().unwrap();
     // approach sweep: from 4 mm above to dmax + 1 mm below the site point
     let dt = opts.dt;
@@ -62,17 +84,27 @@ pub fn diagnose_table_with(file: &Path, conv: &TableConvention, model: &dyn Forc
         t0: 0.0,
         dt,
         poses: (0..n_steps)
-            .map(|k| Pose { position: add(point, scale(normal, above - conv.speed * dt * k as f64)), orientation: [0.0, 0.0, 0.0, 1.0] })
+            .map(|k| Pose {
+                position: add(point, scale(normal, above - conv.speed * dt * k as f64)),
+                orientation: [0.0, 0.0, 0.0, 1.0],
+            })
             .collect(),
     };
     let f = replay(model, &Variant::default(), &sweep)?;
     let peak = f.iter().map(|v| norm(*v)).fold(0.0, f64::max);
-    let onset = f.iter().position(|v| norm(*v) > (0.01f64).max(1e-3 * peak)).ok_or_else(|| {
-        GapError::Sim(format!("the probe never touched the specimen along the normal at {point:?}"))
-    })?;
+    let onset = f
+        .iter()
+        .position(|v| norm(*v) > (0.01f64).max(1e-3 * peak))
+        .ok_or_else(|| {
+            GapError::Sim(format!(
+                "the probe never touched the specimen along the normal at {point:?}"
+            ))
+        })?;
     let offset_along_n = above - conv.speed * dt * onset as f64; // contact begins here
-    // simulated force direction as a function of depth
-    let depth_grid: Vec<f64> = (0..n_steps).map(|k| offset_along_n - (above - conv.speed * dt * k as f64)).collect();
+                                                                 // simulated force direction as a function of depth
+    let depth_grid: Vec<f64> = (0..n_steps)
+        .map(|k| offset_along_n - (above - conv.speed * dt * k as f64))
+        .collect();
     let dir_at = |d: f64| -> [f64; 3] {
         let v = [0, 1, 2].map(|q| interp(&depth_grid, &f.iter().map(|x| x[q]).collect::<Vec<_>>(), d));
         let m = norm(v);
@@ -86,7 +118,7 @@ pub fn diagnose_table_with(file: &Path, conv: &TableConvention, model: &dyn Forc
     let mut t = Vec::new();
     let mut force = Vec::new();
     let mut pose = Vec::new();
-    for (i, (&d, &fv)) in depth_m.iter().zip(&table.force_n).enumerate() {
+    for (&d, &fv) in depth_m.iter().zip(&table.force_n) {
         // quasi-static: time only orders the samples; equal displacements get a tiny step
         let mut ti = d / conv.speed;
         if let Some(&last) = t.last() {
@@ -94,15 +126,19 @@ pub fn diagnose_table_with(file: &Path, conv: &TableConvention, model: &dyn Forc
                 ti = last + 0.05;
             }
         }
-        let _ = i;
         t.push(ti);
         let u = dir_at(d);
         force.push(scale(u, fv - offset));
-        pose.push(Pose { position: add(point, scale(normal, offset_along_n - d)), orientation: [0.0, 0.0, 0.0, 1.0] });
+        pose.push(Pose {
+            position: add(point, scale(normal, offset_along_n - d)),
+            orientation: [0.0, 0.0, 0.0, 1.0],
+        });
     }
-    let _ = dot;
     let trial = Trial {
-        name: file.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "table".into()),
+        name: file
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "table".into()),
         file: file.to_path_buf(),
         region: Some(conv.region),
         t,
@@ -113,15 +149,28 @@ pub fn diagnose_table_with(file: &Path, conv: &TableConvention, model: &dyn Forc
     let exp = Experiment {
         dir: file.to_path_buf(),
         spec: ExperimentSpec {
-            specimen: SpecimenSpec { mesh: conv.mesh.clone(), ..Default::default() },
-            trials: vec![TrialSpec { file: file.display().to_string(), region: Some(conv.region.name().into()) }],
+            specimen: SpecimenSpec {
+                mesh: conv.mesh.clone(),
+                ..Default::default()
+            },
+            trials: vec![TrialSpec {
+                file: file.display().to_string(),
+                region: Some(conv.region.name().into()),
+            }],
             ..Default::default()
         },
         trials: vec![trial],
         quasi_static: true,
     };
     let mut r = super::diagnose(&exp, model, opts)?;
-    r.input = format!("{} (force–displacement table: depth = displacement × {:.3}, offset {:.3} N removed, {} site, {})", file.display(), conv.displacement_scale, offset, conv.region.name(), conv.mesh);
+    r.input = format!(
+        "{} (force–displacement table: depth = displacement × {:.3}, offset {:.3} N removed, {} site, {})",
+        file.display(),
+        conv.displacement_scale,
+        offset,
+        conv.region.name(),
+        conv.mesh
+    );
     r.elapsed_s = start.elapsed().as_secs_f64();
     Ok(r)
 }

@@ -33,7 +33,11 @@ pub fn make_folds(data: &[TrialData]) -> (String, Vec<Fold>) {
                 held[i].iter_mut().for_each(|v| *v = h);
                 calib[i].iter_mut().for_each(|v| *v = !h);
             }
-            folds.push(Fold { label: r.name().into(), calib, held });
+            folds.push(Fold {
+                label: r.name().into(),
+                calib,
+                held,
+            });
         }
     } else if data.len() >= 3 {
         let k = data.len().min(5);
@@ -46,15 +50,26 @@ pub fn make_folds(data: &[TrialData]) -> (String, Vec<Fold>) {
                 held[i].iter_mut().for_each(|v| *v = h);
                 calib[i].iter_mut().for_each(|v| *v = !h);
             }
-            folds.push(Fold { label: format!("fold {}", f + 1), calib, held });
+            folds.push(Fold {
+                label: format!("fold {}", f + 1),
+                calib,
+                held,
+            });
         }
     } else {
         let k = 3;
         scheme = format!("{k}-fold over samples (interleaved)");
         for f in 0..k {
-            let held: Vec<Vec<bool>> = data.iter().map(|d| (0..d.t.len()).map(|j| j % k == f).collect()).collect();
+            let held: Vec<Vec<bool>> = data
+                .iter()
+                .map(|d| (0..d.t.len()).map(|j| j % k == f).collect())
+                .collect();
             let calib = held.iter().map(|v| v.iter().map(|b| !b).collect()).collect();
-            folds.push(Fold { label: format!("fold {}", f + 1), calib, held });
+            folds.push(Fold {
+                label: format!("fold {}", f + 1),
+                calib,
+                held,
+            });
         }
     }
     (scheme, folds)
@@ -128,7 +143,16 @@ pub fn nelder_mead(f: &dyn Fn(&[f64]) -> f64, x0: &[f64], step: f64, max_eval: u
         idx.sort_by(|&a, &b| fv[a].total_cmp(&fv[b]));
         simplex = idx.iter().map(|&i| simplex[i].clone()).collect();
         fv = idx.iter().map(|&i| fv[i]).collect();
-        let spread = simplex.iter().skip(1).map(|x| x.iter().zip(&simplex[0]).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max)).fold(0.0, f64::max);
+        let spread = simplex
+            .iter()
+            .skip(1)
+            .map(|x| {
+                x.iter()
+                    .zip(&simplex[0])
+                    .map(|(a, b)| (a - b).abs())
+                    .fold(0.0, f64::max)
+            })
+            .fold(0.0, f64::max);
         if (fv[k] - fv[0]).abs() <= 1e-10 * fv[0].abs().max(1e-12) && spread < 1e-6 || spread < 1e-7 {
             break;
         }
@@ -169,7 +193,9 @@ pub fn nelder_mead(f: &dyn Fn(&[f64]) -> f64, x0: &[f64], step: f64, max_eval: u
                 fv[k] = fc;
             } else {
                 for i in 1..=k {
-                    let x: Vec<f64> = (0..k).map(|j| simplex[0][j] + 0.5 * (simplex[i][j] - simplex[0][j])).collect();
+                    let x: Vec<f64> = (0..k)
+                        .map(|j| simplex[0][j] + 0.5 * (simplex[i][j] - simplex[0][j]))
+                        .collect();
                     fv[i] = f(&x);
                     simplex[i] = x;
                     evals += 1;
@@ -292,7 +318,9 @@ pub fn effective_n(n_values: usize) -> f64 {
 }
 
 pub fn study_metric(d: &TrialData, pred: &[[f64; 3]]) -> (f64, f64) {
-    let idx: Vec<usize> = (0..d.t.len()).filter(|&i| d.phase[i] != super::metrics::Phase::Approach).collect();
+    let idx: Vec<usize> = (0..d.t.len())
+        .filter(|&i| d.phase[i] != super::metrics::Phase::Approach)
+        .collect();
     if idx.is_empty() {
         return (0.0, 0.0);
     }
@@ -302,7 +330,14 @@ pub fn study_metric(d: &TrialData, pred: &[[f64; 3]]) -> (f64, f64) {
 }
 
 /// Fit `c` per fold (held-out score) and on everything (parameters, BIC).
-pub fn score_candidate(c: &Candidate, data: &[TrialData], folds: &[Fold], baseline_rmse: f64, baseline_bic: f64, inits: &[Vec<f64>]) -> CandidateScore {
+pub fn score_candidate(
+    c: &Candidate,
+    data: &[TrialData],
+    folds: &[Fold],
+    baseline_rmse: f64,
+    baseline_bic: f64,
+    inits: &[Vec<f64>],
+) -> CandidateScore {
     let all: Vec<Vec<bool>> = data.iter().map(|d| vec![true; d.t.len()]).collect();
     let (theta, sse_all) = fit(c, data, &all, inits);
     let n_all = data.iter().map(|d| 3 * d.t.len()).sum::<usize>();
@@ -336,7 +371,13 @@ pub fn score_candidate(c: &Candidate, data: &[TrialData], folds: &[Fold], baseli
         .params()
         .into_iter()
         .zip(theta.iter().zip(&se))
-        .map(|((e, p), (&v, &s))| FittedParam { effect: e.name().into(), name: p.name.into(), unit: p.unit.into(), value: v, std: s })
+        .map(|((e, p), (&v, &s))| FittedParam {
+            effect: e.name().into(),
+            name: p.name.into(),
+            unit: p.unit.into(),
+            value: v,
+            std: s,
+        })
         .collect();
     let study: f64 = data
         .iter()
@@ -357,7 +398,11 @@ pub fn score_candidate(c: &Candidate, data: &[TrialData], folds: &[Fold], baseli
         bic,
         delta_bic: bic - baseline_bic,
         heldout_rmse,
-        heldout_shrink: if baseline_rmse > 0.0 { 1.0 - heldout_rmse / baseline_rmse } else { 0.0 },
+        heldout_shrink: if baseline_rmse > 0.0 {
+            1.0 - heldout_rmse / baseline_rmse
+        } else {
+            0.0
+        },
         heldout_study_error: study,
         score,
         theta,
@@ -367,16 +412,18 @@ pub fn score_candidate(c: &Candidate, data: &[TrialData], folds: &[Fold], baseli
 
 /// Which effects can be assessed on these data.
 pub fn applicable(e: Effect, quasi_static: bool) -> bool {
-    if quasi_static {
-        !(e.time_dependent() || e.needs_tangential() || e == Effect::Device && false)
-    } else {
-        true
-    }
+    // a quasi-static table has no time history and no sliding
+    !(quasi_static && (e.time_dependent() || e.needs_tangential()))
 }
 
 /// Pairs that are not redundant (one nested in the other).
 pub fn pair_allowed(a: Effect, b: Effect) -> bool {
-    let redundant = |x: Effect, y: Effect| matches!((x, y), (Effect::Modulus, Effect::Hardening) | (Effect::Hardening, Effect::Modulus));
+    let redundant = |x: Effect, y: Effect| {
+        matches!(
+            (x, y),
+            (Effect::Modulus, Effect::Hardening) | (Effect::Hardening, Effect::Modulus)
+        )
+    };
     a != b && !redundant(a, b)
 }
 

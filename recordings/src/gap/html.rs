@@ -3,7 +3,10 @@ use super::Report;
 use std::fmt::Write as _;
 
 pub fn esc(s: &str) -> String {
-    s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;").replace('"', "&quot;")
+    s.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+        .replace('"', "&quot;")
 }
 
 fn fmt(v: f64) -> String {
@@ -27,7 +30,11 @@ fn nice_ticks(lo: f64, hi: f64) -> Vec<f64> {
     let span = (hi - lo).max(1e-12);
     let raw = span / 4.0;
     let mag = 10f64.powf(raw.log10().floor());
-    let step = [1.0, 2.0, 5.0, 10.0].iter().map(|m| m * mag).find(|s| *s >= raw).unwrap_or(raw);
+    let step = [1.0, 2.0, 5.0, 10.0]
+        .iter()
+        .map(|m| m * mag)
+        .find(|s| *s >= raw)
+        .unwrap_or(raw);
     let mut t = (lo / step).ceil() * step;
     let mut v = Vec::new();
     while t <= hi + 1e-12 && v.len() < 12 {
@@ -63,32 +70,79 @@ fn plot(w: f64, h: f64, title: &str, xlabel: &str, ylabel: &str, lines: &[Line])
     let sx = |x: f64| ml + (x - x0) / (x1 - x0).max(1e-12) * (w - ml - mr);
     let sy = |y: f64| mt + (y1 - y) / (y1 - y0) * (h - mt - mb);
     let mut s = String::new();
-    let _ = write!(s, r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" viewBox="0 0 {w} {h}" font-family="sans-serif" font-size="10">"#);
-    let _ = write!(s, r##"<rect x="{ml}" y="{mt}" width="{}" height="{}" fill="#fafafa" stroke="#ccc"/>"##, w - ml - mr, h - mt - mb);
-    let _ = write!(s, r#"<text x="{}" y="14" text-anchor="middle" font-size="11" font-weight="bold">{}</text>"#, w / 2.0, esc(title));
+    let _ = write!(
+        s,
+        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" viewBox="0 0 {w} {h}" font-family="sans-serif" font-size="10">"#
+    );
+    let _ = write!(
+        s,
+        r##"<rect x="{ml}" y="{mt}" width="{}" height="{}" fill="#fafafa" stroke="#ccc"/>"##,
+        w - ml - mr,
+        h - mt - mb
+    );
+    let _ = write!(
+        s,
+        r#"<text x="{}" y="14" text-anchor="middle" font-size="11" font-weight="bold">{}</text>"#,
+        w / 2.0,
+        esc(title)
+    );
     for t in nice_ticks(x0, x1) {
-        let _ = write!(s, r##"<line x1="{0:.1}" x2="{0:.1}" y1="{1:.1}" y2="{2:.1}" stroke="#e4e4e4"/><text x="{0:.1}" y="{3:.1}" text-anchor="middle">{4}</text>"##, sx(t), mt, h - mb, h - mb + 12.0, trim(t));
+        let _ = write!(
+            s,
+            r##"<line x1="{0:.1}" x2="{0:.1}" y1="{1:.1}" y2="{2:.1}" stroke="#e4e4e4"/><text x="{0:.1}" y="{3:.1}" text-anchor="middle">{4}</text>"##,
+            sx(t),
+            mt,
+            h - mb,
+            h - mb + 12.0,
+            trim(t)
+        );
     }
     for t in nice_ticks(y0, y1) {
-        let _ = write!(s, r##"<line x1="{0:.1}" x2="{1:.1}" y1="{2:.1}" y2="{2:.1}" stroke="#e4e4e4"/><text x="{3:.1}" y="{4:.1}" text-anchor="end">{5}</text>"##, ml, w - mr, sy(t), ml - 4.0, sy(t) + 3.0, trim(t));
+        let _ = write!(
+            s,
+            r##"<line x1="{0:.1}" x2="{1:.1}" y1="{2:.1}" y2="{2:.1}" stroke="#e4e4e4"/><text x="{3:.1}" y="{4:.1}" text-anchor="end">{5}</text>"##,
+            ml,
+            w - mr,
+            sy(t),
+            ml - 4.0,
+            sy(t) + 3.0,
+            trim(t)
+        );
     }
-    let _ = write!(s, r#"<text x="{}" y="{}" text-anchor="middle">{}</text>"#, (ml + w - mr) / 2.0, h - 4.0, esc(xlabel));
-    let _ = write!(s, r#"<text x="12" y="{}" text-anchor="middle" transform="rotate(-90 12 {})">{}</text>"#, (mt + h - mb) / 2.0, (mt + h - mb) / 2.0, esc(ylabel));
+    let _ = write!(
+        s,
+        r#"<text x="{}" y="{}" text-anchor="middle">{}</text>"#,
+        (ml + w - mr) / 2.0,
+        h - 4.0,
+        esc(xlabel)
+    );
+    let _ = write!(
+        s,
+        r#"<text x="12" y="{}" text-anchor="middle" transform="rotate(-90 12 {})">{}</text>"#,
+        (mt + h - mb) / 2.0,
+        (mt + h - mb) / 2.0,
+        esc(ylabel)
+    );
     for (i, l) in lines.iter().enumerate() {
         if l.dots {
             for (&x, &y) in l.x.iter().zip(&l.y) {
                 if x.is_finite() && y.is_finite() {
-                    let _ = write!(s, r#"<circle cx="{:.1}" cy="{:.1}" r="1.3" fill="{}"/>"#, sx(x), sy(y), l.color);
+                    let _ = write!(
+                        s,
+                        r#"<circle cx="{:.1}" cy="{:.1}" r="1.3" fill="{}"/>"#,
+                        sx(x),
+                        sy(y),
+                        l.color
+                    );
                 }
             }
         } else {
-            let pts: Vec<String> = l
-                .x
-                .iter()
-                .zip(&l.y)
-                .filter(|(x, y)| x.is_finite() && y.is_finite())
-                .map(|(&x, &y)| format!("{:.1},{:.1}", sx(x), sy(y)))
-                .collect();
+            let pts: Vec<String> =
+                l.x.iter()
+                    .zip(&l.y)
+                    .filter(|(x, y)| x.is_finite() && y.is_finite())
+                    .map(|(&x, &y)| format!("{:.1},{:.1}", sx(x), sy(y)))
+                    .collect();
             let _ = write!(
                 s,
                 r#"<polyline fill="none" stroke="{}" stroke-width="1.3" {} points="{}"/>"#,
@@ -98,7 +152,15 @@ fn plot(w: f64, h: f64, title: &str, xlabel: &str, ylabel: &str, lines: &[Line])
             );
         }
         let lx = ml + 8.0 + 110.0 * i as f64;
-        let _ = write!(s, r#"<rect x="{lx:.1}" y="{:.1}" width="10" height="3" fill="{}"/><text x="{:.1}" y="{:.1}">{}</text>"#, mt + 6.0, l.color, lx + 13.0, mt + 10.0, esc(l.label));
+        let _ = write!(
+            s,
+            r#"<rect x="{lx:.1}" y="{:.1}" width="10" height="3" fill="{}"/><text x="{:.1}" y="{:.1}">{}</text>"#,
+            mt + 6.0,
+            l.color,
+            lx + 13.0,
+            mt + 10.0,
+            esc(l.label)
+        );
     }
     s.push_str("</svg>");
     s
@@ -130,20 +192,39 @@ fn heatmap(r: &Report) -> String {
     let h = mt + ch * hm.phases.len() as f64 + 10.0;
     let max = hm.rmse.iter().flatten().flatten().cloned().fold(0.0, f64::max);
     let mut s = String::new();
-    let _ = write!(s, r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" font-family="sans-serif" font-size="11">"#);
+    let _ = write!(
+        s,
+        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" font-family="sans-serif" font-size="11">"#
+    );
     for (j, reg) in hm.regions.iter().enumerate() {
-        let _ = write!(s, r#"<text x="{:.1}" y="20" text-anchor="middle" font-weight="bold">{}</text>"#, ml + cw * (j as f64 + 0.5), esc(reg));
+        let _ = write!(
+            s,
+            r#"<text x="{:.1}" y="20" text-anchor="middle" font-weight="bold">{}</text>"#,
+            ml + cw * (j as f64 + 0.5),
+            esc(reg)
+        );
     }
     for (i, ph) in hm.phases.iter().enumerate() {
         let y = mt + ch * i as f64;
-        let _ = write!(s, r#"<text x="{:.1}" y="{:.1}" text-anchor="end">{}</text>"#, ml - 6.0, y + ch / 2.0 + 4.0, esc(ph));
+        let _ = write!(
+            s,
+            r#"<text x="{:.1}" y="{:.1}" text-anchor="end">{}</text>"#,
+            ml - 6.0,
+            y + ch / 2.0 + 4.0,
+            esc(ph)
+        );
         for (j, v) in hm.rmse[i].iter().enumerate() {
             let x = ml + cw * j as f64;
             let (fill, text) = match v {
                 Some(v) => (heat_color(*v, max), format!("{v:.3} N")),
                 None => ("#eee".to_string(), "–".to_string()),
             };
-            let _ = write!(s, r##"<rect x="{x:.1}" y="{y:.1}" width="{cw}" height="{ch}" fill="{fill}" stroke="#fff"/><text x="{:.1}" y="{:.1}" text-anchor="middle">{text}</text>"##, x + cw / 2.0, y + ch / 2.0 + 4.0);
+            let _ = write!(
+                s,
+                r##"<rect x="{x:.1}" y="{y:.1}" width="{cw}" height="{ch}" fill="{fill}" stroke="#fff"/><text x="{:.1}" y="{:.1}" text-anchor="middle">{text}</text>"##,
+                x + cw / 2.0,
+                y + ch / 2.0 + 4.0
+            );
         }
     }
     s.push_str("</svg>");
@@ -159,19 +240,54 @@ fn ranking_chart(r: &Report) -> String {
     let hi = shr.iter().cloned().fold(0.0, f64::max).max(0.1);
     let sx = |v: f64| ml + (v.clamp(lo, hi) - lo) / (hi - lo) * (w - ml - 60.0);
     let mut s = String::new();
-    let _ = write!(s, r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" font-family="sans-serif" font-size="11">"#);
-    let _ = write!(s, r#"<text x="{ml}" y="14" font-weight="bold">held-out RMSE shrink vs baseline (ranked by penalised held-out score)</text>"#);
+    let _ = write!(
+        s,
+        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" font-family="sans-serif" font-size="11">"#
+    );
+    let _ = write!(
+        s,
+        r#"<text x="{ml}" y="14" font-weight="bold">held-out RMSE shrink vs baseline (ranked by penalised held-out score)</text>"#
+    );
     let x0 = sx(0.0);
     for (i, c) in r.ranking.iter().take(n).enumerate() {
         let y = 26.0 + bh * i as f64;
         let v = c.heldout_shrink;
         let (a, b) = if v >= 0.0 { (x0, sx(v)) } else { (sx(v), x0) };
-        let color = if c.effect == r.verdict.effect { "#d9531e" } else if v >= 0.0 { "#4a7fb5" } else { "#b54a4a" };
-        let _ = write!(s, r#"<text x="{:.1}" y="{:.1}" text-anchor="end">{} ({}p)</text>"#, ml - 6.0, y + 12.0, esc(&c.effect), c.n_params);
-        let _ = write!(s, r#"<rect x="{a:.1}" y="{:.1}" width="{:.1}" height="{:.1}" fill="{color}"/>"#, y + 2.0, (b - a).max(0.5), bh - 5.0);
-        let _ = write!(s, r#"<text x="{:.1}" y="{:.1}">{:.1}%</text>"#, b.max(x0) + 4.0, y + 12.0, 100.0 * v);
+        let color = if c.effect == r.verdict.effect {
+            "#d9531e"
+        } else if v >= 0.0 {
+            "#4a7fb5"
+        } else {
+            "#b54a4a"
+        };
+        let _ = write!(
+            s,
+            r#"<text x="{:.1}" y="{:.1}" text-anchor="end">{} ({}p)</text>"#,
+            ml - 6.0,
+            y + 12.0,
+            esc(&c.effect),
+            c.n_params
+        );
+        let _ = write!(
+            s,
+            r#"<rect x="{a:.1}" y="{:.1}" width="{:.1}" height="{:.1}" fill="{color}"/>"#,
+            y + 2.0,
+            (b - a).max(0.5),
+            bh - 5.0
+        );
+        let _ = write!(
+            s,
+            r#"<text x="{:.1}" y="{:.1}">{:.1}%</text>"#,
+            b.max(x0) + 4.0,
+            y + 12.0,
+            100.0 * v
+        );
     }
-    let _ = write!(s, r##"<line x1="{x0:.1}" x2="{x0:.1}" y1="22" y2="{:.1}" stroke="#333"/>"##, h - 16.0);
+    let _ = write!(
+        s,
+        r##"<line x1="{x0:.1}" x2="{x0:.1}" y1="22" y2="{:.1}" stroke="#333"/>"##,
+        h - 16.0
+    );
     s.push_str("</svg>");
     s
 }
@@ -208,7 +324,15 @@ pub fn render(r: &Report) -> String {
     if !r.verdict.params.is_empty() {
         h.push_str("<table><tr><th>effect</th><th>parameter</th><th>value</th><th>± 1 s.e.</th><th>unit</th></tr>");
         for p in &r.verdict.params {
-            let _ = write!(h, "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>", esc(&p.effect), esc(&p.name), fmt(p.value), fmt(p.std), esc(&p.unit));
+            let _ = write!(
+                h,
+                "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+                esc(&p.effect),
+                esc(&p.name),
+                fmt(p.value),
+                fmt(p.std),
+                esc(&p.unit)
+            );
         }
         h.push_str("</table>");
     }
@@ -224,7 +348,11 @@ pub fn render(r: &Report) -> String {
     h.push_str(&ranking_chart(r));
     h.push_str("<table><tr><th>candidate</th><th>params</th><th>fit RMSE N</th><th>held-out RMSE N</th><th>shrink</th><th>ΔBIC</th><th>study-metric error N</th><th>fitted (± s.e.)</th></tr>");
     for c in &r.ranking {
-        let ps: Vec<String> = c.params.iter().map(|p| format!("{}={}±{} {}", p.name, fmt(p.value), fmt(p.std), p.unit)).collect();
+        let ps: Vec<String> = c
+            .params
+            .iter()
+            .map(|p| format!("{}={}±{} {}", p.name, fmt(p.value), fmt(p.std), p.unit))
+            .collect();
         let _ = write!(h, "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.1}%</td><td>{:.1}</td><td>{}</td><td style=\"text-align:left\">{}</td></tr>",
             esc(&c.effect), c.n_params, fmt(c.fit_rmse), fmt(c.heldout_rmse), 100.0 * c.heldout_shrink, c.delta_bic, fmt(c.heldout_study_error), esc(&ps.join(", ")));
     }
@@ -240,15 +368,48 @@ pub fn render(r: &Report) -> String {
     }
     h.push_str("</table>");
     for t in r.trial_reports.iter().take(30) {
-        let _ = write!(h, "<h3>{} ({})</h3><div class=\"trial\">", esc(&t.name), t.region.map(|r| r.name()).unwrap_or("unlabelled"));
+        let _ = write!(
+            h,
+            "<h3>{} ({})</h3><div class=\"trial\">",
+            esc(&t.name),
+            t.region.map(|r| r.name()).unwrap_or("unlabelled")
+        );
         for (k, axis) in ["fx", "fy", "fz"].iter().enumerate() {
             let s = &t.series;
             let lines = [
-                Line { label: "measured", color: "#555", x: &s.t, y: s.measured.iter().map(|f| f[k]).collect(), dashed: false, dots: true },
-                Line { label: "baseline", color: "#4a7fb5", x: &s.t, y: s.baseline.iter().map(|f| f[k]).collect(), dashed: true, dots: false },
-                Line { label: "with effect", color: "#d9531e", x: &s.t, y: s.winner.iter().map(|f| f[k]).collect(), dashed: false, dots: false },
+                Line {
+                    label: "measured",
+                    color: "#555",
+                    x: &s.t,
+                    y: s.measured.iter().map(|f| f[k]).collect(),
+                    dashed: false,
+                    dots: true,
+                },
+                Line {
+                    label: "baseline",
+                    color: "#4a7fb5",
+                    x: &s.t,
+                    y: s.baseline.iter().map(|f| f[k]).collect(),
+                    dashed: true,
+                    dots: false,
+                },
+                Line {
+                    label: "with effect",
+                    color: "#d9531e",
+                    x: &s.t,
+                    y: s.winner.iter().map(|f| f[k]).collect(),
+                    dashed: false,
+                    dots: false,
+                },
             ];
-            h.push_str(&plot(400.0, 210.0, &format!("{} {}", t.name, axis), "t (s)", &format!("{axis} (N)"), &lines));
+            h.push_str(&plot(
+                400.0,
+                210.0,
+                &format!("{} {}", t.name, axis),
+                "t (s)",
+                &format!("{axis} (N)"),
+                &lines,
+            ));
         }
         h.push_str("</div>");
     }

@@ -13,7 +13,13 @@ pub enum Phase {
     Sliding,
 }
 impl Phase {
-    pub const ALL: [Phase; 5] = [Phase::Approach, Phase::Loading, Phase::Hold, Phase::Unloading, Phase::Sliding];
+    pub const ALL: [Phase; 5] = [
+        Phase::Approach,
+        Phase::Loading,
+        Phase::Hold,
+        Phase::Unloading,
+        Phase::Sliding,
+    ];
     pub fn name(self) -> &'static str {
         match self {
             Phase::Approach => "approach",
@@ -260,7 +266,15 @@ mod tests {
         let meas: Vec<[f64; 3]> = depth.iter().map(|d| [0.0, 0.0, *d]).collect();
         let pred: Vec<[f64; 3]> = depth.iter().map(|d| [0.1, 0.0, 2.0 * d]).collect();
         let phase: Vec<Phase> = (0..depth.len())
-            .map(|i| if i == 0 { Phase::Approach } else if i <= 20 { Phase::Loading } else { Phase::Unloading })
+            .map(|i| {
+                if i == 0 {
+                    Phase::Approach
+                } else if i <= 20 {
+                    Phase::Loading
+                } else {
+                    Phase::Unloading
+                }
+            })
             .collect();
         let m = trial_metrics(&meas, &pred, n, &depth, &phase);
         assert!((m.slope_measured.unwrap() - 1.0).abs() < 1e-9);
@@ -277,7 +291,11 @@ mod tests {
             .map(|(i, d)| [0.0, 0.0, if i <= 20 { 1.5 * d } else { 0.5 * d }])
             .collect();
         let m2 = trial_metrics(&meas2, &pred, n, &depth, &phase);
-        assert!((m2.hysteresis_measured - 0.5 * 2.0 * 2.0).abs() < 0.05, "{}", m2.hysteresis_measured);
+        assert!(
+            (m2.hysteresis_measured - 0.5 * 2.0 * 2.0).abs() < 0.05,
+            "{}",
+            m2.hysteresis_measured
+        );
         assert_eq!(band_of(2.5), Some(2));
         assert_eq!(band_of(7.0), Some(4));
         assert_eq!(band_of(-0.1), None);

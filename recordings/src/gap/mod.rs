@@ -1,22 +1,26 @@
 //! Sim-to-real gap diagnosis (issue 6): where the simulated and measured probe forces differ,
 //! which unmodelled effect explains it, and how far the gap shrinks on held-out trials.
 //!
-//! # API the CLI wires (no clap types here)
+//! # API the CLI wires (no clap types here; every function returns `Result<_, GapError>`)
 //! ```text
-//! arthrosim gap EXPERIMENT_DIR --out REPORT_DIR
-//!     let exp = gap::load_experiment(dir, &gap::data_dir())?;
-//!     let model = gap::SimForceModel::for_experiment(&exp, &gap::data_dir())?;
-//!     let report = gap::diagnose(&exp, &model, &gap::Options::default())?;   // or gap::diagnose_dir(dir, &opts)
-//!     gap::write_report(&report, out_dir)?;                                    // report.json + report.html
+//! arthrosim gap EXPERIMENT_DIR --out REPORT_DIR [--dt S]
+//!     let report = gap::diagnose_dir(dir, &gap::Options { progress: true, ..Default::default() })?;
+//!     gap::write_report(&report, out_dir)?;            // report.json + report.html
+//!     println!("{}", report.verdict.effect);
 //! arthrosim gap --force-displacement FILE.csv --out REPORT_DIR
 //!     let report = gap::diagnose_force_displacement(file, &opts)?; gap::write_report(&report, out)?;
 //! arthrosim gap selftest --cases N --seed S [--json]
-//!     let r = gap::selftest::selftest(n, seed, &gap::selftest::SelftestOptions::default())?;
-//!     print!("{}", r.table()); if json { println!("{}", serde_json::to_string(&r.summary())?) }
-//! arthrosim reality --effect NAME[=STRENGTH][,NAME...] --seed S --out DIR --truth FILE
-//!     let spec = gap::reality::RealitySpec::from_effects(&["friction=0.3"], seed)?;
-//!     gap::reality::write_experiment(&spec, dir, truth_file)?;
+//!     let r = gap::selftest::selftest(n, seed, &gap::selftest::SelftestOptions { verbose: true, ..Default::default() })?;
+//!     print!("{}", r.table());                          // per-case lines + confusion matrix
+//!     if json { println!("{}", serde_json::to_string(&r.summary())?) }  // cases, correct, accuracy, heldout_shrink_mean
+//! arthrosim gap bench [--effect NAME] [--seed S]       // one JSON line with diagnose_s
+//!     println!("{}", gap::selftest::bench("hardening", seed, &gap::Options::default())?);
+//! arthrosim reality --effect NAME[=STRENGTH] [--effect ...] --seed S --out DIR --truth FILE
+//!     let spec = gap::reality::RealitySpec::from_effects(&["friction=0.3", "sensor"], seed)?;
+//!     gap::reality::write_experiment(&spec, dir, truth_file)?;   // truth file must lie outside DIR
 //! ```
+//! Lower level: `load_experiment(dir, &data_dir())`, `SimForceModel::for_experiment(&exp, &data_dir())`,
+//! `diagnose(&exp, &model, &opts)` with any [`ForceModel`].
 //! The replay model is [`SimForceModel`] (the physics node's `Simulation` driven kinematically);
 //! statistics and effects are written against the [`ForceModel`] trait.
 
@@ -86,7 +90,13 @@ pub struct Options {
 
 impl Default for Options {
     fn default() -> Self {
-        Options { dt: 0.02, progress: false, effects: Effect::ALL.to_vec(), pairs: true, min_shrink: 0.08 }
+        Options {
+            dt: 0.02,
+            progress: false,
+            effects: Effect::ALL.to_vec(),
+            pairs: true,
+            min_shrink: 0.08,
+        }
     }
 }
 
@@ -189,15 +199,29 @@ pub mod sim_model;
 /// Diagnose an experiment with a given force model.
 pub fn diagnose(exp: &Experiment, model: &dyn ForceModel, opts: &Options) -> Result<Report, GapError> {
     let start = std::time::Instant::now();
-    let effects: Vec<Effect> =
-        opts
+    let effects: Vec<Effect> = opts
         .effects
         .iter()
         .copied()
         .filter(|&e| fit::applicable(e, exp.quasi_static) && (e != Effect::Mesh || model.has_refinement()))
         .collect();
-    let data = dataset::build(exp, model, &effects, &BuildOptions { dt: opts.dt, progress: opts.progress })?;
-    diagnose_data(exp.dir.display().to_string(), model.describe(), &data, &effects, opts, start)
+    let data = dataset::build(
+        exp,
+        model,
+        &effects,
+        &BuildOptions {
+            dt: opts.dt,
+            progress: opts.progress,
+        },
+    )?;
+    diagnose_data(
+        exp.dir.display().to_string(),
+        model.describe(),
+        &data,
+        &effects,
+        opts,
+        start,
+    )
 }
 
 fn baseline_score(data: &[TrialData]) -> (f64, f64, f64) {
@@ -223,7 +247,14 @@ fn baseline_score(data: &[TrialData]) -> (f64, f64, f64) {
 }
 
 /// Diagnosis on prepared trials (replays done).
-pub fn diagnose_data(input: String, model: String, data: &[TrialData], effects: &[Effect], opts: &Options, start: std::time::Instant) -> Result<Report, GapError> {
+pub fn diagnose_data(
+    input: String,
+    model: String,
+    data: &[TrialData],
+    effects: &[Effect],
+    opts: &Options,
+    start: std::time::Instant,
+) -> Result<Report, GapError> {
     if data.is_empty() {
         return Err(GapError::Other("no trials".into()));
     }
@@ -232,7 +263,9 @@ pub fn diagnose_data(input: String, model: String, data: &[TrialData], effects: 
     let mut sig: Vec<f64> = data
         .iter()
         .map(|d| {
-            let s2: f64 = (0..3).map(|k| noise_sigma(&d.f.iter().map(|f| f[k]).collect::<Vec<_>>()).powi(2)).sum();
+            let s2: f64 = (0..3)
+                .map(|k| noise_sigma(&d.f.iter().map(|f| f[k]).collect::<Vec<_>>()).powi(2))
+                .sum();
             (s2 / 3.0).sqrt()
         })
         .collect();
@@ -242,7 +275,9 @@ pub fn diagnose_data(input: String, model: String, data: &[TrialData], effects: 
         .map(|d| {
             let m: Vec<f64> = d.f.iter().map(|f| dot(*f, d.normal)).collect();
             let b: Vec<f64> = d.base_at_t.iter().map(|f| dot(*f, d.normal)).collect();
-            lag_by_xcorr(&d.t, &b, &d.t, &m, 0.5, 0.005).filter(|(_, c)| *c > 0.5).map(|(l, _)| l)
+            lag_by_xcorr(&d.t, &b, &d.t, &m, 0.5, 0.005)
+                .filter(|(_, c)| *c > 0.5)
+                .map(|(l, _)| l)
         })
         .collect();
     let mut lv: Vec<f64> = lags.iter().flatten().copied().collect();
@@ -251,7 +286,11 @@ pub fn diagnose_data(input: String, model: String, data: &[TrialData], effects: 
     let (scheme, folds) = make_folds(data);
     let (r0, bic0, study0) = baseline_score(data);
 
-    let usable: Vec<Effect> = effects.iter().copied().filter(|&e| data.iter().all(|d| d.has_resims(e))).collect();
+    let usable: Vec<Effect> = effects
+        .iter()
+        .copied()
+        .filter(|&e| data.iter().all(|d| d.has_resims(e)))
+        .collect();
     let bar = dataset::progress_bar(opts.progress, usable.len() as u64, "fitting");
     let mut singles: Vec<CandidateScore> = usable
         .par_iter()
@@ -321,7 +360,9 @@ pub fn diagnose_data(input: String, model: String, data: &[TrialData], effects: 
         .iter()
         .enumerate()
         .map(|(i, d)| {
-            let after_pred = winner.map(|w| w.heldout_pred[i].clone()).unwrap_or_else(|| d.base_at_t.clone());
+            let after_pred = winner
+                .map(|w| w.heldout_pred[i].clone())
+                .unwrap_or_else(|| d.base_at_t.clone());
             TrialReport {
                 name: d.name.clone(),
                 region: d.region,
@@ -329,7 +370,13 @@ pub fn diagnose_data(input: String, model: String, data: &[TrialData], effects: 
                 lag_s: lags[i],
                 before: trial_metrics(&d.f, &d.base_at_t, d.normal, &d.depth, &d.phase),
                 after: trial_metrics(&d.f, &after_pred, d.normal, &d.depth, &d.phase),
-                series: Series { t: d.t.clone(), measured: d.f.clone(), baseline: d.base_at_t.clone(), winner: after_pred, depth_mm: d.depth.clone() },
+                series: Series {
+                    t: d.t.clone(),
+                    measured: d.f.clone(),
+                    baseline: d.base_at_t.clone(),
+                    winner: after_pred,
+                    depth_mm: d.depth.clone(),
+                },
             }
         })
         .collect();
@@ -352,7 +399,12 @@ pub fn diagnose_data(input: String, model: String, data: &[TrialData], effects: 
 /// The verdict: the best-ranked candidate if it beats the baseline beyond noise; a pair only
 /// when the best single leaves a residual well above noise and the pair removes much of it.
 fn decide(singles: &[CandidateScore], ranking: &[CandidateScore], r0: f64, noise: f64, min_shrink: f64) -> Verdict {
-    let none = |reason: String| Verdict { effect: "none".into(), heldout_shrink: 0.0, params: vec![], reason };
+    let none = |reason: String| Verdict {
+        effect: "none".into(),
+        heldout_shrink: 0.0,
+        params: vec![],
+        reason,
+    };
     if r0 <= 1.15 * noise {
         return none(format!("baseline residual {r0:.4} N is within noise ({noise:.4} N)"));
     }
@@ -371,21 +423,39 @@ fn decide(singles: &[CandidateScore], ranking: &[CandidateScore], r0: f64, noise
     let mut win = best;
     let mut reason = format!(
         "{} shrinks held-out RMSE {:.4} → {:.4} N ({:.1}%), ΔBIC {:.1}",
-        best.effect, r0, best.heldout_rmse, 100.0 * best.heldout_shrink, best.delta_bic
+        best.effect,
+        r0,
+        best.heldout_rmse,
+        100.0 * best.heldout_shrink,
+        best.delta_bic
     );
     if best.heldout_rmse > 1.3 * noise {
-        if let Some(pair) = ranking.iter().filter(|c| c.effect.contains('+')).min_by(|a, b| a.score.total_cmp(&b.score)) {
+        if let Some(pair) = ranking
+            .iter()
+            .filter(|c| c.effect.contains('+'))
+            .min_by(|a, b| a.score.total_cmp(&b.score))
+        {
             let gain = 1.0 - pair.heldout_rmse / best.heldout_rmse;
             if gain > 0.2 && pair.score < best.score {
                 reason = format!(
                     "{} leaves {:.4} N (noise {:.4} N); the pair {} removes {:.0}% more ({:.4} N)",
-                    best.effect, best.heldout_rmse, noise, pair.effect, 100.0 * gain, pair.heldout_rmse
+                    best.effect,
+                    best.heldout_rmse,
+                    noise,
+                    pair.effect,
+                    100.0 * gain,
+                    pair.heldout_rmse
                 );
                 win = pair;
             }
         }
     }
-    Verdict { effect: win.effect.clone(), heldout_shrink: win.heldout_shrink, params: win.params.clone(), reason }
+    Verdict {
+        effect: win.effect.clone(),
+        heldout_shrink: win.heldout_shrink,
+        params: win.params.clone(),
+        reason,
+    }
 }
 
 /// Residual of the baseline broken down by axis, phase, region and depth band.
@@ -396,7 +466,11 @@ pub fn localise(data: &[TrialData]) -> Localisation {
     let mut band: Vec<Acc> = vec![Acc::default(); metrics::DEPTH_BANDS_MM.len()];
     let regions: Vec<&str> = {
         let mut r: Vec<&str> = data.iter().map(|d| region_label(d.region)).collect();
-        r.sort_by_key(|s| ["posterior", "mid", "anterior", "unlabelled"].iter().position(|x| x == s));
+        r.sort_by_key(|s| {
+            ["posterior", "mid", "anterior", "unlabelled"]
+                .iter()
+                .position(|x| x == s)
+        });
         r.dedup();
         r
     };
@@ -424,23 +498,56 @@ pub fn localise(data: &[TrialData]) -> Localisation {
     }
     let ov = overall.summary("all".into());
     let by_axis = vec![
-        GroupResidual { group: "normal".into(), samples: ov.samples, rmse: ov.rmse_normal, bias_normal: ov.bias_normal, rmse_normal: ov.rmse_normal, rmse_tangential: f64::NAN },
-        GroupResidual { group: "tangential".into(), samples: ov.samples, rmse: ov.rmse_tangential, bias_normal: f64::NAN, rmse_normal: f64::NAN, rmse_tangential: ov.rmse_tangential },
+        GroupResidual {
+            group: "normal".into(),
+            samples: ov.samples,
+            rmse: ov.rmse_normal,
+            bias_normal: ov.bias_normal,
+            rmse_normal: ov.rmse_normal,
+            rmse_tangential: f64::NAN,
+        },
+        GroupResidual {
+            group: "tangential".into(),
+            samples: ov.samples,
+            rmse: ov.rmse_tangential,
+            bias_normal: f64::NAN,
+            rmse_normal: f64::NAN,
+            rmse_tangential: ov.rmse_tangential,
+        },
     ];
-    let by_phase: Vec<GroupResidual> =
-        Phase::ALL.iter().zip(&phase).filter(|(_, a)| a.n > 0).map(|(p, a)| a.summary(p.name().into())).collect();
-    let by_region: Vec<GroupResidual> =
-        regions.iter().map(|r| region[*r].summary(r.to_string())).collect();
-    let by_depth_band: Vec<GroupResidual> =
-        band.iter().enumerate().filter(|(_, a)| a.n > 0).map(|(i, a)| a.summary(band_label(i))).collect();
+    let by_phase: Vec<GroupResidual> = Phase::ALL
+        .iter()
+        .zip(&phase)
+        .filter(|(_, a)| a.n > 0)
+        .map(|(p, a)| a.summary(p.name().into()))
+        .collect();
+    let by_region: Vec<GroupResidual> = regions.iter().map(|r| region[*r].summary(r.to_string())).collect();
+    let by_depth_band: Vec<GroupResidual> = band
+        .iter()
+        .enumerate()
+        .filter(|(_, a)| a.n > 0)
+        .map(|(i, a)| a.summary(band_label(i)))
+        .collect();
     let worst = |v: &[GroupResidual]| {
-        v.iter().filter(|g| g.rmse.is_finite()).max_by(|a, b| a.rmse.total_cmp(&b.rmse)).map(|g| g.group.clone()).unwrap_or_default()
+        v.iter()
+            .filter(|g| g.rmse.is_finite())
+            .max_by(|a, b| a.rmse.total_cmp(&b.rmse))
+            .map(|g| g.group.clone())
+            .unwrap_or_default()
     };
-    let worst_axis = if ov.rmse_normal >= ov.rmse_tangential { "normal" } else { "tangential" }.to_string();
+    let worst_axis = if ov.rmse_normal >= ov.rmse_tangential {
+        "normal"
+    } else {
+        "tangential"
+    }
+    .to_string();
     let heatmap = Heatmap {
         phases: Phase::ALL.iter().map(|p| p.name().to_string()).collect(),
         regions: regions.iter().map(|r| r.to_string()).collect(),
-        rmse: heat.iter().map(|row| row.iter().map(|a| (a.n > 0).then(|| a.rmse())).collect()).collect(),
+        rmse: heat
+            .iter()
+            .map(|row| row.iter().map(|a| (a.n > 0).then(|| a.rmse())).collect())
+            .collect(),
     };
     let (wp, wr, wb) = (worst(&by_phase), worst(&by_region), worst(&by_depth_band));
     let mn_m = if sc > 0 { sm / sc as f64 } else { 0.0 };

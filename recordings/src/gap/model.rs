@@ -32,7 +32,14 @@ pub struct Variant {
 
 impl Default for Variant {
     fn default() -> Self {
-        Variant { modulus_scale: 1.0, neo_hookean: false, friction: 0.0, tilt: [0.0; 2], support_stiffness: 0.0, fine_mesh: false }
+        Variant {
+            modulus_scale: 1.0,
+            neo_hookean: false,
+            friction: 0.0,
+            tilt: [0.0; 2],
+            support_stiffness: 0.0,
+            fine_mesh: false,
+        }
     }
 }
 
@@ -49,7 +56,11 @@ impl Variant {
             s.push(format!("μ={:.2}", self.friction));
         }
         if self.tilt != [0.0; 2] {
-            s.push(format!("tilt=({:.1}°,{:.1}°)", self.tilt[0].to_degrees(), self.tilt[1].to_degrees()));
+            s.push(format!(
+                "tilt=({:.1}°,{:.1}°)",
+                self.tilt[0].to_degrees(),
+                self.tilt[1].to_degrees()
+            ));
         }
         if self.support_stiffness > 0.0 {
             s.push(format!("support={:.0} N/m", self.support_stiffness));
@@ -93,7 +104,10 @@ pub fn replay(model: &dyn ForceModel, variant: &Variant, path: &ProbePath) -> Re
         poses: path
             .poses
             .iter()
-            .map(|p| Pose { position: quat_rotate(ri, p.position), orientation: quat_mul(ri, p.orientation) })
+            .map(|p| Pose {
+                position: quat_rotate(ri, p.position),
+                orientation: quat_mul(ri, p.orientation),
+            })
             .collect(),
     };
     let mut v = variant.clone();

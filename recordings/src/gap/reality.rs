@@ -10,7 +10,9 @@
 //! noise and ~38 Hz irregular sampling.
 use super::dataset::prepare;
 use super::effects::{predict, Candidate, Effect};
-use super::experiment::{write_trial_csv, ExperimentSpec, MaterialSpec, ProbeSpec, Region, SpecimenSpec, Trial, TrialSpec};
+use super::experiment::{
+    write_trial_csv, ExperimentSpec, MaterialSpec, ProbeSpec, Region, SpecimenSpec, Trial, TrialSpec,
+};
 use super::model::{replay, ForceModel, ProbePath, Variant};
 use super::signal::{add, interp, nlerp, norm, scale, sub};
 use super::sim_model::SimForceModel;
@@ -96,7 +98,11 @@ impl RealitySpec {
             let (name, strength) = match item.split_once('=') {
                 Some((n, s)) => (
                     n.trim(),
-                    Some(s.trim().parse::<f64>().map_err(|_| GapError::Other(format!("effect {item:?}: strength is not a number")))?),
+                    Some(
+                        s.trim()
+                            .parse::<f64>()
+                            .map_err(|_| GapError::Other(format!("effect {item:?}: strength is not a number")))?,
+                    ),
                 ),
                 None => (item, None),
             };
@@ -134,7 +140,13 @@ fn draw(e: Effect, s: Option<f64>, rng: &mut Rng) -> Injected {
     let mut p = BTreeMap::new();
     match e {
         Effect::Modulus => {
-            let v = s.unwrap_or_else(|| if rng.uniform() < 0.5 { rng.range(0.55, 0.75) } else { rng.range(1.35, 1.7) });
+            let v = s.unwrap_or_else(|| {
+                if rng.uniform() < 0.5 {
+                    rng.range(0.55, 0.75)
+                } else {
+                    rng.range(1.35, 1.7)
+                }
+            });
             p.insert("modulus_scale".into(), v);
         }
         Effect::Hardening => {
@@ -163,7 +175,10 @@ fn draw(e: Effect, s: Option<f64>, rng: &mut Rng) -> Injected {
             p.insert("tool_mass".into(), rng.range(0.02, 0.06));
         }
         Effect::Support => {
-            p.insert("support_stiffness".into(), s.unwrap_or_else(|| rng.range(700.0, 2000.0)));
+            p.insert(
+                "support_stiffness".into(),
+                s.unwrap_or_else(|| rng.range(700.0, 2000.0)),
+            );
         }
         Effect::Mesh => {}
         Effect::Sensor => {
@@ -172,7 +187,10 @@ fn draw(e: Effect, s: Option<f64>, rng: &mut Rng) -> Injected {
             p.insert("lowpass_tau".into(), d * rng.range(0.4, 0.8));
         }
     }
-    Injected { effect: e.name().into(), params: p }
+    Injected {
+        effect: e.name().into(),
+        params: p,
+    }
 }
 
 /// What the truth file holds.
@@ -219,7 +237,10 @@ pub fn protocol_path(site: [f64; 3], normal: [f64; 3], depth: f64, slide: Option
             let tk = k as f64 * dt;
             let on = interp(&tw, &nw, tk);
             let os = interp(&tw, &sw, tk);
-            Pose { position: add(add(site, scale(normal, on)), scale(dir, os)), orientation: [0.0, 0.0, 0.0, 1.0] }
+            Pose {
+                position: add(add(site, scale(normal, on)), scale(dir, os)),
+                orientation: [0.0, 0.0, 0.0, 1.0],
+            }
         })
         .collect();
     ProbePath { t0: 0.0, dt, poses }
@@ -232,7 +253,10 @@ fn post_candidate(spec: &RealitySpec) -> (Candidate, Vec<f64>) {
     inj.sort_by_key(|i| Effect::parse(&i.effect));
     for i in inj {
         let e = Effect::parse(&i.effect).unwrap();
-        if !matches!(e, Effect::Modulus | Effect::Hardening | Effect::Viscoelastic | Effect::Device | Effect::Sensor) {
+        if !matches!(
+            e,
+            Effect::Modulus | Effect::Hardening | Effect::Viscoelastic | Effect::Device | Effect::Sensor
+        ) {
             continue;
         }
         effects.push(e);
@@ -282,9 +306,18 @@ pub struct Site {
 }
 
 /// Same as [`write_experiment`] with any force model and its probing sites.
-pub fn write_experiment_with(spec: &RealitySpec, model: &dyn ForceModel, sites: &[Site], dir: &Path, truth_path: &Path) -> Result<Truth, GapError> {
+pub fn write_experiment_with(
+    spec: &RealitySpec,
+    model: &dyn ForceModel,
+    sites: &[Site],
+    dir: &Path,
+    truth_path: &Path,
+) -> Result<Truth, GapError> {
     if truth_path.starts_with(dir) {
-        return Err(GapError::Other(format!("truth file {} must be outside the experiment folder", truth_path.display())));
+        return Err(GapError::Other(format!(
+            "truth file {} must be outside the experiment folder",
+            truth_path.display()
+        )));
     }
     std::fs::create_dir_all(dir).map_err(|e| GapError::Io(dir.to_path_buf(), e))?;
     let variant = truth_variant(spec);
@@ -302,7 +335,11 @@ pub fn write_experiment_with(spec: &RealitySpec, model: &dyn ForceModel, sites: 
             let depth = [1.6e-3, 2.2e-3, 2.8e-3, 2.0e-3, 2.5e-3][j % 5] * rng.range(0.9, 1.1);
             // slide on probings 2 and 4: along the surface, perpendicular to n
             let slide = if j % 5 == 1 || j % 5 == 3 {
-                let a = if n[2].abs() < 0.9 { [0.0, 0.0, 1.0] } else { [1.0, 0.0, 0.0] };
+                let a = if n[2].abs() < 0.9 {
+                    [0.0, 0.0, 1.0]
+                } else {
+                    [1.0, 0.0, 0.0]
+                };
                 let t = sub(a, scale(n, super::signal::dot(a, n)));
                 let tn = norm(t);
                 Some(scale(t, rng.sign() / tn))
@@ -310,12 +347,19 @@ pub fn write_experiment_with(spec: &RealitySpec, model: &dyn ForceModel, sites: 
                 None
             };
             let name = format!("{}_{}", region.name(), j + 1);
-            jobs.push((name, region, protocol_path(p, n, depth, slide, spec.truth_dt), rng.next_u64()));
+            jobs.push((
+                name,
+                region,
+                protocol_path(p, n, depth, slide, spec.truth_dt),
+                rng.next_u64(),
+            ));
         }
     }
     use rayon::prelude::*;
-    let forces: Vec<Result<Vec<[f64; 3]>, GapError>> =
-        jobs.par_iter().map(|(_, _, path, _)| replay(model, &variant, path)).collect();
+    let forces: Vec<Result<Vec<[f64; 3]>, GapError>> = jobs
+        .par_iter()
+        .map(|(_, _, path, _)| replay(model, &variant, path))
+        .collect();
     let mut trials = Vec::new();
     for ((name, region, path, seed), f) in jobs.into_iter().zip(forces) {
         let f = f?;
@@ -345,7 +389,13 @@ pub fn write_experiment_with(spec: &RealitySpec, model: &dyn ForceModel, sites: 
         predict(&post, &theta, &td, &mut g, &mut out);
         let force: Vec<[f64; 3]> = out
             .iter()
-            .map(|v| [v[0] + spec.noise_sigma * r.gauss(), v[1] + spec.noise_sigma * r.gauss(), v[2] + spec.noise_sigma * r.gauss()])
+            .map(|v| {
+                [
+                    v[0] + spec.noise_sigma * r.gauss(),
+                    v[1] + spec.noise_sigma * r.gauss(),
+                    v[2] + spec.noise_sigma * r.gauss(),
+                ]
+            })
             .collect();
         let poses: Vec<Pose> = ts
             .iter()
@@ -362,10 +412,17 @@ pub fn write_experiment_with(spec: &RealitySpec, model: &dyn ForceModel, sites: 
             .collect();
         let file = format!("{name}.csv");
         write_trial_csv(&dir.join(&file), &ts, &force, &poses)?;
-        trials.push(TrialSpec { file, region: Some(region.name().into()) });
+        trials.push(TrialSpec {
+            file,
+            region: Some(region.name().into()),
+        });
     }
     let exp = ExperimentSpec {
-        specimen: SpecimenSpec { mesh: spec.mesh.clone(), fixed: "inferior".into(), transform: None },
+        specimen: SpecimenSpec {
+            mesh: spec.mesh.clone(),
+            fixed: "inferior".into(),
+            transform: None,
+        },
         material: MaterialSpec::default(),
         probe: ProbeSpec::default(),
         trials,
@@ -373,7 +430,12 @@ pub fn write_experiment_with(spec: &RealitySpec, model: &dyn ForceModel, sites: 
     let text = toml::to_string(&exp).map_err(|e| GapError::Other(format!("experiment.toml: {e}")))?;
     let tp = dir.join("experiment.toml");
     std::fs::write(&tp, text).map_err(|e| GapError::Io(tp, e))?;
-    let truth = Truth { label: spec.label(), spec: spec.clone(), truth_variant: variant, model: model.describe() };
+    let truth = Truth {
+        label: spec.label(),
+        spec: spec.clone(),
+        truth_variant: variant,
+        model: model.describe(),
+    };
     if let Some(parent) = truth_path.parent() {
         std::fs::create_dir_all(parent).map_err(|e| GapError::Io(parent.to_path_buf(), e))?;
     }

@@ -41,7 +41,14 @@ pub struct SelftestOptions {
 
 impl Default for SelftestOptions {
     fn default() -> Self {
-        SelftestOptions { diagnose: Options::default(), probings_per_region: 5, noise_sigma: 0.02, keep_dir: None, verbose: false, cases: None }
+        SelftestOptions {
+            diagnose: Options::default(),
+            probings_per_region: 5,
+            noise_sigma: 0.02,
+            keep_dir: None,
+            verbose: false,
+            cases: None,
+        }
     }
 }
 
@@ -105,7 +112,11 @@ impl SelftestResult {
                 c.elapsed_s
             );
         }
-        let mut labels: Vec<String> = self.cases.iter().flat_map(|c| [c.truth.clone(), c.found.clone()]).collect();
+        let mut labels: Vec<String> = self
+            .cases
+            .iter()
+            .flat_map(|c| [c.truth.clone(), c.found.clone()])
+            .collect();
         labels.sort();
         labels.dedup();
         let mut m: BTreeMap<(String, String), usize> = BTreeMap::new();
@@ -141,7 +152,10 @@ impl SelftestResult {
 
 /// Labels of the first `n` cases.
 pub fn case_labels(n: usize, opts: &SelftestOptions) -> Vec<String> {
-    let cycle: Vec<String> = opts.cases.clone().unwrap_or_else(|| CASES.iter().map(|s| s.to_string()).collect());
+    let cycle: Vec<String> = opts
+        .cases
+        .clone()
+        .unwrap_or_else(|| CASES.iter().map(|s| s.to_string()).collect());
     (0..n).map(|i| cycle[i % cycle.len()].clone()).collect()
 }
 
@@ -160,7 +174,14 @@ pub fn selftest(cases: usize, seed: u64, opts: &SelftestOptions) -> Result<Selft
 type ModelFor<'a> = dyn Fn(&super::Experiment) -> Result<Box<dyn ForceModel>, GapError> + 'a;
 
 /// Self-test with a given truth model and a factory for the diagnosis model of a folder.
-pub fn selftest_with(cases: usize, seed: u64, opts: &SelftestOptions, truth_model: &dyn ForceModel, sites: &[Site], model_for: &ModelFor) -> Result<SelftestResult, GapError> {
+pub fn selftest_with(
+    cases: usize,
+    seed: u64,
+    opts: &SelftestOptions,
+    truth_model: &dyn ForceModel,
+    sites: &[Site],
+    model_for: &ModelFor,
+) -> Result<SelftestResult, GapError> {
     let root = match &opts.keep_dir {
         Some(d) => d.clone(),
         None => std::env::temp_dir().join(format!("arthrosim_gap_selftest_{}_{}", std::process::id(), seed)),
@@ -180,7 +201,11 @@ pub fn selftest_with(cases: usize, seed: u64, opts: &SelftestOptions, truth_mode
         let model = model_for(&exp)?;
         let report = diagnose(&exp, model.as_ref(), &opts.diagnose)?;
         let found = report.verdict.effect.clone();
-        let true_shrink = report.ranking.iter().find(|c| c.effect == truth.label).map(|c| c.heldout_shrink);
+        let true_shrink = report
+            .ranking
+            .iter()
+            .find(|c| c.effect == truth.label)
+            .map(|c| c.heldout_shrink);
         let r = CaseResult {
             case: i,
             correct: found == truth.label,
@@ -202,7 +227,13 @@ pub fn selftest_with(cases: usize, seed: u64, opts: &SelftestOptions, truth_mode
                 report.verdict.reason
             );
             for c in report.ranking.iter().take(6) {
-                eprintln!("           {:24} held {:.4} shrink {:5.1}% score {:10.1}", c.effect, c.heldout_rmse, 100.0 * c.heldout_shrink, c.score);
+                eprintln!(
+                    "           {:24} held {:.4} shrink {:5.1}% score {:10.1}",
+                    c.effect,
+                    c.heldout_rmse,
+                    100.0 * c.heldout_shrink,
+                    c.score
+                );
             }
         }
         out.push(r);
@@ -211,4 +242,29 @@ pub fn selftest_with(cases: usize, seed: u64, opts: &SelftestOptions, truth_mode
         let _ = std::fs::remove_dir_all(&root);
     }
     Ok(SelftestResult { seed, cases: out })
+}
+
+/// Benchmark: a generated 15-trial experiment (the study protocol) diagnosed end to end with
+/// the physics model; returns the JSON line (`trials`, `diagnose_s`, `generate_s`, `verdict`).
+pub fn bench(effect: &str, seed: u64, opts: &Options) -> Result<serde_json::Value, GapError> {
+    let root = std::env::temp_dir().join(format!("arthrosim_gap_bench_{}_{}", std::process::id(), seed));
+    let spec = RealitySpec::from_effects(&[effect], seed)?;
+    let t0 = std::time::Instant::now();
+    super::reality::write_experiment(&spec, &root.join("exp"), &root.join("truth.json"))?;
+    let generate_s = t0.elapsed().as_secs_f64();
+    let t1 = std::time::Instant::now();
+    let report = super::diagnose_dir(&root.join("exp"), opts)?;
+    let diagnose_s = t1.elapsed().as_secs_f64();
+    let _ = std::fs::remove_dir_all(&root);
+    Ok(serde_json::json!({
+        "bench": "gap_diagnose",
+        "trials": report.trials,
+        "samples": report.samples,
+        "threads": rayon::current_num_threads(),
+        "generate_s": generate_s,
+        "diagnose_s": diagnose_s,
+        "truth": spec.label(),
+        "verdict": report.verdict.effect,
+        "heldout_shrink": report.verdict.heldout_shrink,
+    }))
 }

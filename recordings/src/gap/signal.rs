@@ -31,7 +31,11 @@ pub fn sample_uniform(t0: f64, dt: f64, y: &[[f64; 3]], t: f64) -> [f64; 3] {
     }
     let w = s - k as f64;
     let (a, b) = (y[k], y[k + 1]);
-    [a[0] + w * (b[0] - a[0]), a[1] + w * (b[1] - a[1]), a[2] + w * (b[2] - a[2])]
+    [
+        a[0] + w * (b[0] - a[0]),
+        a[1] + w * (b[1] - a[1]),
+        a[2] + w * (b[2] - a[2]),
+    ]
 }
 
 /// Lag (s) of `b` behind `a` (b(t) ≈ a(t − lag)), both sampled at their own (irregular) times,
@@ -149,7 +153,11 @@ pub fn quat_rotate(q: [f64; 4], v: [f64; 3]) -> [f64; 3] {
     add(add(v, scale(t, qw)), cross(u, t))
 }
 pub fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
 }
 pub fn quat_mul(a: [f64; 4], b: [f64; 4]) -> [f64; 4] {
     let (ax, ay, az, aw) = (a[0], a[1], a[2], a[3]);
@@ -172,7 +180,11 @@ pub fn quat_conj(q: [f64; 4]) -> [f64; 4] {
 }
 /// Normalised linear interpolation of unit quaternions (short path).
 pub fn nlerp(a: [f64; 4], b: [f64; 4], w: f64) -> [f64; 4] {
-    let s = if a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3] < 0.0 { -1.0 } else { 1.0 };
+    let s = if a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3] < 0.0 {
+        -1.0
+    } else {
+        1.0
+    };
     let mut q = [0.0; 4];
     for k in 0..4 {
         q[k] = a[k] * (1.0 - w) + s * b[k] * w;
@@ -187,7 +199,9 @@ mod tests {
 
     #[test]
     fn lag_of_shifted_pulse() {
-        let ta: Vec<f64> = (0..400).map(|k| k as f64 * 0.026 + 0.003 * ((k * 7) % 5) as f64).collect();
+        let ta: Vec<f64> = (0..400)
+            .map(|k| k as f64 * 0.026 + 0.003 * ((k * 7) % 5) as f64)
+            .collect();
         let f = |t: f64| (-(t - 5.0f64).powi(2) / 0.5).exp();
         let a: Vec<f64> = ta.iter().map(|&t| f(t)).collect();
         let b: Vec<f64> = ta.iter().map(|&t| f(t - 0.12)).collect();
@@ -209,7 +223,9 @@ mod tests {
             let (u1, u2) = (u(), u());
             (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
         };
-        let y: Vec<f64> = (0..4000).map(|k| (k as f64 * 0.01).sin() * 3.0 + 0.05 * gauss()).collect();
+        let y: Vec<f64> = (0..4000)
+            .map(|k| (k as f64 * 0.01).sin() * 3.0 + 0.05 * gauss())
+            .collect();
         let s = noise_sigma(&y);
         assert!((s - 0.05).abs() < 0.006, "sigma {s}");
     }

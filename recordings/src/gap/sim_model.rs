@@ -33,7 +33,11 @@ pub fn refined_spec(spec: &str) -> Option<String> {
 impl SimForceModel {
     pub fn from_scene(scene: SceneConfig, data_dir: &Path) -> SimForceModel {
         let fine_mesh = refined_spec(&scene.meniscus.mesh);
-        SimForceModel { scene, data_dir: data_dir.to_path_buf(), fine_mesh }
+        SimForceModel {
+            scene,
+            data_dir: data_dir.to_path_buf(),
+            fine_mesh,
+        }
     }
 
     /// Scene of an experiment: its specimen, nominal material and probe; quasi-static replay.
@@ -94,7 +98,9 @@ impl SimForceModel {
             .probing_sites()
             .iter()
             .filter_map(|s| {
-                let region = super::experiment::Region::ALL.into_iter().find(|r| r.code() == s.region)?;
+                let region = super::experiment::Region::ALL
+                    .into_iter()
+                    .find(|r| r.code() == s.region)?;
                 Some(super::reality::Site {
                     region,
                     point: [s.point.x, s.point.y, s.point.z],

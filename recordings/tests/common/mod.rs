@@ -5,8 +5,10 @@ use msgs::haptic_to_physics::DeviceState;
 use msgs::physics_to_haptic::ContactFrame;
 use msgs::physics_to_viz::SurfaceFrame;
 use msgs::Topic;
+use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
 
 pub fn boxed_zeroed<T: Topic>() -> Box<T> {
     let mut slot = Box::new(core::mem::MaybeUninit::<T>::uninit());
@@ -157,5 +159,71 @@ pub fn assert_python_counts(seen: &serde_json::Value, expected: &[(&str, u64)]) 
                 .unwrap_or(0);
             assert_eq!(got, *count, "{reader}: {topic}");
         }
+    }
+}
+
+/// The real `recorder` binary of this crate, started and stopped like the launcher does.
+pub struct Recorder {
+    pub child: Child,
+    pub stdout: BufReader<std::process::ChildStdout>,
+}
+
+impl Recorder {
+    pub fn start(session: &str, out: &Path) -> Recorder {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_recorder"))
+            .args(["--session", session, "--out"])
+            .arg(out)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("recorder starts");
+        let mut stdout = BufReader::new(child.stdout.take().unwrap());
+        let mut line = String::new();
+        let deadline = Instant::now() + Duration::from_secs(30);
+        loop {
+            line.clear();
+            let n = stdout.read_line(&mut line).unwrap();
+            assert!(n > 0, "recorder exited before READY");
+            if line.trim() == "READY recorder" {
+                break;
+            }
+            assert!(Instant::now() < deadline, "no READY line");
+        }
+        Recorder { child, stdout }
+    }
+
+    pub fn signal(&self, sig: libc::c_int) {
+        // SAFETY: sending a signal to our own child process by its pid.
+        unsafe { libc::kill(self.child.id() as libc::pid_t, sig) };
+    }
+
+    /// SIGTERM, bounded wait, the RECORDED line as JSON.
+    pub fn stop(mut self) -> serde_json::Value {
+        self.signal(libc::SIGTERM);
+        let deadline = Instant::now() + Duration::from_secs(30);
+        let mut stats = None;
+        let mut line = String::new();
+        while stats.is_none() {
+            line.clear();
+            if self.stdout.read_line(&mut line).unwrap() == 0 {
+                break;
+            }
+            if let Some(json) = line.trim().strip_prefix("RECORDED ") {
+                stats = Some(serde_json::from_str(json).unwrap());
+            }
+            assert!(Instant::now() < deadline);
+        }
+        loop {
+            if let Some(status) = self.child.try_wait().unwrap() {
+                assert!(status.success(), "recorder exit status {status}");
+                break;
+            }
+            if Instant::now() > deadline {
+                let _ = self.child.kill();
+                panic!("recorder did not stop within 30 s of SIGTERM");
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        stats.expect("RECORDED line")
     }
 }

@@ -1,0 +1,201 @@
+//! The `arthrosim` command line as a user meets it: exit codes and messages of `validate`,
+//! `run` on a bad file, recordings commands on bad input, and the hidden `node` command.
+
+use std::path::PathBuf;
+use std::process::{Command, Output};
+
+fn arthrosim(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_arthrosim"))
+        .args(args)
+        .output()
+        .expect("run arthrosim")
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("arthrosim-cli-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn text(out: &Output) -> String {
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    )
+}
+
+fn examples() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../launch-config/launch")
+}
+
+#[test]
+fn validate_accepts_the_shipped_examples() {
+    let mut files = vec![
+        examples().join("default.toml"),
+        examples().join("replay.toml"),
+        examples().join("remote_viewer.toml"),
+    ];
+    let study_present = std::env::var_os("ARTHROSIM_DATA")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data")))
+        .join("meniscus/lateral_meniscus_computation.msh")
+        .is_file();
+    if study_present {
+        files.push(examples().join("study_lateral.toml"));
+    }
+    let args: Vec<&str> = std::iter::once("validate")
+        .chain(files.iter().map(|p| p.to_str().unwrap()))
+        .collect();
+    let out = arthrosim(&args);
+    assert!(out.status.success(), "{}", text(&out));
+    assert_eq!(
+        String::from_utf8_lossy(&out.stdout).matches(": ok").count(),
+        files.len()
+    );
+}
+
+#[test]
+fn validate_reports_every_broken_file_with_line_and_key_and_exits_1() {
+    let dir = scratch("validate");
+    let cases = [
+        (
+            "unknown.toml",
+            "[scene]\ndt = 0.01\nstep = 2\n",
+            "unknown.toml:3:1: key `scene.step`",
+        ),
+        (
+            "type.toml",
+            "[scene]\ndt = \"x\"\n",
+            "type.toml:2:6: key `scene.dt`",
+        ),
+        (
+            "mesh.toml",
+            "[scene.meniscus]\nmesh = \"gone.msh\"\n",
+            "mesh.toml:2:1: key `scene.meniscus.mesh`",
+        ),
+        (
+            "dt.toml",
+            "[scene]\ndt = -0.01\n",
+            "dt.toml:2:1: key `scene.dt`",
+        ),
+    ];
+    let mut args = vec!["validate".to_string()];
+    for (name, body, _) in &cases {
+        std::fs::write(dir.join(name), body).unwrap();
+        args.push(dir.join(name).display().to_string());
+    }
+    let good = examples().join("default.toml");
+    args.push(good.display().to_string());
+    let out = arthrosim(&args.iter().map(String::as_str).collect::<Vec<_>>());
+    let all = text(&out);
+    assert_eq!(out.status.code(), Some(1), "{all}");
+    for (_, _, expected) in &cases {
+        assert!(all.contains(expected), "missing {expected:?} in:\n{all}");
+    }
+    assert!(all.contains("4 of 5 launch file(s) invalid"), "{all}");
+    assert!(all.contains("default.toml: ok"), "{all}");
+}
+
+#[test]
+fn run_refuses_an_invalid_launch_file_without_starting_anything() {
+    let dir = scratch("run-bad");
+    let file = dir.join("bad.toml");
+    std::fs::write(&file, "[nodes]\nphysics = \"yes\"\n").unwrap();
+    let out_dir = dir.join("session");
+    let out = arthrosim(&[
+        "run",
+        file.to_str().unwrap(),
+        "--seconds",
+        "1",
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    let all = text(&out);
+    assert_eq!(out.status.code(), Some(1), "{all}");
+    assert!(
+        all.contains("bad.toml:2:") && all.contains("nodes.physics"),
+        "{all}"
+    );
+    assert!(!out_dir.exists(), "no session folder for a refused file");
+}
+
+#[test]
+fn run_rejects_bad_session_names_and_seconds() {
+    let out = arthrosim(&["run", "--session", "a/b", "--seconds", "1"]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(text(&out).contains("session name"), "{}", text(&out));
+    let out = arthrosim(&["run", "--seconds", "-3"]);
+    assert_ne!(out.status.code(), Some(0));
+}
+
+#[test]
+fn recordings_commands_fail_cleanly_on_files_that_are_not_mcap() {
+    let dir = scratch("rec");
+    let file = dir.join("not.mcap");
+    std::fs::write(&file, b"this is not an MCAP file").unwrap();
+    for cmd in [
+        vec!["recordings", "info", file.to_str().unwrap()],
+        vec![
+            "recordings",
+            "export",
+            file.to_str().unwrap(),
+            "--csv",
+            dir.to_str().unwrap(),
+        ],
+        vec!["replay", file.to_str().unwrap()],
+    ] {
+        let out = arthrosim(&cmd);
+        let all = text(&out);
+        assert_eq!(out.status.code(), Some(1), "{cmd:?}: {all}");
+        assert!(all.contains("not.mcap"), "{cmd:?} names the file: {all}");
+        assert!(!all.contains("panicked"), "{cmd:?}: {all}");
+    }
+}
+
+#[test]
+fn reality_keeps_the_truth_outside_the_experiment_folder() {
+    let dir = scratch("reality");
+    let exp = dir.join("exp");
+    let out = arthrosim(&[
+        "reality",
+        "--effect",
+        "friction",
+        "--out",
+        exp.to_str().unwrap(),
+        "--truth",
+        exp.join("truth.json").to_str().unwrap(),
+    ]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(
+        text(&out).contains("inside the experiment folder"),
+        "{}",
+        text(&out)
+    );
+}
+
+#[test]
+fn node_command_is_hidden_but_runs_nodes() {
+    let help = arthrosim(&["--help"]);
+    let help = text(&help);
+    assert!(help.contains("run") && help.contains("validate") && help.contains("gap"));
+    assert!(!help.contains("\n  node"), "node is hidden: {help}");
+    let out = arthrosim(&["node", "physics", "--help"]);
+    assert!(out.status.success(), "{}", text(&out));
+    assert!(text(&out).contains("--launch") && text(&out).contains("--session"));
+    // A node given a broken launch file fails with the launch file's error.
+    let dir = scratch("node");
+    let file = dir.join("broken.toml");
+    std::fs::write(&file, "[scene]\ndt = 0\n").unwrap();
+    let out = arthrosim(&[
+        "node",
+        "physics",
+        "--launch",
+        file.to_str().unwrap(),
+        "--session",
+        "cli-node-test",
+    ]);
+    assert_ne!(out.status.code(), Some(0));
+    assert!(text(&out).contains("scene.dt"), "{}", text(&out));
+}

@@ -1,0 +1,182 @@
+//! Force–depth curve of a 1.5 mm sphere pressed along the surface normal into the body of the
+//! study's lateral meniscus (E = 3.5 MPa, its fixed nodes), 0.25–3 mm, printed beside a Hertz
+//! estimate, on the study mesh and on the same mesh refined once (every tet split in 8).
+//! Asserts only sane behaviour: positive, monotonic force.
+//!
+//! Run with `cargo test -p physics-node --test sim_force_depth -- --nocapture` to see the table.
+
+use nalgebra::{Matrix3, Point3, UnitQuaternion, Vector3};
+use physics_node::mesh::TetMesh;
+use physics_node::sim::Simulation;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+const DEPTHS_MM: [f64; 9] = [0.25, 0.5, 0.75, 1.0, 1.25, 1.5, 2.0, 2.5, 3.0];
+
+fn data_dir() -> Option<PathBuf> {
+    let d = launch_config::data_dir();
+    if d.join("meniscus/lateral_meniscus_computation.msh").exists() {
+        Some(d)
+    } else {
+        assert!(std::env::var("CI").as_deref() != Ok("true"), "study data missing in CI: {}", d.display());
+        None
+    }
+}
+
+fn write_msh22(mesh: &TetMesh, path: &Path) {
+    let mut s = String::from("$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n");
+    s += &format!("{}\n", mesh.nodes.len());
+    for (i, p) in mesh.nodes.iter().enumerate() {
+        s += &format!("{} {:.17e} {:.17e} {:.17e}\n", i + 1, p.x, p.y, p.z);
+    }
+    s += &format!("$EndNodes\n$Elements\n{}\n", mesh.tets.len());
+    for (i, t) in mesh.tets.iter().enumerate() {
+        s += &format!("{} 4 2 0 1 {} {} {} {}\n", i + 1, t[0] + 1, t[1] + 1, t[2] + 1, t[3] + 1);
+    }
+    s += "$EndElements\n";
+    std::fs::write(path, s).unwrap();
+}
+
+fn volume(m: &TetMesh, t: &[usize; 4]) -> f64 {
+    let x = |i: usize| m.nodes[t[i]];
+    Matrix3::from_columns(&[x(1) - x(0), x(2) - x(0), x(3) - x(0)]).determinant() / 6.0
+}
+
+/// Splits every tet into 8 (edge midpoints; inner octahedron cut along one diagonal); a
+/// midpoint is fixed when both ends of its edge are.
+fn refine(mesh: &TetMesh, fixed: &[usize]) -> (TetMesh, Vec<usize>) {
+    let mut out = TetMesh {
+        nodes: mesh.nodes.clone(),
+        tets: Vec::new(),
+    };
+    let mut is_fixed = vec![false; mesh.nodes.len()];
+    for &f in fixed {
+        is_fixed[f] = true;
+    }
+    let mut mid: BTreeMap<(usize, usize), usize> = BTreeMap::new();
+    let mut midpoint = |a: usize, b: usize, out: &mut TetMesh, is_fixed: &mut Vec<bool>| {
+        let key = (a.min(b), a.max(b));
+        *mid.entry(key).or_insert_with(|| {
+            out.nodes.push(Point3::from((out.nodes[a].coords + out.nodes[b].coords) * 0.5));
+            is_fixed.push(is_fixed[a] && is_fixed[b]);
+            out.nodes.len() - 1
+        })
+    };
+    for t in &mesh.tets {
+        let [a, b, c, d] = *t;
+        let ab = midpoint(a, b, &mut out, &mut is_fixed);
+        let ac = midpoint(a, c, &mut out, &mut is_fixed);
+        let ad = midpoint(a, d, &mut out, &mut is_fixed);
+        let bc = midpoint(b, c, &mut out, &mut is_fixed);
+        let bd = midpoint(b, d, &mut out, &mut is_fixed);
+        let cd = midpoint(c, d, &mut out, &mut is_fixed);
+        let children = [
+            [a, ab, ac, ad],
+            [ab, b, bc, bd],
+            [ac, bc, c, cd],
+            [ad, bd, cd, d],
+            [ac, bd, ab, bc],
+            [ac, bd, bc, cd],
+            [ac, bd, cd, ad],
+            [ac, bd, ad, ab],
+        ];
+        let v0 = volume(mesh, t);
+        let mut sum = 0.0;
+        for mut ch in children {
+            if volume(&out, &ch) < 0.0 {
+                ch.swap(2, 3);
+            }
+            sum += volume(&out, &ch);
+            out.tets.push(ch);
+        }
+        assert!((sum - v0).abs() <= 1e-9 * v0.abs(), "refinement must preserve volume");
+    }
+    let fixed = (0..out.nodes.len()).filter(|&i| is_fixed[i]).collect();
+    (out, fixed)
+}
+
+/// Presses the sphere kinematically at the mid-body site; returns (depth mm, normal force N).
+fn curve(scene: &launch_config::SceneConfig, data: &Path, site: &(Point3<f64>, Vector3<f64>)) -> Vec<(f64, f64)> {
+    let mut sim = Simulation::new(scene, data).unwrap();
+    let (p, n) = *site;
+    let r = scene.probe.tip_radius;
+    let q = UnitQuaternion::identity();
+    sim.teleport_probe(&physics_node::probe::pose(p + n * (r + 0.05e-3), q));
+    let mut out = Vec::new();
+    let mut depth_prev = -0.05e-3;
+    for &d_mm in &DEPTHS_MM {
+        let d = d_mm * 1e-3;
+        // Ramp over 10 steps, then hold 60 steps; average the last 10 (quasi-static).
+        let mut f_mean = 0.0;
+        for k in 0..70 {
+            let s = ((k + 1) as f64 / 10.0).min(1.0);
+            let depth = depth_prev + (d - depth_prev) * s;
+            sim.set_probe_kinematic(&physics_node::probe::pose(p + n * (r - depth), q));
+            sim.step().unwrap();
+            if k >= 60 {
+                f_mean += Vector3::from(sim.contact_force()).dot(&n) / 10.0;
+            }
+        }
+        depth_prev = d;
+        out.push((d_mm, f_mean));
+    }
+    out
+}
+
+#[test]
+fn force_depth_curve_on_study_lateral_mesh_and_refined() {
+    let Some(data) = data_dir() else { return };
+    let mut scene = launch_config::SceneConfig::default();
+    scene.meniscus.mesh = "study:lateral".into();
+    scene.probe.model = "sphere".into();
+    scene.probe.tip_radius = 1.5e-3;
+    let loaded = physics_node::mesh::load_scene_mesh(&scene.meniscus, &data).unwrap();
+    let site = loaded
+        .probing_sites
+        .iter()
+        .find(|s| s.region == 2)
+        .map(|s| (s.point, s.normal.normalize()))
+        .expect("mid-body probing site");
+    let coarse = curve(&scene, &data, &site);
+
+    // Refined once, same geometry and support.
+    let (fine_mesh, fine_fixed) = refine(&loaded.mesh, &loaded.fixed_nodes);
+    let dir = std::env::temp_dir().join(format!("physics-node-refined-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let msh = dir.join("lateral_refined.msh");
+    write_msh22(&fine_mesh, &msh);
+    let fixed_path = dir.join("fixed.txt");
+    let list: Vec<String> = fine_fixed.iter().map(|i| i.to_string()).collect();
+    std::fs::write(&fixed_path, list.join(" ")).unwrap();
+    let mut fine_scene = scene.clone();
+    fine_scene.meniscus.mesh = msh.display().to_string();
+    fine_scene.meniscus.fixed = fixed_path.display().to_string();
+    let fine = curve(&fine_scene, &data, &site);
+
+    // Hertz: rigid sphere on an elastic half-space, F = 4/3 E* √R d^{3/2}.
+    let (e, nu) = (3.5e6, 0.29);
+    let e_star = e / (1.0 - nu * nu);
+    let radius: f64 = 1.5e-3;
+    println!(
+        "study lateral mesh: {} nodes, refined: {} nodes / {} tets; site {:?} normal {:?}",
+        loaded.mesh.nodes.len(),
+        fine_mesh.nodes.len(),
+        fine_mesh.tets.len(),
+        site.0,
+        site.1
+    );
+    println!("depth_mm  F_study_N  F_refined_N  F_hertz_N");
+    for ((d, fc), (_, ff)) in coarse.iter().zip(&fine) {
+        let hertz = 4.0 / 3.0 * e_star * radius.sqrt() * (d * 1e-3_f64).powf(1.5);
+        println!("{d:8.2}  {fc:9.3}  {ff:11.3}  {hertz:9.3}");
+    }
+    for curve in [&coarse, &fine] {
+        for w in curve.windows(2) {
+            assert!(w[1].1 >= w[0].1 - 1e-6, "force must not drop with depth: {curve:?}");
+        }
+        assert!(curve.iter().skip(1).all(|&(_, f)| f > 0.0), "pressing must push back: {curve:?}");
+        assert!(curve.iter().all(|&(_, f)| f.is_finite()));
+    }
+    // Refinement softens a point-like indentation (more surface dofs under the sphere).
+    assert!(fine.last().unwrap().1 < coarse.last().unwrap().1 * 1.5);
+}

@@ -69,7 +69,9 @@ impl core::fmt::Display for LcpError {
             LcpError::SliceTooShort { what, len, needed } => {
                 write!(f, "{what} has {len} entries, {needed} needed")
             }
-            LcpError::Friction { mu } => write!(f, "friction coefficient {mu} is not a finite value ≥ 0"),
+            LcpError::Friction { mu } => {
+                write!(f, "friction coefficient {mu} is not a finite value ≥ 0")
+            }
             LcpError::NonFinite { row } => {
                 write!(
                     f,
@@ -162,7 +164,11 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
 /// Solves the contact LCP in place: `lambda` holds the warm start on entry (non-finite
 /// entries are reset to 0, the rest projected onto the friction cone) and the solution on
 /// exit. Only the first `row_count` entries of `lambda` are touched.
-pub fn solve(problem: &Problem<'_>, lambda: &mut [f64], settings: &Settings) -> Result<Solution, LcpError> {
+pub fn solve(
+    problem: &Problem<'_>,
+    lambda: &mut [f64],
+    settings: &Settings,
+) -> Result<Solution, LcpError> {
     let rows = problem.row_count;
     if rows > MAX_ROWS || rows % ROWS_PER_CONTACT != 0 {
         return Err(LcpError::RowCount { rows });
@@ -219,7 +225,11 @@ pub fn solve(problem: &Problem<'_>, lambda: &mut [f64], settings: &Settings) -> 
             // Current violation of this contact's rows with every impulse (own included).
             let mut d = [0.0; 3];
             for c in 0..3 {
-                d[c] = dfree[r + c] + dot(&w[(r + c) * MAX_ROWS..(r + c) * MAX_ROWS + rows], &lambda[..rows]);
+                d[c] = dfree[r + c]
+                    + dot(
+                        &w[(r + c) * MAX_ROWS..(r + c) * MAX_ROWS + rows],
+                        &lambda[..rows],
+                    );
             }
             if !(d[0].is_finite() && d[1].is_finite() && d[2].is_finite()) {
                 zero(lambda, rows);
@@ -248,9 +258,11 @@ pub fn solve(problem: &Problem<'_>, lambda: &mut [f64], settings: &Settings) -> 
             // Violation this contact would have with its own impulse removed.
             let mut others = [0.0; 3];
             for c in 0..3 {
-                others[c] = d[c] - (block[c][0] * old[0] + block[c][1] * old[1] + block[c][2] * old[2]);
+                others[c] =
+                    d[c] - (block[c][0] * old[0] + block[c][1] * old[1] + block[c][2] * old[2]);
             }
-            let new = solve_block(&block, &others, mu).ok_or(LcpError::DegenerateBlock { contact: k });
+            let new =
+                solve_block(&block, &others, mu).ok_or(LcpError::DegenerateBlock { contact: k });
             let new = match new {
                 Ok(v) => v,
                 Err(e) => {
@@ -538,7 +550,10 @@ mod tests {
         assert!(lambda[2].abs() < 1e-15);
         let mut d = [0.0; 3];
         violation(&p, &lambda, &mut d);
-        assert!(d.iter().all(|v| v.abs() < 1e-15), "sticking means no slip: {d:?}");
+        assert!(
+            d.iter().all(|v| v.abs() < 1e-15),
+            "sticking means no slip: {d:?}"
+        );
     }
 
     #[test]

@@ -162,8 +162,16 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("haptic-cfg-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let p = dir.join("a.toml");
-        std::fs::write(dir.join("x.csv"), "t_s,px_m,py_m,pz_m,qx,qy,qz,qw\n0,0,0,0,0,0,0,1\n").unwrap();
-        std::fs::write(&p, "[device]\nbackend = \"replay\"\n[device.replay]\npath = \"x.csv\"\n").unwrap();
+        std::fs::write(
+            dir.join("x.csv"),
+            "t_s,px_m,py_m,pz_m,qx,qy,qz,qw\n0,0,0,0,0,0,0,1\n",
+        )
+        .unwrap();
+        std::fs::write(
+            &p,
+            "[device]\nbackend = \"replay\"\n[device.replay]\npath = \"x.csv\"\n",
+        )
+        .unwrap();
         let c = load_device_config(Some(&p)).unwrap();
         assert_eq!(c.backend, "replay");
         assert!(c.replay.path.ends_with("x.csv"), "{}", c.replay.path);

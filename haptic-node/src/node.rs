@@ -17,7 +17,10 @@ use std::sync::{Arc, Mutex};
 
 /// Probing sites for the emulator's operator model, as the `[device.emulated] sites` setting
 /// asks: the physics library's sites on the `[scene]` meniscus, or a plane.
-pub fn resolve_sites(config: &launch_config::DeviceConfig, launch: Option<&Path>) -> anyhow::Result<Vec<operator::Site>> {
+pub fn resolve_sites(
+    config: &launch_config::DeviceConfig,
+    launch: Option<&Path>,
+) -> anyhow::Result<Vec<operator::Site>> {
     let e = &config.emulated;
     #[cfg(not(feature = "scene-sites"))]
     let _ = launch;
@@ -73,9 +76,19 @@ pub struct Summary {
     pub realtime: bool,
 }
 
-fn fill_stats(s: &mut HapticStats, st: &LoopStats, transport: &Histogram, elapsed_s: f64, last_force: [f64; 3]) {
+fn fill_stats(
+    s: &mut HapticStats,
+    st: &LoopStats,
+    transport: &Histogram,
+    elapsed_s: f64,
+    last_force: [f64; 3],
+) {
     s.ticks = st.ticks;
-    s.tick_hz = if elapsed_s > 0.0 { st.ticks as f64 / elapsed_s } else { 0.0 };
+    s.tick_hz = if elapsed_s > 0.0 {
+        st.ticks as f64 / elapsed_s
+    } else {
+        0.0
+    };
     s.period_err_p50_us = st.period_error.quantile_us(0.5);
     s.period_err_p99_us = st.period_error.quantile_us(0.99);
     s.period_err_max_us = st.period_error.max_ns() as f64 / 1e3;
@@ -90,8 +103,16 @@ fn fill_stats(s: &mut HapticStats, st: &LoopStats, transport: &Histogram, elapse
     s.frame_age_p99_us = st.frame_age.quantile_us(0.99);
     // Not measured (no transport probe): −1.
     let measured = transport.count() > 0;
-    s.transport_p50_us = if measured { transport.quantile_us(0.5) } else { -1.0 };
-    s.transport_p99_us = if measured { transport.quantile_us(0.99) } else { -1.0 };
+    s.transport_p50_us = if measured {
+        transport.quantile_us(0.5)
+    } else {
+        -1.0
+    };
+    s.transport_p99_us = if measured {
+        transport.quantile_us(0.99)
+    } else {
+        -1.0
+    };
     s.rendered_force_norm_n = norm(last_force);
     s.fault_count = st.fault_ticks;
     s.faults = st.faults_seen;
@@ -100,14 +121,20 @@ fn fill_stats(s: &mut HapticStats, st: &LoopStats, transport: &Histogram, elapse
 /// Transport probe: a thread with its own iceoryx2 node that polls the contact-frame service
 /// (yielding the CPU between polls) and records publish → receivable latency. Used by the
 /// bench; off by default since it keeps a core busy.
-fn spawn_transport_probe(session: String, stop: Arc<AtomicBool>, hist: Arc<Mutex<Histogram>>) -> std::thread::JoinHandle<()> {
+fn spawn_transport_probe(
+    session: String,
+    stop: Arc<AtomicBool>,
+    hist: Arc<Mutex<Histogram>>,
+) -> std::thread::JoinHandle<()> {
     std::thread::spawn(move || {
         let run = || -> anyhow::Result<()> {
             let node = ipc::create_node("haptic-transport")?;
             let sub = ipc::subscriber::<ContactFrame>(&node, &session, Queue::Newest)?;
             let mut local = Histogram::new(50_000, 100);
             let mut last_push = msgs::clock::monotonic_ns();
-            while !stop.load(Ordering::Relaxed) && !msgs::lifecycle::stop_flag().load(Ordering::Relaxed) {
+            while !stop.load(Ordering::Relaxed)
+                && !msgs::lifecycle::stop_flag().load(Ordering::Relaxed)
+            {
                 while let Some(sample) = sub.receive().map_err(|e| anyhow::anyhow!("{e:?}"))? {
                     let now = msgs::clock::monotonic_ns();
                     local.record(now.saturating_sub(sample.payload().publish_ns));
@@ -194,7 +221,8 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
     let stats_pub = ipc::publisher::<HapticStats>(&node, &session)?;
 
     let start_ns = msgs::clock::monotonic_ns();
-    let mut device = device::open(&config, &sites, start_ns).with_context(|| format!("opening the {} device", config.backend))?;
+    let mut device = device::open(&config, &sites, start_ns)
+        .with_context(|| format!("opening the {} device", config.backend))?;
     let kind = device.kind() as u32;
     let instance = msgs::clock::new_instance_id();
 
@@ -289,7 +317,14 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
             renderer.tick(now, &sample.pose, velocity_ok)
         } else {
             // A failing device is treated like a non-finite one: no force.
-            let mut o = renderer.tick(now, &msgs::Pose { position: [f64::NAN; 3], ..msgs::Pose::IDENTITY }, false);
+            let mut o = renderer.tick(
+                now,
+                &msgs::Pose {
+                    position: [f64::NAN; 3],
+                    ..msgs::Pose::IDENTITY
+                },
+                false,
+            );
             o.faults |= fault::DEVICE_ERROR;
             o
         };
@@ -377,8 +412,17 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
         let _ = p.join();
     }
     let end = msgs::clock::monotonic_ns();
-    let transport_final = transport.lock().map(|h| h.clone()).unwrap_or_else(|_| Histogram::new(1, 1));
-    fill_stats(&mut stats_msg, &stats, &transport_final, (end - loop_start) as f64 * 1e-9, [0.0; 3]);
+    let transport_final = transport
+        .lock()
+        .map(|h| h.clone())
+        .unwrap_or_else(|_| Histogram::new(1, 1));
+    fill_stats(
+        &mut stats_msg,
+        &stats,
+        &transport_final,
+        (end - loop_start) as f64 * 1e-9,
+        [0.0; 3],
+    );
     stats_msg.sequence += 1;
     stats_msg.publish_ns = end;
     let _ = ipc::send_copy(&stats_pub, &*stats_msg);
@@ -405,7 +449,8 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
     };
     tracing::info!(?summary, "haptic node stopped, force zero");
     if let Some(dir) = &args.out {
-        std::fs::create_dir_all(dir).with_context(|| format!("creating output directory {}", dir.display()))?;
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("creating output directory {}", dir.display()))?;
         let path = dir.join("haptic-stats.json");
         std::fs::write(&path, serde_json::to_string_pretty(&summary)?)
             .with_context(|| format!("writing {}", path.display()))?;

@@ -62,7 +62,8 @@ impl ForceLimiter {
             // One period shorter than asked: zero then falls on the last tick inside the ramp
             // time even when that tick wakes a little earlier (relative to the grid) than the
             // tick that started the ramp.
-            ramp_ns: ((limits.stale_ramp_s * 1e9) as u64).saturating_sub((1e9 / limits.rate_hz) as u64),
+            ramp_ns: ((limits.stale_ramp_s * 1e9) as u64)
+                .saturating_sub((1e9 / limits.rate_hz) as u64),
             heat: 0.0,
             alpha: 1.0 / ticks as f64,
             last: [0.0; 3],
@@ -102,7 +103,11 @@ impl ForceLimiter {
             None => self.period_ns,
         };
         let max_step = self.max_step_per_ns * elapsed as f64;
-        let step = [f[0] - self.last[0], f[1] - self.last[1], f[2] - self.last[2]];
+        let step = [
+            f[0] - self.last[0],
+            f[1] - self.last[1],
+            f[2] - self.last[2],
+        ];
         let sn = norm(step);
         let mut f = f;
         if sn > max_step {
@@ -141,7 +146,11 @@ impl ForceLimiter {
 
     fn commit(&mut self, now_ns: u64, f: [f64; 3]) {
         // Final guard: whatever path produced f, never above the peak, never non-finite.
-        let f = if f.iter().all(|v| v.is_finite()) { f } else { [0.0; 3] };
+        let f = if f.iter().all(|v| v.is_finite()) {
+            f
+        } else {
+            [0.0; 3]
+        };
         let (f, _) = clamp_norm(f, self.peak);
         let sq = f[0] * f[0] + f[1] * f[1] + f[2] * f[2];
         self.heat = (1.0 - self.alpha) * self.heat + self.alpha * sq;
@@ -285,7 +294,8 @@ impl Renderer {
             return;
         }
         let restart = self.have_frame
-            && (incoming.instance_id != self.current.instance_id || incoming.sequence < self.current.sequence);
+            && (incoming.instance_id != self.current.instance_id
+                || incoming.sequence < self.current.sequence);
         if restart {
             self.restarts += 1;
             tracing::info!(
@@ -458,7 +468,14 @@ mod tests {
 
     /// A flat elastic half-space z = 0 of stiffness k under a point probe at `proxy_z`:
     /// one contact, normal +z, W = 1/(k dt) on every row (so F = k · depth).
-    fn halfspace_frame(frame: &mut ContactFrame, k: f64, proxy_z: f64, publish_ns: u64, instance: u64, seq: u64) {
+    fn halfspace_frame(
+        frame: &mut ContactFrame,
+        k: f64,
+        proxy_z: f64,
+        publish_ns: u64,
+        instance: u64,
+        seq: u64,
+    ) {
         let dt = 0.01;
         frame.instance_id = instance;
         frame.sequence = seq;
@@ -511,7 +528,11 @@ mod tests {
         // Rate limit 400 N/s → 0.4 N per tick: after 10 ticks the 0.5 N target is reached.
         let out = run(&mut r, MS, 10, -1e-3);
         let last = out.last().unwrap();
-        assert!((last.commanded[2] - 0.5).abs() < 1e-9, "{:?}", last.commanded);
+        assert!(
+            (last.commanded[2] - 0.5).abs() < 1e-9,
+            "{:?}",
+            last.commanded
+        );
         assert!((last.rendered[2] - 0.5).abs() < 1e-9);
         // 1 mm deeper than the frame's proxy: δ = δ_free + H·Δx → 1 N.
         refresh(&mut r, &mut f, 10 * MS);
@@ -544,7 +565,10 @@ mod tests {
             if o.faults & fault::STALE_FRAME != 0 {
                 let t0 = *t_stale.get_or_insert(t);
                 if t >= t0 + 10 * MS {
-                    assert_eq!(o.rendered, [0.0; 3], "zero within 10 ms of staleness, at {t}");
+                    assert_eq!(
+                        o.rendered, [0.0; 3],
+                        "zero within 10 ms of staleness, at {t}"
+                    );
                 }
                 // Monotone ramp, never a step up.
                 assert!(norm(o.rendered) <= before + 1e-12);
@@ -587,7 +611,10 @@ mod tests {
                 assert!(f[2] > 0.8 && f[2] <= 0.88 + 1e-9, "tick {i}: {}", f[2]);
             }
         }
-        assert!(peak_ticks > 20, "a short hard press gets the peak force: {peak_ticks} ticks");
+        assert!(
+            peak_ticks > 20,
+            "a short hard press gets the peak force: {peak_ticks} ticks"
+        );
     }
 
     #[test]
@@ -601,7 +628,11 @@ mod tests {
         let mut prev = [0.0; 3];
         let mut t = 0;
         let check = |o: &TickOutput, prev: &mut [f64; 3]| {
-            let step = norm([o.rendered[0] - prev[0], o.rendered[1] - prev[1], o.rendered[2] - prev[2]]);
+            let step = norm([
+                o.rendered[0] - prev[0],
+                o.rendered[1] - prev[1],
+                o.rendered[2] - prev[2],
+            ]);
             *prev = o.rendered;
             step
         };
@@ -625,7 +656,10 @@ mod tests {
             t += MS;
             let o = r.tick(t, &at(-1e-3), true);
             assert_eq!(o.frame_instance, 12);
-            assert!(check(&o, &mut prev) <= max_step, "step above the rate limit after restart");
+            assert!(
+                check(&o, &mut prev) <= max_step,
+                "step above the rate limit after restart"
+            );
         }
         assert!(norm(r.last_force()) > 0.8, "resumed: {:?}", r.last_force());
         // Same instance, sequence going back also counts as a restart.

@@ -11,7 +11,12 @@ pub fn sleep_until(deadline_ns: u64) {
     loop {
         // SAFETY: valid timespec, null remainder (absolute sleeps need none).
         let r = unsafe {
-            libc::clock_nanosleep(libc::CLOCK_MONOTONIC, libc::TIMER_ABSTIME, &ts, std::ptr::null_mut())
+            libc::clock_nanosleep(
+                libc::CLOCK_MONOTONIC,
+                libc::TIMER_ABSTIME,
+                &ts,
+                std::ptr::null_mut(),
+            )
         };
         if r != libc::EINTR {
             return;
@@ -40,7 +45,8 @@ pub fn request_realtime(priority: i32) -> Realtime {
         sched_priority: priority.clamp(1, 99),
     };
     // SAFETY: plain syscalls on the calling thread/process.
-    let fifo = unsafe { libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &param) } == 0;
+    let fifo =
+        unsafe { libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &param) } == 0;
     let locked = unsafe { libc::mlockall(libc::MCL_CURRENT | libc::MCL_FUTURE) } == 0;
     if !fifo {
         tracing::warn!(
@@ -56,7 +62,10 @@ pub fn request_realtime(priority: i32) -> Realtime {
         );
     }
     if fifo && locked {
-        tracing::info!(priority = param.sched_priority, "real-time scheduling and locked memory granted");
+        tracing::info!(
+            priority = param.sched_priority,
+            "real-time scheduling and locked memory granted"
+        );
     }
     Realtime { fifo, locked }
 }

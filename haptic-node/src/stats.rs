@@ -156,7 +156,11 @@ mod tests {
         assert_eq!(h.quantile_ns(0.99), 99_000);
         assert_eq!(h.max_ns(), 99_500);
         h.record(10_000_000);
-        assert_eq!(h.quantile_ns(1.0), 10_000_000, "overflow reports the maximum");
+        assert_eq!(
+            h.quantile_ns(1.0),
+            10_000_000,
+            "overflow reports the maximum"
+        );
         h.clear();
         assert_eq!(h.quantile_ns(0.5), 0);
     }

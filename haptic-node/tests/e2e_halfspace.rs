@@ -21,7 +21,12 @@ fn haptic(session: &str, trajectory: &std::path::Path) -> Proc {
     Proc::start(
         "haptic-node",
         &haptic_exe(),
-        &["--session", session, "--replay", trajectory.to_str().unwrap()],
+        &[
+            "--session",
+            session,
+            "--replay",
+            trajectory.to_str().unwrap(),
+        ],
         READY,
     )
 }
@@ -35,19 +40,31 @@ fn haptic_force_matches_the_physics_force_at_the_same_proxy() {
     let traj = write_trajectory(
         &dir,
         "t.csv",
-        &[(0.0, [0.0, 0.0, -1e-3]), (1.0, [0.0, 0.0, -1e-3]), (2.0, [0.0, 0.0, -1.6e-3]), (60.0, [0.0, 0.0, -1.6e-3])],
+        &[
+            (0.0, [0.0, 0.0, -1e-3]),
+            (1.0, [0.0, 0.0, -1e-3]),
+            (2.0, [0.0, 0.0, -1.6e-3]),
+            (60.0, [0.0, 0.0, -1.6e-3]),
+        ],
     );
     let mut w = Watcher::new(&s);
     let _phys = physics(&s, k);
     let mut hap = haptic(&s, &traj);
     w.watch(Duration::from_millis(2500));
-    assert_eq!(hap.terminate(Duration::from_secs(5)), Some(0), "clean stop on SIGTERM");
+    assert_eq!(
+        hap.terminate(Duration::from_secs(5)),
+        Some(0),
+        "clean stop on SIGTERM"
+    );
 
     // 1. While the proxy rests where the physics frame was computed, the haptic force equals
     //    the physics force of that frame.
     let mut same_proxy = 0;
     for st in &w.seen_states {
-        let Some(f) = w.seen_frames.iter().find(|f| f.sequence == st.frame_sequence_used && f.instance == st.frame_instance_used)
+        let Some(f) = w
+            .seen_frames
+            .iter()
+            .find(|f| f.sequence == st.frame_sequence_used && f.instance == st.frame_instance_used)
         else {
             continue;
         };
@@ -61,7 +78,10 @@ fn haptic_force_matches_the_physics_force_at_the_same_proxy() {
             );
         }
     }
-    assert!(same_proxy > 300, "ticks with the frame's proxy: {same_proxy}");
+    assert!(
+        same_proxy > 300,
+        "ticks with the frame's proxy: {same_proxy}"
+    );
     // 2. While the proxy moves, the local update δ = δ_free + H·Δx gives the force for the
     //    proxy's *current* position (exact for a half-space).
     let mut moving = 0;
@@ -69,22 +89,36 @@ fn haptic_force_matches_the_physics_force_at_the_same_proxy() {
         let z = st.proxy_pose.position[2];
         if st.contact_count == 1 && st.faults & fault::STALE_FRAME == 0 && z < -1.05e-3 {
             moving += 1;
-            assert!((st.commanded_force[2] - k * -z).abs() < 1e-6, "z {z}: {:?}", st.commanded_force);
+            assert!(
+                (st.commanded_force[2] - k * -z).abs() < 1e-6,
+                "z {z}: {:?}",
+                st.commanded_force
+            );
         }
     }
     assert!(moving > 300, "ticks while descending: {moving}");
     // Ticks at 1 kHz and every state within the clamp.
-    assert!(w.seen_states.len() > 2000, "{} states in 2.5 s", w.seen_states.len());
+    assert!(
+        w.seen_states.len() > 2000,
+        "{} states in 2.5 s",
+        w.seen_states.len()
+    );
     assert!(w.seen_states.iter().all(|s| norm(s.rendered_force) <= PEAK));
     std::fs::remove_dir_all(dir).ok();
 }
 
 /// Pushes into a stiff half-space until the force is established; returns the watcher.
-fn established_contact(s: &str, traj: &std::path::Path, phys: &mut Option<Proc>) -> (Watcher, Proc) {
+fn established_contact(
+    s: &str,
+    traj: &std::path::Path,
+    phys: &mut Option<Proc>,
+) -> (Watcher, Proc) {
     let mut w = Watcher::new(s);
     *phys = Some(physics(s, 1500.0));
     let hap = haptic(s, traj);
-    w.until(Duration::from_secs(5), "contact force", |st| st.rendered_force[2] > 0.6);
+    w.until(Duration::from_secs(5), "contact force", |st| {
+        st.rendered_force[2] > 0.6
+    });
     w.watch(Duration::from_millis(200));
     (w, hap)
 }
@@ -93,7 +127,11 @@ fn established_contact(s: &str, traj: &std::path::Path, phys: &mut Option<Proc>)
 fn kill9_of_physics_mid_contact_ramps_force_to_zero_within_10ms_of_staleness() {
     let s = session("kill");
     let dir = temp_dir("kill");
-    let traj = write_trajectory(&dir, "t.csv", &[(0.0, [0.0, 0.0, -1e-3]), (60.0, [0.0, 0.0, -1e-3])]);
+    let traj = write_trajectory(
+        &dir,
+        "t.csv",
+        &[(0.0, [0.0, 0.0, -1e-3]), (60.0, [0.0, 0.0, -1e-3])],
+    );
     let mut phys = None;
     let (mut w, _hap) = established_contact(&s, &traj, &mut phys);
     let killed_ns = msgs::clock::monotonic_ns();
@@ -109,18 +147,26 @@ fn kill9_of_physics_mid_contact_ramps_force_to_zero_within_10ms_of_staleness() {
 fn restarted_physics_is_picked_up_without_cleanup_and_without_a_force_step() {
     let s = session("restart");
     let dir = temp_dir("restart");
-    let traj = write_trajectory(&dir, "t.csv", &[(0.0, [0.0, 0.0, -1e-3]), (60.0, [0.0, 0.0, -1e-3])]);
+    let traj = write_trajectory(
+        &dir,
+        "t.csv",
+        &[(0.0, [0.0, 0.0, -1e-3]), (60.0, [0.0, 0.0, -1e-3])],
+    );
     let mut phys = None;
     let (mut w, _hap) = established_contact(&s, &traj, &mut phys);
     let old_instance = w.seen_states.last().unwrap().frame_instance_used;
     phys.take().unwrap().kill9();
-    w.until(Duration::from_secs(2), "zero force after the kill", |st| st.rendered_force == [0.0; 3]);
+    w.until(Duration::from_secs(2), "zero force after the kill", |st| {
+        st.rendered_force == [0.0; 3]
+    });
     w.watch(Duration::from_millis(100));
     // Same session, no manual cleanup of the dead process's shared memory.
     let _phys2 = physics(&s, 1500.0);
-    w.until(Duration::from_secs(5), "force from the new physics instance", |st| {
-        st.frame_instance_used != old_instance && st.rendered_force[2] > 0.6
-    });
+    w.until(
+        Duration::from_secs(5),
+        "force from the new physics instance",
+        |st| st.frame_instance_used != old_instance && st.rendered_force[2] > 0.6,
+    );
     w.watch(Duration::from_millis(100));
     assert_rate_limited_and_clamped(&w);
     std::fs::remove_dir_all(dir).ok();
@@ -148,15 +194,32 @@ fn nan_proxy_position_produces_no_force() {
     let mut hap = haptic(&s, &traj);
     w.watch(Duration::from_millis(2300));
     assert_eq!(hap.terminate(Duration::from_secs(5)), Some(0));
-    let nan_states: Vec<_> = w.seen_states.iter().filter(|st| !st.proxy_pose.is_finite()).collect();
+    let nan_states: Vec<_> = w
+        .seen_states
+        .iter()
+        .filter(|st| !st.proxy_pose.is_finite())
+        .collect();
     assert!(nan_states.len() > 300, "{} NaN ticks", nan_states.len());
     for st in &nan_states {
         assert_eq!(st.rendered_force, [0.0; 3]);
         assert!(st.faults & fault::NONFINITE_DEVICE != 0);
     }
-    let before = w.seen_states.iter().filter(|st| st.proxy_pose.is_finite() && st.rendered_force[2] > 0.6).count();
-    assert!(before > 100, "force before and after the NaN stretch: {before} ticks");
-    let after = w.seen_states.iter().rev().take(200).filter(|st| st.rendered_force[2] > 0.6).count();
+    let before = w
+        .seen_states
+        .iter()
+        .filter(|st| st.proxy_pose.is_finite() && st.rendered_force[2] > 0.6)
+        .count();
+    assert!(
+        before > 100,
+        "force before and after the NaN stretch: {before} ticks"
+    );
+    let after = w
+        .seen_states
+        .iter()
+        .rev()
+        .take(200)
+        .filter(|st| st.rendered_force[2] > 0.6)
+        .count();
     assert!(after > 100, "force resumed after the NaN stretch");
     std::fs::remove_dir_all(dir).ok();
 }

@@ -12,14 +12,24 @@ use std::time::Duration;
 const READY: Duration = Duration::from_secs(90);
 
 fn physics(session: &str) -> Proc {
-    Proc::start("physics-node", &physics_exe(), &["--session", session], READY)
+    Proc::start(
+        "physics-node",
+        &physics_exe(),
+        &["--session", session],
+        READY,
+    )
 }
 
 fn haptic(session: &str, trajectory: &std::path::Path) -> Proc {
     Proc::start(
         "haptic-node",
         &haptic_exe(),
-        &["--session", session, "--replay", trajectory.to_str().unwrap()],
+        &[
+            "--session",
+            session,
+            "--replay",
+            trajectory.to_str().unwrap(),
+        ],
         READY,
     )
 }
@@ -27,8 +37,13 @@ fn haptic(session: &str, trajectory: &std::path::Path) -> Proc {
 /// A probing of the mid region's centre site: hover 6 mm above, descend to `depth` below the
 /// undeformed surface, hold. `nan_from`: seconds of a NaN dropout (start, end) while holding.
 fn probing(dir: &std::path::Path, depth: f64, nan: Option<(f64, f64)>) -> PathBuf {
-    let sites = haptic_node::node::resolve_sites(&launch_config::DeviceConfig::default(), None).unwrap();
-    let site = sites.iter().filter(|s| s.region == 2).nth(2).expect("a mid-region site");
+    let sites =
+        haptic_node::node::resolve_sites(&launch_config::DeviceConfig::default(), None).unwrap();
+    let site = sites
+        .iter()
+        .filter(|s| s.region == 2)
+        .nth(2)
+        .expect("a mid-region site");
     let at = |h: f64| {
         [
             site.point[0] + site.normal[0] * h,
@@ -61,10 +76,19 @@ fn haptic_force_matches_the_real_physics_force_at_the_same_proxy() {
     let mut compared = 0;
     let mut worst: f64 = 0.0;
     for st in &w.seen_states {
-        if st.faults & (fault::STALE_FRAME | fault::INVALID_FRAME | fault::NONFINITE_DEVICE | fault::NONFINITE_FORCE) != 0 {
+        if st.faults
+            & (fault::STALE_FRAME
+                | fault::INVALID_FRAME
+                | fault::NONFINITE_DEVICE
+                | fault::NONFINITE_FORCE)
+            != 0
+        {
             continue;
         }
-        let Some(f) = w.seen_frames.iter().find(|f| f.sequence == st.frame_sequence_used && f.instance == st.frame_instance_used)
+        let Some(f) = w
+            .seen_frames
+            .iter()
+            .find(|f| f.sequence == st.frame_sequence_used && f.instance == st.frame_instance_used)
         else {
             continue;
         };
@@ -84,10 +108,17 @@ fn haptic_force_matches_the_real_physics_force_at_the_same_proxy() {
             );
         }
     }
-    let fmax = w.seen_frames.iter().map(|f| norm(f.contact_force)).fold(0.0, f64::max);
+    let fmax = w
+        .seen_frames
+        .iter()
+        .map(|f| norm(f.contact_force))
+        .fold(0.0, f64::max);
     eprintln!("compared {compared} ticks, worst relative difference {worst:.4}, physics force up to {fmax:.3} N");
     assert!(fmax > 0.1, "the probing made contact ({fmax} N)");
-    assert!(compared > 300, "ticks at the frame's proxy with contact: {compared}");
+    assert!(
+        compared > 300,
+        "ticks at the frame's proxy with contact: {compared}"
+    );
     assert_rate_limited_and_clamped(&w);
     std::fs::remove_dir_all(dir).ok();
 }
@@ -100,7 +131,9 @@ fn kill9_of_real_physics_ramps_to_zero_and_a_restart_is_picked_up() {
     let mut w = Watcher::new(&s);
     let mut phys = physics(&s);
     let _hap = haptic(&s, &traj);
-    w.until(Duration::from_secs(15), "contact force", |st| norm(st.rendered_force) > 0.3 && st.contact_count > 0);
+    w.until(Duration::from_secs(15), "contact force", |st| {
+        norm(st.rendered_force) > 0.3 && st.contact_count > 0
+    });
     w.watch(Duration::from_millis(300));
     let old_instance = w.seen_states.last().unwrap().frame_instance_used;
     let killed_ns = msgs::clock::monotonic_ns();
@@ -109,9 +142,11 @@ fn kill9_of_real_physics_ramps_to_zero_and_a_restart_is_picked_up() {
     check_ramp_after_kill(&w, killed_ns);
     // Restart in the same session, no manual cleanup.
     let _phys2 = physics(&s);
-    w.until(Duration::from_secs(30), "force from the restarted physics", |st| {
-        st.frame_instance_used != old_instance && norm(st.rendered_force) > 0.3
-    });
+    w.until(
+        Duration::from_secs(30),
+        "force from the restarted physics",
+        |st| st.frame_instance_used != old_instance && norm(st.rendered_force) > 0.3,
+    );
     w.watch(Duration::from_millis(200));
     assert_rate_limited_and_clamped(&w);
     std::fs::remove_dir_all(dir).ok();
@@ -127,14 +162,25 @@ fn nan_proxy_against_real_physics_produces_no_force() {
     let mut hap = haptic(&s, &traj);
     w.watch(Duration::from_millis(5500));
     assert_eq!(hap.terminate(Duration::from_secs(5)), Some(0));
-    let nan: Vec<_> = w.seen_states.iter().filter(|st| !st.proxy_pose.is_finite()).collect();
+    let nan: Vec<_> = w
+        .seen_states
+        .iter()
+        .filter(|st| !st.proxy_pose.is_finite())
+        .collect();
     assert!(nan.len() > 300, "{} NaN ticks", nan.len());
     for st in &nan {
         assert_eq!(st.rendered_force, [0.0; 3]);
         assert!(st.faults & fault::NONFINITE_DEVICE != 0);
     }
-    let pressed = w.seen_states.iter().filter(|st| st.proxy_pose.is_finite() && norm(st.rendered_force) > 0.3).count();
-    assert!(pressed > 300, "force while pressing outside the dropout: {pressed} ticks");
+    let pressed = w
+        .seen_states
+        .iter()
+        .filter(|st| st.proxy_pose.is_finite() && norm(st.rendered_force) > 0.3)
+        .count();
+    assert!(
+        pressed > 300,
+        "force while pressing outside the dropout: {pressed} ticks"
+    );
     assert_rate_limited_and_clamped(&w);
     std::fs::remove_dir_all(dir).ok();
 }

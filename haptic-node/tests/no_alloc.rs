@@ -50,7 +50,13 @@ fn servo_tick_does_not_allocate() {
     }
     for i in 0..96 {
         for j in 0..96 {
-            frame.compliance[i * MAX_ROWS + j] = if i == j { 2.0 } else if i % 3 == j % 3 { 0.5 } else { 0.0 };
+            frame.compliance[i * MAX_ROWS + j] = if i == j {
+                2.0
+            } else if i % 3 == j % 3 {
+                0.5
+            } else {
+                0.0
+            };
         }
     }
     let mut spare = boxed_frame();

@@ -37,10 +37,16 @@ fn load(spec: &str) -> Option<(TetMesh, Vec<usize>)> {
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let specs: Vec<String> = if args.is_empty() {
-        ["study:lateral", "default:lateral:coarse", "default:lateral:fine", "box:7:5:3", "box:24:12:7"]
-            .iter()
-            .map(|s| s.to_string())
-            .collect()
+        [
+            "study:lateral",
+            "default:lateral:coarse",
+            "default:lateral:fine",
+            "box:7:5:3",
+            "box:24:12:7",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect()
     } else {
         args
     };
@@ -57,7 +63,9 @@ fn main() {
         ("direct", LinearSolver::Direct),
     ];
     for spec in &specs {
-        let Some((mesh, fixed)) = load(spec) else { continue };
+        let Some((mesh, fixed)) = load(spec) else {
+            continue;
+        };
         let (lo, hi) = mesh.nodes.iter().fold(
             (Vector3::repeat(f64::MAX), Vector3::repeat(f64::MIN)),
             |(lo, hi), p| (lo.inf(&p.coords), hi.sup(&p.coords)),
@@ -107,7 +115,11 @@ fn main() {
             let t_all = Instant::now();
             for s in 0..steps {
                 let ph = s as f64 * 0.01;
-                forces[loaded] = Vector3::new(0.5 * ph.sin(), 0.3 * (0.7 * ph).cos(), -1.0 - 0.5 * (1.3 * ph).sin());
+                forces[loaded] = Vector3::new(
+                    0.5 * ph.sin(),
+                    0.3 * (0.7 * ph).cos(),
+                    -1.0 - 0.5 * (1.3 * ph).sin(),
+                );
                 let t = Instant::now();
                 fem.update_node_rotations();
                 let st = fem.free_motion(0.01, &forces).expect("free motion");

@@ -272,7 +272,8 @@ impl ConstraintCorrection {
         let mut any = false;
         for (k, c) in contacts.iter().enumerate() {
             // Impulse on the tissue: H_tissueᵀ λ with H_tissue = −w d.
-            let f_world = -(c.normal * lambda[3 * k] + c.t1 * lambda[3 * k + 1] + c.t2 * lambda[3 * k + 2]);
+            let f_world =
+                -(c.normal * lambda[3 * k] + c.t1 * lambda[3 * k + 1] + c.t2 * lambda[3 * k + 2]);
             if f_world == Vector3::zeros() {
                 continue;
             }
@@ -285,7 +286,9 @@ impl ConstraintCorrection {
                 let col = &cache.columns[slot as usize * 3 * dim..(slot as usize + 1) * 3 * dim];
                 let (c0, rest) = col.split_at(dim);
                 let (c1, c2) = rest.split_at(dim);
-                for ((dv, (&x0, &x1)), &x2) in self.dv_local.iter_mut().zip(c0.iter().zip(c1)).zip(c2) {
+                for ((dv, (&x0, &x1)), &x2) in
+                    self.dv_local.iter_mut().zip(c0.iter().zip(c1)).zip(c2)
+                {
                     *dv += x0 * g.x + x1 * g.y + x2 * g.z;
                 }
                 any = true;
@@ -300,7 +303,11 @@ impl ConstraintCorrection {
                 continue;
             }
             let f = f as usize;
-            let local = Vector3::new(self.dv_local[3 * f], self.dv_local[3 * f + 1], self.dv_local[3 * f + 2]);
+            let local = Vector3::new(
+                self.dv_local[3 * f],
+                self.dv_local[3 * f + 1],
+                self.dv_local[3 * f + 2],
+            );
             let d = rotations[node] * local * dt;
             dx[3 * node] = d.x;
             dx[3 * node + 1] = d.y;

@@ -16,7 +16,7 @@ use nalgebra::{Point3, Vector3};
 use parry3d_f64::bounding_volume::Aabb;
 use parry3d_f64::math::Vector as GVec;
 use parry3d_f64::query::PointQueryWithLocation;
-use parry3d_f64::shape::{Triangle, TriMesh, TriMeshFlags, TrianglePointLocation};
+use parry3d_f64::shape::{TriMesh, TriMeshFlags, Triangle, TrianglePointLocation};
 
 const NO_TRIANGLE: u32 = u32::MAX;
 
@@ -109,7 +109,10 @@ impl TissueSurface {
         // Edge adjacency through a sorted edge list (deterministic, no hashing).
         let mut edges: Vec<((u32, u32), u32, u8)> = Vec::with_capacity(local.len() * 3);
         for (t, l) in local.iter().enumerate() {
-            for (k, (a, b)) in [(l[0], l[1]), (l[1], l[2]), (l[0], l[2])].into_iter().enumerate() {
+            for (k, (a, b)) in [(l[0], l[1]), (l[1], l[2]), (l[0], l[2])]
+                .into_iter()
+                .enumerate()
+            {
                 edges.push(((a.min(b), a.max(b)), t as u32, k as u8));
             }
         }
@@ -193,7 +196,9 @@ impl TissueSurface {
     /// Angle-weighted pseudo-normal of the feature a projection landed on (unnormalised).
     fn pseudo_normal(&self, t: u32, location: &TrianglePointLocation) -> Vector3<f64> {
         match *location {
-            TrianglePointLocation::OnFace(..) | TrianglePointLocation::OnSolid => self.face_normals[t as usize],
+            TrianglePointLocation::OnFace(..) | TrianglePointLocation::OnSolid => {
+                self.face_normals[t as usize]
+            }
             TrianglePointLocation::OnEdge(k, _) => {
                 let other = self.neighbors[t as usize][k as usize];
                 let mut n = self.face_normals[t as usize];
@@ -206,7 +211,9 @@ impl TissueSurface {
                 let v = self.trimesh.indices()[t as usize][k as usize] as usize;
                 let verts = self.trimesh.vertices();
                 let mut n = Vector3::zeros();
-                for &tt in &self.vertex_tris[self.vertex_tri_start[v] as usize..self.vertex_tri_start[v + 1] as usize] {
+                for &tt in &self.vertex_tris
+                    [self.vertex_tri_start[v] as usize..self.vertex_tri_start[v + 1] as usize]
+                {
                     let l = self.trimesh.indices()[tt as usize];
                     let j = (0..3).find(|&j| l[j] as usize == v).unwrap_or(0);
                     let p = from_g(verts[l[j] as usize]);
@@ -348,15 +355,15 @@ impl ContactDetector {
             let pf = probe.sphere_world_free(i);
             let reach = radius + margin + (pf - p0).norm() + tissue_motion;
             // Cheap box rejection before the BVH query.
-            let outside_box = (0..3).any(|k| p0[k] < surface.lo[k] - reach || p0[k] > surface.hi[k] + reach);
+            let outside_box =
+                (0..3).any(|k| p0[k] < surface.lo[k] - reach || p0[k] > surface.hi[k] + reach);
             if outside_box {
                 self.tracked[i] = NO_TRIANGLE;
                 continue;
             }
-            let Some((proj, (tri, location))) =
-                surface
-                    .trimesh
-                    .project_local_point_and_get_location_with_max_dist(to_g(&p0), false, reach)
+            let Some((proj, (tri, location))) = surface
+                .trimesh
+                .project_local_point_and_get_location_with_max_dist(to_g(&p0), false, reach)
             else {
                 if self.tracked[i] == NO_TRIANGLE {
                     continue;
@@ -413,31 +420,64 @@ impl ContactDetector {
                         if dist > 1e-9 {
                             d / dist
                         } else {
-                            pseudo.try_normalize(0.0).unwrap_or_else(|| surface.face_normal(t))
+                            pseudo
+                                .try_normalize(0.0)
+                                .unwrap_or_else(|| surface.face_normal(t))
                         }
                     }
                 };
                 // Edges and vertices are reported by every triangle sharing them: keep one.
-                let duplicate = self.candidates[first..]
-                    .iter()
-                    .any(|k| (k.point - c).norm_squared() < 1e-18 && (k.normal - normal).norm_squared() < 1e-12);
+                let duplicate = self.candidates[first..].iter().any(|k| {
+                    (k.point - c).norm_squared() < 1e-18
+                        && (k.normal - normal).norm_squared() < 1e-12
+                });
                 if duplicate {
                     continue;
                 }
                 let weights = loc.barycentric_coordinates().unwrap_or([1.0 / 3.0; 3]);
-                self.push(i, t, weights, normal, radius, &c, &p0, &pf, surface, positions, free_positions, false);
+                self.push(
+                    i,
+                    t,
+                    weights,
+                    normal,
+                    radius,
+                    &c,
+                    &p0,
+                    &pf,
+                    surface,
+                    positions,
+                    free_positions,
+                    false,
+                );
             }
             if self.candidates.len() == first {
                 // Nothing but the nearest feature (numerically on an edge of a far side):
                 // fall back to it with its pseudo-normal.
                 let dist = to_point.norm();
                 let normal = match location {
-                    TrianglePointLocation::OnFace(..) | TrianglePointLocation::OnSolid => surface.face_normal(tri),
+                    TrianglePointLocation::OnFace(..) | TrianglePointLocation::OnSolid => {
+                        surface.face_normal(tri)
+                    }
                     _ if dist > 1e-9 => to_point / dist,
-                    _ => pseudo.try_normalize(0.0).unwrap_or_else(|| surface.face_normal(tri)),
+                    _ => pseudo
+                        .try_normalize(0.0)
+                        .unwrap_or_else(|| surface.face_normal(tri)),
                 };
                 let weights = location.barycentric_coordinates().unwrap_or([1.0 / 3.0; 3]);
-                self.push(i, tri, weights, normal, radius, &c, &p0, &pf, surface, positions, free_positions, false);
+                self.push(
+                    i,
+                    tri,
+                    weights,
+                    normal,
+                    radius,
+                    &c,
+                    &p0,
+                    &pf,
+                    surface,
+                    positions,
+                    free_positions,
+                    false,
+                );
             } else if self.candidates[first..].iter().any(|k| k.triangle == tri) {
                 // Track the nearest triangle for the inside case.
                 self.tracked[i] = tri;
@@ -481,9 +521,15 @@ impl ContactDetector {
                 continue;
             }
             let first = self.candidates.len();
-            let aabb = Aabb::new(to_g(&(p0 - Vector3::repeat(reach))), to_g(&(p0 + Vector3::repeat(reach))));
+            let aabb = Aabb::new(
+                to_g(&(p0 - Vector3::repeat(reach))),
+                to_g(&(p0 + Vector3::repeat(reach))),
+            );
             for t in support.trimesh.bvh().intersect_aabb(&aabb) {
-                let (proj, loc) = support.trimesh.triangle(t).project_local_point_and_get_location(to_g(&p0), false);
+                let (proj, loc) = support
+                    .trimesh
+                    .triangle(t)
+                    .project_local_point_and_get_location(to_g(&p0), false);
                 let c = from_g(proj.point);
                 if (p0 - c).norm() > reach {
                     continue;
@@ -493,14 +539,28 @@ impl ContactDetector {
                     .pseudo_normal(t, &loc)
                     .try_normalize(0.0)
                     .unwrap_or_else(|| support.face_normal(t));
-                let duplicate = self.candidates[first..]
-                    .iter()
-                    .any(|k| (k.point - c).norm_squared() < 1e-18 && (k.normal - normal).norm_squared() < 1e-12);
+                let duplicate = self.candidates[first..].iter().any(|k| {
+                    (k.point - c).norm_squared() < 1e-18
+                        && (k.normal - normal).norm_squared() < 1e-12
+                });
                 if duplicate {
                     continue;
                 }
                 let weights = loc.barycentric_coordinates().unwrap_or([1.0 / 3.0; 3]);
-                self.push(i, t, weights, normal, radius, &c, &p0, &pf, support, positions, free_positions, true);
+                self.push(
+                    i,
+                    t,
+                    weights,
+                    normal,
+                    radius,
+                    &c,
+                    &p0,
+                    &pf,
+                    support,
+                    positions,
+                    free_positions,
+                    true,
+                );
             }
         }
     }
@@ -536,7 +596,20 @@ impl ContactDetector {
         let t = best.0;
         let (c, w) = surface.project_on_triangle(t, p0);
         let n = surface.face_normal(t);
-        self.push(i, t, w, n, radius, &c, p0, pf, surface, positions, free_positions, false);
+        self.push(
+            i,
+            t,
+            w,
+            n,
+            radius,
+            &c,
+            p0,
+            pf,
+            surface,
+            positions,
+            free_positions,
+            false,
+        );
     }
 
     #[allow(clippy::too_many_arguments)]

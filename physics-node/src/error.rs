@@ -8,7 +8,11 @@ pub enum PhysicsError {
     #[error("{path}: cannot read: {detail}")]
     Io { path: String, detail: String },
     #[error("{path}:{line}: {detail}")]
-    Parse { path: String, line: usize, detail: String },
+    Parse {
+        path: String,
+        line: usize,
+        detail: String,
+    },
     #[error("mesh: {0}")]
     Mesh(String),
     #[error("fem: {0}")]

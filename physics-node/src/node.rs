@@ -63,7 +63,10 @@ pub fn run_node(args: NodeArgs) -> anyhow::Result<()> {
         Some(dir) => {
             std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
             let path = dir.join("contact_force.csv");
-            Some(ContactForceCsv::create(&path).with_context(|| format!("creating {}", path.display()))?)
+            Some(
+                ContactForceCsv::create(&path)
+                    .with_context(|| format!("creating {}", path.display()))?,
+            )
         }
         None => None,
     };
@@ -107,7 +110,10 @@ pub fn run_node(args: NodeArgs) -> anyhow::Result<()> {
             last_target_time = Some(sim.time());
         }
         let target_active = last_target_time.is_some_and(|t| sim.time() - t < TARGET_HOLD_S);
-        if ipc::take_newest(&device_sub, &mut device)? > 0 && !target_active && device.proxy_pose.is_finite() {
+        if ipc::take_newest(&device_sub, &mut device)? > 0
+            && !target_active
+            && device.proxy_pose.is_finite()
+        {
             sim.set_proxy_pose(&device.proxy_pose);
             sim.set_device_sequence(device.sequence);
         }
@@ -123,7 +129,9 @@ pub fn run_node(args: NodeArgs) -> anyhow::Result<()> {
         if sim.time() + 1e-9 >= next_surface_time {
             next_surface_time = sim.time() + SURFACE_PERIOD_S;
             surface_seq += 1;
-            ipc::send_with(&surface_pub, |s| fill_surface(&sim, s, instance_id, surface_seq))?;
+            ipc::send_with(&surface_pub, |s| {
+                fill_surface(&sim, s, instance_id, surface_seq)
+            })?;
         }
         if let Some(csv) = csv.as_mut() {
             csv.write(&sim)?;
@@ -136,7 +144,10 @@ pub fn run_node(args: NodeArgs) -> anyhow::Result<()> {
         if deadline > now {
             std::thread::sleep(deadline - now);
         } else if now - deadline > Duration::from_secs_f64(dt * MAX_LAG_STEPS as f64) {
-            tracing::warn!(lag_ms = (now - deadline).as_secs_f64() * 1e3, "physics behind real time; re-anchoring");
+            tracing::warn!(
+                lag_ms = (now - deadline).as_secs_f64() * 1e3,
+                "physics behind real time; re-anchoring"
+            );
             anchor = now;
             steps_since_anchor = 0;
         }

@@ -80,7 +80,10 @@ pub fn pose_to_nalgebra(pose: &msgs::Pose) -> Option<(Vector3<f64>, UnitQuaterni
     if q.norm() < 1e-9 {
         return None;
     }
-    Some((Vector3::from(pose.position), UnitQuaternion::from_quaternion(q)))
+    Some((
+        Vector3::from(pose.position),
+        UnitQuaternion::from_quaternion(q),
+    ))
 }
 
 /// Converts (position, unit quaternion) into a wire pose.
@@ -95,7 +98,11 @@ pub fn nalgebra_to_pose(p: &Vector3<f64>, q: &UnitQuaternion<f64>) -> msgs::Pose
 impl Probe {
     /// Builds the probe from its configuration; `data_dir` resolves relative OBJ paths that
     /// are not found as given.
-    pub fn new(cfg: &ProbeConfig, contact_distance: f64, data_dir: &Path) -> Result<Probe, PhysicsError> {
+    pub fn new(
+        cfg: &ProbeConfig,
+        contact_distance: f64,
+        data_dir: &Path,
+    ) -> Result<Probe, PhysicsError> {
         let bad = |what: &str| PhysicsError::Config(format!("probe: {what}"));
         if !(cfg.mass.is_finite() && cfg.mass > 0.0) {
             return Err(bad("mass must be finite and > 0"));
@@ -117,8 +124,8 @@ impl Probe {
             position: cfg.initial_position,
             orientation: cfg.initial_orientation,
         };
-        let (position, orientation) =
-            pose_to_nalgebra(&init).ok_or_else(|| bad("initial pose is not finite or has a zero quaternion"))?;
+        let (position, orientation) = pose_to_nalgebra(&init)
+            .ok_or_else(|| bad("initial pose is not finite or has a zero quaternion"))?;
 
         let spheres = match cfg.model.as_str() {
             "default" | "hook" => builtin_hook(cfg.tip_radius),
@@ -143,7 +150,8 @@ impl Probe {
         let m = cfg.mass;
         let i_perp = m * ROD_LENGTH * ROD_LENGTH / 12.0;
         let i_axis = 0.5 * m * ROD_RADIUS * ROD_RADIUS;
-        let inertia_body = Matrix3::identity() * i_perp + axis * axis.transpose() * (i_axis - i_perp);
+        let inertia_body =
+            Matrix3::identity() * i_perp + axis * axis.transpose() * (i_axis - i_perp);
 
         let mut probe = Probe {
             spheres,
@@ -168,7 +176,10 @@ impl Probe {
             inv_inertia_eff: Matrix3::zeros(),
         };
         probe.inv_mass_eff = 1.0 / m;
-        probe.inv_inertia_eff = probe.inertia_body.try_inverse().unwrap_or_else(Matrix3::zeros);
+        probe.inv_inertia_eff = probe
+            .inertia_body
+            .try_inverse()
+            .unwrap_or_else(Matrix3::zeros);
         Ok(probe)
     }
 
@@ -208,7 +219,8 @@ impl Probe {
                 // the end of the step, so any stiffness is stable at dt = 10 ms.
                 let m_eff = self.mass + dt * self.damping + dt * dt * self.stiffness;
                 let rhs = self.mass * self.velocity
-                    + dt * (self.stiffness * (self.target_position - self.position) + self.mass * gravity);
+                    + dt * (self.stiffness * (self.target_position - self.position)
+                        + self.mass * gravity);
                 self.inv_mass_eff = 1.0 / m_eff;
                 self.free_velocity = rhs * self.inv_mass_eff;
                 self.free_position = self.position + dt * self.free_velocity;
@@ -216,13 +228,15 @@ impl Probe {
                 let r = self.orientation.to_rotation_matrix();
                 let j_world = r.matrix() * self.inertia_body * r.matrix().transpose();
                 let j_eff = j_world
-                    + Matrix3::identity() * (dt * self.angular_damping + dt * dt * self.angular_stiffness);
+                    + Matrix3::identity()
+                        * (dt * self.angular_damping + dt * dt * self.angular_stiffness);
                 self.inv_inertia_eff = j_eff.try_inverse().unwrap_or_else(Matrix3::zeros);
                 let err = (self.target_orientation * self.orientation.inverse()).scaled_axis();
                 let rhs_w = j_world * self.angular_velocity + dt * self.angular_stiffness * err;
                 self.free_angular_velocity = self.inv_inertia_eff * rhs_w;
                 self.free_orientation =
-                    UnitQuaternion::from_scaled_axis(dt * self.free_angular_velocity) * self.orientation;
+                    UnitQuaternion::from_scaled_axis(dt * self.free_angular_velocity)
+                        * self.orientation;
             }
         }
     }
@@ -248,7 +262,11 @@ impl Probe {
     /// Velocity change of the probe for a generalized impulse `[linear; angular]` about the
     /// free position: M_eff⁻¹ (zero for a kinematic probe).
     #[inline]
-    pub fn mobility(&self, linear: &Vector3<f64>, angular: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
+    pub fn mobility(
+        &self,
+        linear: &Vector3<f64>,
+        angular: &Vector3<f64>,
+    ) -> (Vector3<f64>, Vector3<f64>) {
         (linear * self.inv_mass_eff, self.inv_inertia_eff * angular)
     }
 
@@ -271,7 +289,8 @@ impl Probe {
     pub fn kinetic_energy(&self) -> f64 {
         let r = self.orientation.to_rotation_matrix();
         let j = r.matrix() * self.inertia_body * r.matrix().transpose();
-        0.5 * self.mass * self.velocity.norm_squared() + 0.5 * self.angular_velocity.dot(&(j * self.angular_velocity))
+        0.5 * self.mass * self.velocity.norm_squared()
+            + 0.5 * self.angular_velocity.dot(&(j * self.angular_velocity))
     }
 
     /// Potential energy of the coupling spring, J.
@@ -347,7 +366,9 @@ fn obj_line_model(
             Some("v") => {
                 let mut c = [0.0; 3];
                 for v in c.iter_mut() {
-                    let s = it.next().ok_or_else(|| bad(ln + 1, "vertex with fewer than 3 coordinates".into()))?;
+                    let s = it.next().ok_or_else(|| {
+                        bad(ln + 1, "vertex with fewer than 3 coordinates".into())
+                    })?;
                     *v = s
                         .parse::<f64>()
                         .map_err(|_| bad(ln + 1, format!("bad coordinate {s:?}")))?;
@@ -366,7 +387,10 @@ fn obj_line_model(
                         .map_err(|_| bad(ln + 1, format!("bad index {s:?}")))?;
                     let i = if i < 0 { verts.len() as i64 + i } else { i - 1 };
                     if i < 0 || i as usize >= verts.len() {
-                        return Err(bad(ln + 1, format!("index {s} out of range ({} vertices)", verts.len())));
+                        return Err(bad(
+                            ln + 1,
+                            format!("index {s} out of range ({} vertices)", verts.len()),
+                        ));
                     }
                     idx.push(i as usize);
                 }
@@ -390,9 +414,16 @@ fn obj_line_model(
     let mut seen = std::collections::BTreeSet::new();
     let mut out = Vec::new();
     let mut add = |p: Vector3<f64>| {
-        let key = ((p.x / q).round() as i64, (p.y / q).round() as i64, (p.z / q).round() as i64);
+        let key = (
+            (p.x / q).round() as i64,
+            (p.y / q).round() as i64,
+            (p.z / q).round() as i64,
+        );
         if seen.insert(key) {
-            out.push(CollisionSphere { local: p, radius: 0.0 });
+            out.push(CollisionSphere {
+                local: p,
+                radius: 0.0,
+            });
         }
     };
     for v in &verts {
@@ -413,7 +444,8 @@ fn obj_line_model(
 /// Rotation from extrinsic x, then y, then z angles in degrees (the scene transform rule).
 pub fn rotation_from_deg(deg: [f64; 3]) -> Matrix3<f64> {
     let r = |axis: Vector3<f64>, d: f64| {
-        *nalgebra::Rotation3::from_axis_angle(&nalgebra::Unit::new_normalize(axis), d.to_radians()).matrix()
+        *nalgebra::Rotation3::from_axis_angle(&nalgebra::Unit::new_normalize(axis), d.to_radians())
+            .matrix()
     };
     r(Vector3::z(), deg[2]) * r(Vector3::y(), deg[1]) * r(Vector3::x(), deg[0])
 }

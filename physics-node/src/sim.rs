@@ -95,6 +95,8 @@ pub struct Simulation {
     visual_nodes: Vec<usize>,
     visual_positions: Vec<Point3<f64>>,
     visual_triangles: Vec<[usize; 3]>,
+    /// Configured visual surface (replaces the boundary as the visual model).
+    visual: Option<crate::visual::VisualModel>,
     sites: Vec<ProbingSite>,
     degeneration_grade: f64,
     /// Reduced dimension of the rest system (3 × free nodes).
@@ -107,13 +109,18 @@ impl Simulation {
     /// compliance cache, collision surface, probe.
     pub fn new(scene: &SceneConfig, data_dir: &Path) -> Result<Simulation, PhysicsError> {
         if !(scene.dt.is_finite() && scene.dt > 0.0) {
-            return Err(PhysicsError::Config(format!("dt must be > 0 s, got {}", scene.dt)));
+            return Err(PhysicsError::Config(format!(
+                "dt must be > 0 s, got {}",
+                scene.dt
+            )));
         }
         if !scene.gravity.iter().all(|g| g.is_finite()) {
             return Err(PhysicsError::Config("gravity is not finite".into()));
         }
         let c = &scene.contact;
-        if !(c.alarm_distance.is_finite() && c.contact_distance.is_finite() && c.contact_distance >= 0.0)
+        if !(c.alarm_distance.is_finite()
+            && c.contact_distance.is_finite()
+            && c.contact_distance >= 0.0)
             || c.alarm_distance < c.contact_distance
         {
             return Err(PhysicsError::Config(format!(
@@ -122,7 +129,10 @@ impl Simulation {
             )));
         }
         if !(c.friction.is_finite() && c.friction >= 0.0) {
-            return Err(PhysicsError::Config(format!("contact: friction must be ≥ 0, got {}", c.friction)));
+            return Err(PhysicsError::Config(format!(
+                "contact: friction must be ≥ 0, got {}",
+                c.friction
+            )));
         }
         if c.max_contacts == 0 || c.max_contacts as usize > MAX_CONTACTS {
             return Err(PhysicsError::Config(format!(
@@ -131,17 +141,31 @@ impl Simulation {
             )));
         }
         if !(c.lcp_tolerance.is_finite() && c.lcp_tolerance >= 0.0) || c.lcp_max_iterations == 0 {
-            return Err(PhysicsError::Config("contact: lcp_tolerance ≥ 0 and lcp_max_iterations ≥ 1 needed".into()));
+            return Err(PhysicsError::Config(
+                "contact: lcp_tolerance ≥ 0 and lcp_max_iterations ≥ 1 needed".into(),
+            ));
         }
 
-        let loaded = crate::mesh::load_scene_mesh(&scene.meniscus, data_dir).map_err(|e| PhysicsError::Mesh(e.to_string()))?;
+        let loaded = crate::mesh::load_scene_mesh(&scene.meniscus, data_dir)
+            .map_err(|e| PhysicsError::Mesh(e.to_string()))?;
         let mesh = loaded.mesh;
         let fixed = loaded.fixed_nodes;
         let sites = loaded.probing_sites;
+        // High-resolution visual surface carried barycentrically by the tets, if configured.
+        let visual = match loaded.visual {
+            Some(surface) => Some(
+                crate::visual::VisualModel::new(&mesh, surface)
+                    .map_err(|e| PhysicsError::Mesh(e.to_string()))?,
+            ),
+            None => None,
+        };
 
-        let material = Material::from_config(&scene.material).map_err(|e| PhysicsError::Fem(e.to_string()))?;
-        let settings = FemSettings::from_scene(scene).map_err(|e| PhysicsError::Fem(e.to_string()))?;
-        let mut fem = FemModel::new(&mesh, material, &fixed, settings).map_err(|e| PhysicsError::Fem(e.to_string()))?;
+        let material =
+            Material::from_config(&scene.material).map_err(|e| PhysicsError::Fem(e.to_string()))?;
+        let settings =
+            FemSettings::from_scene(scene).map_err(|e| PhysicsError::Fem(e.to_string()))?;
+        let mut fem = FemModel::new(&mesh, material, &fixed, settings)
+            .map_err(|e| PhysicsError::Fem(e.to_string()))?;
         let mut rest = fem
             .rest_compliance(scene.dt, BLOCK_COLUMNS)
             .map_err(|e| PhysicsError::Fem(e.to_string()))?;
@@ -157,13 +181,19 @@ impl Simulation {
             .collect();
         let support = TissueSurface::new(support_tris, &mesh.nodes);
         let free_index: Vec<u32> = (0..mesh.nodes.len())
-            .map(|n| rest.free_index(n).map_or(crate::compliance::NONE, |i| i as u32))
+            .map(|n| {
+                rest.free_index(n)
+                    .map_or(crate::compliance::NONE, |i| i as u32)
+            })
             .collect();
         let dim = cache_dim(&rest);
         let cache = ComplianceCache::new(
             free_index,
             &surface.nodes,
-            &mut RestFactor { rest: &mut rest, dim },
+            &mut RestFactor {
+                rest: &mut rest,
+                dim,
+            },
             COMPLIANCE_BUDGET_BYTES,
         );
 
@@ -178,7 +208,8 @@ impl Simulation {
         let mut slot = Box::new(core::mem::MaybeUninit::<ContactFrame>::uninit());
         msgs::Topic::zeroed_in(&mut *slot);
         // SAFETY: zeroed_in initialised the frame (plain old data).
-        let mut frame: Box<ContactFrame> = unsafe { Box::from_raw(Box::into_raw(slot) as *mut ContactFrame) };
+        let mut frame: Box<ContactFrame> =
+            unsafe { Box::from_raw(Box::into_raw(slot) as *mut ContactFrame) };
         frame.dt_s = scene.dt;
         frame.friction_mu = c.friction;
         frame.probe_pose = probe.pose();
@@ -192,7 +223,13 @@ impl Simulation {
         }
         let visual_triangles = triangles
             .iter()
-            .map(|t| [node_to_visual[t[0]], node_to_visual[t[1]], node_to_visual[t[2]]])
+            .map(|t| {
+                [
+                    node_to_visual[t[0]],
+                    node_to_visual[t[1]],
+                    node_to_visual[t[2]],
+                ]
+            })
             .collect();
         let visual_positions = visual_nodes.iter().map(|&n| mesh.nodes[n]).collect();
 
@@ -232,6 +269,7 @@ impl Simulation {
             visual_nodes,
             visual_positions,
             visual_triangles,
+            visual,
             sites,
             degeneration_grade: scene.material.degeneration_grade,
             dim,
@@ -273,7 +311,9 @@ impl Simulation {
     /// factorization and compliance cache (allocates; not for the real-time loop's steps).
     pub fn set_degeneration_grade(&mut self, grade: f64) -> Result<(), PhysicsError> {
         if !(grade.is_finite() && (0.0..=2.0).contains(&grade)) {
-            return Err(PhysicsError::Config(format!("degeneration grade must be in 0..=2, got {grade}")));
+            return Err(PhysicsError::Config(format!(
+                "degeneration grade must be in 0..=2, got {grade}"
+            )));
         }
         if grade == self.degeneration_grade {
             return Ok(());
@@ -281,13 +321,19 @@ impl Simulation {
         let mut cfg = self.scene.material.clone();
         cfg.degeneration_grade = grade;
         let material = Material::from_config(&cfg).map_err(|e| PhysicsError::Fem(e.to_string()))?;
-        self.fem.set_material(material).map_err(|e| PhysicsError::Fem(e.to_string()))?;
+        self.fem
+            .set_material(material)
+            .map_err(|e| PhysicsError::Fem(e.to_string()))?;
         self.rest = self
             .fem
             .rest_compliance(self.dt, BLOCK_COLUMNS)
             .map_err(|e| PhysicsError::Fem(e.to_string()))?;
         let free_index: Vec<u32> = (0..self.fem.node_count())
-            .map(|n| self.rest.free_index(n).map_or(crate::compliance::NONE, |i| i as u32))
+            .map(|n| {
+                self.rest
+                    .free_index(n)
+                    .map_or(crate::compliance::NONE, |i| i as u32)
+            })
             .collect();
         self.cache = ComplianceCache::new(
             free_index,
@@ -346,14 +392,22 @@ impl Simulation {
         for &n in &self.surface.nodes {
             motion = motion.max((xf[n] - x0[n]).norm());
         }
-        self.detector
-            .detect(&self.probe, &self.surface, self.support.as_ref(), x0, xf, motion);
+        self.detector.detect(
+            &self.probe,
+            &self.surface,
+            self.support.as_ref(),
+            x0,
+            xf,
+            motion,
+        );
         // A kinematic probe against held nodes only is a rigid–rigid contact: nothing can
         // move to resolve it (W = 0), so it carries no constraint.
         if self.probe.drive == crate::probe::ProbeDrive::Kinematic {
             let cache = &self.cache;
             self.detector.contacts.retain(|c| {
-                (0..3).any(|a| c.weights[a] > 1e-9 && cache.free_index(c.nodes[a]) != crate::compliance::NONE)
+                (0..3).any(|a| {
+                    c.weights[a] > 1e-9 && cache.free_index(c.nodes[a]) != crate::compliance::NONE
+                })
             });
         }
         lap(&mut self.times.detection_ns, &mut last);
@@ -423,7 +477,11 @@ impl Simulation {
             *w = [0.0; 3];
         }
         for (k, c) in contacts.iter().enumerate() {
-            self.warm[c.sphere] = [self.lambda[3 * k], self.lambda[3 * k + 1], self.lambda[3 * k + 2]];
+            self.warm[c.sphere] = [
+                self.lambda[3 * k],
+                self.lambda[3 * k + 1],
+                self.lambda[3 * k + 2],
+            ];
         }
 
         lap(&mut self.times.lcp_ns, &mut last);
@@ -439,9 +497,14 @@ impl Simulation {
         let proxy_pose = self.probe.target_pose();
         self.probe.commit(dt, &impulse, &angular);
         if m > 0
-            && self
-                .correction
-                .tissue_displacement(contacts, &self.cache, rotations, &self.lambda[..rows], dt, &mut self.dx)
+            && self.correction.tissue_displacement(
+                contacts,
+                &self.cache,
+                rotations,
+                &self.lambda[..rows],
+                dt,
+                &mut self.dx,
+            )
         {
             self.fem
                 .apply_correction_full(&self.dx)
@@ -457,7 +520,9 @@ impl Simulation {
 
         let force = impulse / dt;
         let torque = angular / dt;
-        if !(force.iter().all(|v| v.is_finite()) && self.probe.position.iter().all(|v| v.is_finite())) {
+        if !(force.iter().all(|v| v.is_finite())
+            && self.probe.position.iter().all(|v| v.is_finite()))
+        {
             return Err(PhysicsError::Numerical {
                 time: self.time,
                 detail: "non-finite contact force or probe position".into(),
@@ -487,8 +552,13 @@ impl Simulation {
 
         // Visual model follows the nodes.
         let x = self.fem.positions();
-        for (dst, &n) in self.visual_positions.iter_mut().zip(&self.visual_nodes) {
-            *dst = x[n];
+        match &mut self.visual {
+            Some(v) => v.update(x),
+            None => {
+                for (dst, &n) in self.visual_positions.iter_mut().zip(&self.visual_nodes) {
+                    *dst = x[n];
+                }
+            }
         }
         Ok(())
     }
@@ -525,11 +595,18 @@ impl Simulation {
 
     /// Visual model vertices, world m.
     pub fn surface_positions(&self) -> &[Point3<f64>] {
-        &self.visual_positions
+        match &self.visual {
+            Some(v) => &v.positions,
+            None => &self.visual_positions,
+        }
     }
 
+    /// Visual model triangles, counter-clockwise seen from outside.
     pub fn surface_triangles(&self) -> &[[usize; 3]] {
-        &self.visual_triangles
+        match &self.visual {
+            Some(v) => &v.surface.triangles,
+            None => &self.visual_triangles,
+        }
     }
 
     pub fn probing_sites(&self) -> &[ProbingSite] {
@@ -563,7 +640,8 @@ impl Simulation {
     /// gravity, coupling spring). Without input it must not grow.
     pub fn energy(&mut self) -> f64 {
         let g = self.gravity;
-        let tissue = self.fem.elastic_energy() + self.fem.kinetic_energy() + self.fem.gravity_energy();
+        let tissue =
+            self.fem.elastic_energy() + self.fem.kinetic_energy() + self.fem.gravity_energy();
         let probe_gravity = -self.probe.mass() * g.dot(&self.probe.position);
         let coupling = match self.probe.drive {
             crate::probe::ProbeDrive::Coupled => self.probe.coupling_energy(),
@@ -584,7 +662,9 @@ impl Simulation {
 }
 
 fn cache_dim(rest: &RestCompliance) -> usize {
-    3 * (0..rest.node_count()).filter(|&n| rest.free_index(n).is_some()).count()
+    3 * (0..rest.node_count())
+        .filter(|&n| rest.free_index(n).is_some())
+        .count()
 }
 
 /// Contact-force CSV export: `time_s,fx_n,fy_n,fz_n,contacts,px_m,py_m,pz_m,qx,qy,qz,qw`.

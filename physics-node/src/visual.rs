@@ -475,7 +475,10 @@ mod tests {
         for _ in 0..200 {
             visual.update(&m.mesh.nodes);
         }
-        eprintln!("visual update: {:.1} µs per step", started.elapsed().as_secs_f64() / 200.0 * 1e6);
+        eprintln!(
+            "visual update: {:.1} µs per step",
+            started.elapsed().as_secs_f64() / 200.0 * 1e6
+        );
         let r = Rotation3::from_axis_angle(&Vector3::y_axis(), 0.3);
         let t = Vector3::new(0.0, 0.01, 0.0);
         let moved: Vec<Point3<f64>> = m.mesh.nodes.iter().map(|p| r * p + t).collect();

@@ -39,7 +39,12 @@ fn check(mesh: &str, friction: f64) {
     scene.meniscus.mesh = mesh.into();
     scene.contact.friction = friction;
     let mut sim = Simulation::new(&scene, &launch_config::data_dir()).unwrap();
-    let site = sim.probing_sites().iter().find(|s| s.region == 2).unwrap().clone();
+    let site = sim
+        .probing_sites()
+        .iter()
+        .find(|s| s.region == 2)
+        .unwrap()
+        .clone();
     let n = site.normal.normalize();
     let q = UnitQuaternion::rotation_between(&Vector3::z(), &n).unwrap();
     let (t1, _) = physics_node::contact::tangents(&n);
@@ -47,7 +52,10 @@ fn check(mesh: &str, friction: f64) {
     sim.teleport_probe(&physics_node::probe::pose(site.point + n * (r + 0.2e-3), q));
     let target = |k: usize| {
         let t = k as f64 * 0.01;
-        physics_node::probe::pose(site.point + n * (r - 1.5e-3 * (t / 0.3).min(1.0)) + t1 * (2e-3 * (2.0 * t).sin()), q)
+        physics_node::probe::pose(
+            site.point + n * (r - 1.5e-3 * (t / 0.3).min(1.0)) + t1 * (2e-3 * (2.0 * t).sin()),
+            q,
+        )
     };
     for k in 0..60 {
         sim.set_proxy_pose(&target(k));
@@ -66,7 +74,10 @@ fn check(mesh: &str, friction: f64) {
     }
     let n_alloc = ALLOCATIONS.load(Ordering::SeqCst);
     println!("{mesh}: {n_alloc} allocations in 200 steps, {contact_steps} with contact");
-    assert_eq!(contact_steps, 200, "contact must be active in every measured step");
+    assert_eq!(
+        contact_steps, 200,
+        "contact must be active in every measured step"
+    );
     assert_eq!(n_alloc, 0, "Simulation::step allocated {n_alloc} times");
 }
 

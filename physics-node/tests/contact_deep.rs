@@ -12,10 +12,16 @@ fn run(model: &str) {
         s
     };
     let mut sim = Simulation::new(&scene, &launch_config::data_dir()).unwrap();
-    let site = sim.probing_sites().iter().find(|s| s.region == 2).unwrap().clone();
+    let site = sim
+        .probing_sites()
+        .iter()
+        .find(|s| s.region == 2)
+        .unwrap()
+        .clone();
     let n = site.normal.normalize();
     let r = scene.probe.tip_radius;
-    let q = UnitQuaternion::rotation_between(&Vector3::z(), &n).unwrap_or_else(UnitQuaternion::identity);
+    let q = UnitQuaternion::rotation_between(&Vector3::z(), &n)
+        .unwrap_or_else(UnitQuaternion::identity);
     let (t1, _) = physics_node::contact::tangents(&n);
     let above = site.point + n * (r + 0.5e-3);
     sim.teleport_probe(&physics_node::probe::pose(above, q));
@@ -47,7 +53,14 @@ fn run(model: &str) {
         }
         for c in sim.contacts() {
             if std::env::var("DEEP_DEBUG").is_ok() && c.gap_start < -1e-3 {
-                println!("k {k} deep contact: sphere {} tri {} nodes {:?} gap {:.2} mm n {:?}", c.sphere, c.triangle, c.nodes, c.gap_start * 1e3, c.normal);
+                println!(
+                    "k {k} deep contact: sphere {} tri {} nodes {:?} gap {:.2} mm n {:?}",
+                    c.sphere,
+                    c.triangle,
+                    c.nodes,
+                    c.gap_start * 1e3,
+                    c.normal
+                );
             }
             min_gap = min_gap.min(c.gap_start);
             contacts_total += 1;
@@ -57,7 +70,12 @@ fn run(model: &str) {
             min_normal_dot = min_normal_dot.min(c.normal.dot(&n));
         }
         if std::env::var("DEEP_DEBUG").is_ok() {
-            let zmin = sim.fem().positions().iter().map(|p| p.z).fold(f64::INFINITY, f64::min);
+            let zmin = sim
+                .fem()
+                .positions()
+                .iter()
+                .map(|p| p.z)
+                .fold(f64::INFINITY, f64::min);
             let p = sim.probe_pose().position;
             println!(
                 "k {k} t {t:.2} proxy_depth {:.2} mm probe z {:.2} mm zmin {:.2} mm f {:?} contacts {:?}",
@@ -71,11 +89,18 @@ fn run(model: &str) {
         let f = Vector3::from(sim.contact_force());
         max_force = max_force.max(f.norm());
         if f.norm() > 1e-9 {
-            assert!(f.dot(&n) > 0.0, "step {k}: contact force {f:?} pulls the probe into the tissue");
+            assert!(
+                f.dot(&n) > 0.0,
+                "step {k}: contact force {f:?} pulls the probe into the tissue"
+            );
         }
         // Tunnelling: the probe tip never reaches the inferior (fixed) side of the meniscus.
         let p = Vector3::from(sim.probe_pose().position);
-        assert!(p.z > 0.0, "step {k}: probe tip at z = {} passed the inferior plane", p.z);
+        assert!(
+            p.z > 0.0,
+            "step {k}: probe tip at z = {} passed the inferior plane",
+            p.z
+        );
         assert!(
             (p - site.point.coords).dot(&n) > -depth,
             "step {k}: probe tunnelled ({} m along the normal)",
@@ -87,12 +112,17 @@ fn run(model: &str) {
         min_gap * 1e3,
         lost.len()
     );
-    println!("{behind} of {contacts_total} contacts had the sphere centre behind the contact plane");
+    println!(
+        "{behind} of {contacts_total} contacts had the sphere centre behind the contact plane"
+    );
     assert!(lost.is_empty(), "contact lost at steps {lost:?}");
     // Crushed, inverted elements (hundreds of N through the stiff coupling) can fold a
     // triangle over the probe for a step; the net force must still push out (checked per
     // step above) and such contacts must stay rare.
-    assert!(behind * 100 <= contacts_total, "{behind} of {contacts_total} contact normals point away from the probe");
+    assert!(
+        behind * 100 <= contacts_total,
+        "{behind} of {contacts_total} contact normals point away from the probe"
+    );
     assert_eq!(sim.contact_count(), 0, "contact must end after retraction");
     assert!(sim.contact_force().iter().all(|f| *f == 0.0));
 }

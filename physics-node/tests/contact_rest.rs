@@ -17,14 +17,25 @@ fn write_msh22(mesh: &TetMesh, path: &Path) {
     }
     s += &format!("$EndNodes\n$Elements\n{}\n", mesh.tets.len());
     for (i, t) in mesh.tets.iter().enumerate() {
-        s += &format!("{} 4 2 0 1 {} {} {} {}\n", i + 1, t[0] + 1, t[1] + 1, t[2] + 1, t[3] + 1);
+        s += &format!(
+            "{} 4 2 0 1 {} {} {} {}\n",
+            i + 1,
+            t[0] + 1,
+            t[1] + 1,
+            t[2] + 1,
+            t[3] + 1
+        );
     }
     s += "$EndElements\n";
     std::fs::write(path, s).unwrap();
 }
 
 /// A 30 × 30 × 6 mm tissue block centred on the origin, top at z = 6 mm, bottom held.
-fn block_scene(name: &str, friction: f64, gravity: Vector3<f64>) -> (launch_config::SceneConfig, PathBuf) {
+fn block_scene(
+    name: &str,
+    friction: f64,
+    gravity: Vector3<f64>,
+) -> (launch_config::SceneConfig, PathBuf) {
     let mut mesh = box_mesh(0.03, 0.03, 0.006, 8, 8, 3);
     for p in &mut mesh.nodes {
         p.x -= 0.015;
@@ -54,7 +65,10 @@ fn probe_resting_under_gravity_carries_its_weight() {
     let mut sim = Simulation::new(&scene, &dir).unwrap();
     let r = scene.probe.tip_radius;
     let q = UnitQuaternion::identity();
-    sim.teleport_probe(&physics_node::probe::pose(Point3::new(0.0, 0.0, TOP + r + 0.5e-3), q));
+    sim.teleport_probe(&physics_node::probe::pose(
+        Point3::new(0.0, 0.0, TOP + r + 0.5e-3),
+        q,
+    ));
     let weight = scene.probe.mass * 9.81;
     let mut touched = false;
     for step in 0..400 {
@@ -75,11 +89,21 @@ fn probe_resting_under_gravity_carries_its_weight() {
         fxy = fxy.max(f[0].hypot(f[1]));
     }
     println!("weight {weight:.6} N, mean normal force {fz:.6} N, max tangential {fxy:.3e} N");
-    assert!((fz - weight).abs() < 0.01 * weight, "normal force {fz} vs m·g {weight}");
+    assert!(
+        (fz - weight).abs() < 0.01 * weight,
+        "normal force {fz} vs m·g {weight}"
+    );
     // The dent under the sphere tilts the contact normal slightly.
-    assert!(fxy < 0.02 * weight, "tangential force {fxy} on a frictionless flat top");
+    assert!(
+        fxy < 0.02 * weight,
+        "tangential force {fxy} on a frictionless flat top"
+    );
     let p = sim.probe_pose().position;
-    assert!(p[2] > TOP + r - 0.5e-3 && p[2] < TOP + r + 0.1e-3, "probe height {}", p[2]);
+    assert!(
+        p[2] > TOP + r - 0.5e-3 && p[2] < TOP + r + 0.1e-3,
+        "probe height {}",
+        p[2]
+    );
 }
 
 /// Runs a sphere resting on the block under gravity tilted by `deg` about y, with friction
@@ -93,7 +117,10 @@ fn tilted(deg: f64, mu: f64, settle: usize, steps: usize, x_start: f64) -> (f64,
     let mut sim = Simulation::new(&scene, &dir).unwrap();
     let r = scene.probe.tip_radius;
     let q = UnitQuaternion::identity();
-    sim.teleport_probe(&physics_node::probe::pose(Point3::new(x_start, 0.0, TOP + r + 0.2e-3), q));
+    sim.teleport_probe(&physics_node::probe::pose(
+        Point3::new(x_start, 0.0, TOP + r + 0.2e-3),
+        q,
+    ));
     for _ in 0..settle {
         sim.step().unwrap();
     }
@@ -106,7 +133,11 @@ fn tilted(deg: f64, mu: f64, settle: usize, steps: usize, x_start: f64) -> (f64,
             let ln = frame.lambda[3 * k];
             let lt = frame.lambda[3 * k + 1].hypot(frame.lambda[3 * k + 2]);
             assert!(ln >= 0.0, "step {step}: negative normal impulse {ln}");
-            assert!(lt <= mu * ln * (1.0 + 1e-9) + 1e-15, "step {step}: |λt| {lt} > μ λn {}", mu * ln);
+            assert!(
+                lt <= mu * ln * (1.0 + 1e-9) + 1e-15,
+                "step {step}: |λt| {lt} > μ λn {}",
+                mu * ln
+            );
             ft_sum += lt / frame.dt_s;
             fn_sum += ln / frame.dt_s;
         }
@@ -121,9 +152,15 @@ fn friction_sticks_below_the_friction_angle() {
     let deg: f64 = 15.0; // tan 15° = 0.27 < μ
     let (ft, fnn, slide) = tilted(deg, mu, 150, 150, 0.0);
     println!("stick: Σ f_t {ft:.5} N, Σ f_n {fnn:.5} N, slide {slide:.3e} m");
-    assert!(ft > 0.5 * fnn * deg.to_radians().tan(), "friction must carry the slope");
+    assert!(
+        ft > 0.5 * fnn * deg.to_radians().tan(),
+        "friction must carry the slope"
+    );
     assert!(ft <= mu * fnn * (1.0 + 1e-6));
-    assert!(slide.abs() < 1e-4, "a sticking probe must not slide ({slide} m in 1.5 s)");
+    assert!(
+        slide.abs() < 1e-4,
+        "a sticking probe must not slide ({slide} m in 1.5 s)"
+    );
 }
 
 #[test]
@@ -132,8 +169,22 @@ fn friction_slides_above_the_friction_angle_at_mu_times_normal() {
     // tan 17.5° = 0.315 > μ: slow slide (0.14 m/s²) so the sphere stays on the block.
     let deg: f64 = 17.5;
     let (ft, fnn, slide) = tilted(deg, mu, 20, 30, -0.010);
-    println!("slide: f_t {ft:.5} N, μ f_n {:.5} N, slide {slide:.4} m", mu * fnn);
-    assert!(ft <= mu * fnn * (1.0 + 1e-6), "Coulomb cone violated: {ft} > {}", mu * fnn);
-    assert!(ft > 0.9 * mu * fnn, "sliding friction should sit on the cone: {ft} vs {}", mu * fnn);
-    assert!(slide > 1e-3, "the probe must slide downhill (+x), moved {slide} m");
+    println!(
+        "slide: f_t {ft:.5} N, μ f_n {:.5} N, slide {slide:.4} m",
+        mu * fnn
+    );
+    assert!(
+        ft <= mu * fnn * (1.0 + 1e-6),
+        "Coulomb cone violated: {ft} > {}",
+        mu * fnn
+    );
+    assert!(
+        ft > 0.9 * mu * fnn,
+        "sliding friction should sit on the cone: {ft} vs {}",
+        mu * fnn
+    );
+    assert!(
+        slide > 1e-3,
+        "the probe must slide downhill (+x), moved {slide} m"
+    );
 }

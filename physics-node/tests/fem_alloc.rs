@@ -6,7 +6,9 @@ use std::cell::Cell;
 
 use nalgebra::Vector3;
 use physics_node::fem::test_meshes::{box_mesh, nodes_where};
-use physics_node::fem::{FemModel, FemSettings, LinearSolver, Material, MaterialModel, Preconditioner};
+use physics_node::fem::{
+    FemModel, FemSettings, LinearSolver, Material, MaterialModel, Preconditioner,
+};
 
 struct Counting;
 
@@ -93,14 +95,21 @@ fn fem_step_does_not_allocate() {
                 rayleigh_stiffness: 0.001,
                 ..FemSettings::default()
             };
-            let mut fem =
-                FemModel::new(&mesh, Material::lateral().with_model(model), &fixed, settings).unwrap();
+            let mut fem = FemModel::new(
+                &mesh,
+                Material::lateral().with_model(model),
+                &fixed,
+                settings,
+            )
+            .unwrap();
             let mut compliance = fem.rest_compliance(0.01, 8).unwrap();
             let n = fem.node_count();
             let mut forces = vec![Vector3::zeros(); n];
             let top = nodes_where(&mesh, |p| (p.z - 0.008).abs() < 1e-9);
-            let correction: Vec<(usize, Vector3<f64>)> =
-                top.iter().map(|&i| (i, Vector3::new(0.0, 0.0, -1e-5))).collect();
+            let correction: Vec<(usize, Vector3<f64>)> = top
+                .iter()
+                .map(|&i| (i, Vector3::new(0.0, 0.0, -1e-5)))
+                .collect();
             let mut full = vec![0.0; 3 * n];
             let mut block = vec![0.0; 3 * n * 12];
             // Warm-up step outside the count (nothing is lazily allocated, but be fair).
@@ -121,7 +130,10 @@ fn fem_step_does_not_allocate() {
                     std::hint::black_box(fem.elastic_energy() + fem.kinetic_energy());
                 }
             });
-            assert_eq!(count, 0, "{model:?} / {solver:?}: {count} allocations in 20 steps");
+            assert_eq!(
+                count, 0,
+                "{model:?} / {solver:?}: {count} allocations in 20 steps"
+            );
         }
     }
 }

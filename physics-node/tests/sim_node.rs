@@ -25,7 +25,12 @@ fn node_follows_device_into_contact_and_stops_on_sigterm() {
     // Where to press: the default scene's mid-body site.
     let scene = launch_config::SceneConfig::default();
     let sim = physics_node::sim::Simulation::new(&scene, &launch_config::data_dir()).unwrap();
-    let site = sim.probing_sites().iter().find(|s| s.region == 2).unwrap().clone();
+    let site = sim
+        .probing_sites()
+        .iter()
+        .find(|s| s.region == 2)
+        .unwrap()
+        .clone();
     drop(sim);
     let n = site.normal.normalize();
     let q = UnitQuaternion::rotation_between(&Vector3::z(), &n).unwrap();
@@ -105,7 +110,10 @@ fn node_follows_device_into_contact_and_stops_on_sigterm() {
     let force = in_contact.expect("the device never drove the probe into contact");
     assert!(Vector3::from(force).dot(&n) > 0.0);
     assert!(got_surface && surface.vertex_count > 0 && surface.triangle_count > 0);
-    assert!((simulated - wall).abs() < 0.3 * wall + 0.1, "pacing: {simulated} s simulated in {wall} s");
+    assert!(
+        (simulated - wall).abs() < 0.3 * wall + 0.1,
+        "pacing: {simulated} s simulated in {wall} s"
+    );
     let csv = std::fs::read_to_string(out_dir.join("contact_force.csv")).unwrap();
     assert!(csv.starts_with(physics_node::sim::ContactForceCsv::HEADER));
     assert!(csv.lines().count() > 50);

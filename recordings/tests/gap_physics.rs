@@ -36,6 +36,10 @@ fn cadaver_table_names_hardening() {
     }
     let file = gap::data_dir().join("empirical/cadaver_probing_force_displacement.csv");
     let r = gap::diagnose_force_displacement(&file, &gap::Options::default()).unwrap();
+    for c in r.ranking.iter().take(8) {
+        eprintln!("  {:22} held {:.4} shrink {:.3} score {:.1} {:?}", c.effect, c.heldout_rmse, c.heldout_shrink, c.score,
+            c.params.iter().map(|p| format!("{}={:.4}±{:.4}", p.name, p.value, p.std)).collect::<Vec<_>>());
+    }
     eprintln!("cadaver: verdict {} shrink {:.3}; {}", r.verdict.effect, r.verdict.heldout_shrink, r.localisation.summary);
     assert!(r.verdict.effect.split('+').any(|e| e == "hardening"), "verdict {}", r.verdict.effect);
     assert!(r.verdict.heldout_shrink > 0.5);
@@ -52,7 +56,7 @@ fn cadaver_table_names_hardening() {
 #[test]
 fn small_selftest_identifies_effects() {
     let opts = SelftestOptions {
-        probings_per_region: 2,
+        probings_per_region: 1,
         verbose: true,
         cases: Some(vec!["none".into(), "modulus".into(), "friction".into()]),
         ..Default::default()

@@ -35,7 +35,10 @@ struct Cli {
 
 fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
-    anyhow::ensure!(cli.stiffness > 0.0 && cli.dt > 0.0, "stiffness and dt must be > 0");
+    anyhow::ensure!(
+        cli.stiffness > 0.0 && cli.dt > 0.0,
+        "stiffness and dt must be > 0"
+    );
     let session = ipc::session_name(cli.session.as_deref())?;
     let stop = msgs::lifecycle::install_stop_flag();
     let node = ipc::create_node("halfspace-physics")?;
@@ -67,7 +70,9 @@ fn main() -> anyhow::Result<()> {
     while !stop.load(Ordering::SeqCst) && end.is_none_or(|e| msgs::clock::monotonic_ns() < e) {
         haptic_node::servo::sleep_until(next);
         next += period;
-        if ipc::take_newest(&devices, &mut device).context("reading device state")? > 0 && device.proxy_pose.is_finite() {
+        if ipc::take_newest(&devices, &mut device).context("reading device state")? > 0
+            && device.proxy_pose.is_finite()
+        {
             proxy = device.proxy_pose;
             used = device.sequence;
         }

@@ -35,14 +35,20 @@ pub struct EmulatedTouch {
 }
 
 impl EmulatedTouch {
-    pub fn new(c: &EmulatedConfig, mut protocol: Protocol, start_ns: u64) -> Result<EmulatedTouch, DeviceError> {
+    pub fn new(
+        c: &EmulatedConfig,
+        mut protocol: Protocol,
+        start_ns: u64,
+    ) -> Result<EmulatedTouch, DeviceError> {
         for (v, name) in [
             (c.mass_kg, "mass_kg"),
             (c.saturation_n, "saturation_n"),
             (c.grip_stiffness_n_per_m, "grip_stiffness_n_per_m"),
         ] {
             if !(v.is_finite() && v > 0.0) {
-                return Err(DeviceError::Emulated(format!("[device.emulated] {name} = {v} must be > 0")));
+                return Err(DeviceError::Emulated(format!(
+                    "[device.emulated] {name} = {v} must be > 0"
+                )));
             }
         }
         for (v, name) in [
@@ -52,11 +58,15 @@ impl EmulatedTouch {
             (c.grip_damping_n_s_per_m, "grip_damping_n_s_per_m"),
         ] {
             if !(v.is_finite() && v >= 0.0) {
-                return Err(DeviceError::Emulated(format!("[device.emulated] {name} = {v} must be ≥ 0")));
+                return Err(DeviceError::Emulated(format!(
+                    "[device.emulated] {name} = {v} must be ≥ 0"
+                )));
             }
         }
         if (0..3).any(|k| !(c.workspace_min_m[k] < c.workspace_max_m[k])) {
-            return Err(DeviceError::Emulated("[device.emulated] workspace_min_m must be below workspace_max_m".into()));
+            return Err(DeviceError::Emulated(
+                "[device.emulated] workspace_min_m must be below workspace_max_m".into(),
+            ));
         }
         let hand = protocol.hand(0.0);
         Ok(EmulatedTouch {
@@ -152,11 +162,21 @@ impl Device for EmulatedTouch {
             ],
             orientation: [0.0, 0.0, 0.0, 1.0],
         };
-        out.velocity = [self.velocity[0], self.velocity[1], self.velocity[2], 0.0, 0.0, 0.0];
+        out.velocity = [
+            self.velocity[0],
+            self.velocity[1],
+            self.velocity[2],
+            0.0,
+            0.0,
+            0.0,
+        ];
         out.joint_angles = [0.0; 6];
         let h = &self.hand;
         // Button 1 held while the operator presses and holds (as a trigger marking the probing).
-        out.buttons = matches!(h.phase, super::operator::Phase::Press | super::operator::Phase::Hold) as u32;
+        out.buttons = matches!(
+            h.phase,
+            super::operator::Phase::Press | super::operator::Phase::Hold
+        ) as u32;
         out.probing_index = h.probing;
         out.region = h.region;
         out.phase = h.phase as u32;
@@ -164,9 +184,17 @@ impl Device for EmulatedTouch {
     }
 
     fn command_force(&mut self, _now_ns: u64, force: [f64; 3]) -> Result<(), DeviceError> {
-        let f = if force.iter().all(|v| v.is_finite()) { force } else { [0.0; 3] };
+        let f = if force.iter().all(|v| v.is_finite()) {
+            force
+        } else {
+            [0.0; 3]
+        };
         let n = (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt();
-        let s = if n > self.c.saturation_n { self.c.saturation_n / n } else { 1.0 };
+        let s = if n > self.c.saturation_n {
+            self.c.saturation_n / n
+        } else {
+            1.0
+        };
         self.force = [f[0] * s, f[1] * s, f[2] * s];
         Ok(())
     }
@@ -228,8 +256,14 @@ mod tests {
         let probe_weight = 0.035 * 9.81;
         for (z0, z1, sum, n) in holds {
             let mean = sum / n as f64;
-            assert!((z1 - z0).abs() < 0.2e-3, "stylus at rest while holding: {z0} → {z1}");
-            assert!(mean > probe_weight, "steady contact force {mean} N must exceed m·g = {probe_weight} N");
+            assert!(
+                (z1 - z0).abs() < 0.2e-3,
+                "stylus at rest while holding: {z0} → {z1}"
+            );
+            assert!(
+                mean > probe_weight,
+                "steady contact force {mean} N must exceed m·g = {probe_weight} N"
+            );
             assert!(mean < c.saturation_n);
         }
     }

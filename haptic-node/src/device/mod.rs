@@ -46,11 +46,18 @@ pub enum DeviceError {
     #[error("OpenHaptics library {library:?} could not be loaded ({detail}); install the OpenHaptics runtime (libHD) or set [device.touch] library, or use backend = \"emulated\"")]
     LibraryMissing { library: String, detail: String },
     #[error("OpenHaptics library {library:?} lacks symbol {symbol}")]
-    MissingSymbol { library: String, symbol: &'static str },
+    MissingSymbol {
+        library: String,
+        symbol: &'static str,
+    },
     #[error("Touch device {device:?}: {detail}")]
     Touch { device: String, detail: String },
     #[error("replay file {path}: line {line}: {problem}")]
-    ReplayLine { path: String, line: usize, problem: String },
+    ReplayLine {
+        path: String,
+        line: usize,
+        problem: String,
+    },
     #[error("replay file {path}: {problem}")]
     Replay { path: String, problem: String },
     #[error("emulated device: {0}")]

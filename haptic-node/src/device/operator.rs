@@ -54,7 +54,12 @@ pub fn plane_sites(height: f64, per_region: u32) -> Vec<Site> {
 pub fn protocol_sites(all: &[Site], per_region: u32) -> Vec<Site> {
     let mut out = Vec::new();
     for region in 1..=3u32 {
-        out.extend(all.iter().filter(|s| s.region == region).take(per_region as usize).copied());
+        out.extend(
+            all.iter()
+                .filter(|s| s.region == region)
+                .take(per_region as usize)
+                .copied(),
+        );
     }
     out
 }
@@ -109,14 +114,20 @@ impl Protocol {
                 return Err(bad(&format!("{name} = {v} must be > 0")));
             }
         }
-        for (v, name) in [(c.hover_m, "hover_m"), (c.press_depth_m, "press_depth_m"), (c.hold_s, "hold_s")] {
+        for (v, name) in [
+            (c.hover_m, "hover_m"),
+            (c.press_depth_m, "press_depth_m"),
+            (c.hold_s, "hold_s"),
+        ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(bad(&format!("{name} = {v} must be ≥ 0")));
             }
         }
         let sites = protocol_sites(sites, c.probings_per_region);
         if sites.is_empty() {
-            return Err(bad("no probing sites: the scene gave none and none were configured"));
+            return Err(bad(
+                "no probing sites: the scene gave none and none were configured",
+            ));
         }
         let mut segments = Vec::new();
         let mut t = 0.0;
@@ -138,7 +149,9 @@ impl Protocol {
             let n = s.normal;
             let norm = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
             if !(norm.is_finite() && norm > 0.0) || !s.point.iter().all(|v| v.is_finite()) {
-                return Err(bad(&format!("probing site {k} has a non-finite point or zero normal")));
+                return Err(bad(&format!(
+                    "probing site {k} has a non-finite point or zero normal"
+                )));
             }
             let n = [n[0] / norm, n[1] / norm, n[2] / norm];
             let hover = add(s.point, n, c.hover_m);
@@ -146,9 +159,23 @@ impl Protocol {
             let fast = c.approach_speed_m_per_s;
             push(at, hover, dist(at, hover) / fast, Phase::Approach, k, r);
             push(hover, s.point, c.hover_m / fast, Phase::Approach, k, r);
-            push(s.point, pressed, c.press_depth_m / c.press_speed_m_per_s, Phase::Press, k, r);
+            push(
+                s.point,
+                pressed,
+                c.press_depth_m / c.press_speed_m_per_s,
+                Phase::Press,
+                k,
+                r,
+            );
             push(pressed, pressed, c.hold_s, Phase::Hold, k, r);
-            push(pressed, hover, dist(pressed, hover) / fast, Phase::Release, k, r);
+            push(
+                pressed,
+                hover,
+                dist(pressed, hover) / fast,
+                Phase::Release,
+                k,
+                r,
+            );
             at = hover;
         }
         Ok(Protocol {
@@ -183,11 +210,17 @@ impl Protocol {
                 finished: true,
             };
         }
-        let t = if self.total_s > 0.0 { t.max(0.0) % self.total_s } else { 0.0 };
+        let t = if self.total_s > 0.0 {
+            t.max(0.0) % self.total_s
+        } else {
+            0.0
+        };
         if t < self.segments[self.cursor].t0 {
             self.cursor = 0;
         }
-        while self.cursor + 1 < self.segments.len() && t >= self.segments[self.cursor].t0 + self.segments[self.cursor].duration {
+        while self.cursor + 1 < self.segments.len()
+            && t >= self.segments[self.cursor].t0 + self.segments[self.cursor].duration
+        {
             self.cursor += 1;
         }
         let s = self.segments[self.cursor];
@@ -196,7 +229,11 @@ impl Protocol {
         } else {
             (1.0, 0.0)
         };
-        let d = [s.to[0] - s.from[0], s.to[1] - s.from[1], s.to[2] - s.from[2]];
+        let d = [
+            s.to[0] - s.from[0],
+            s.to[1] - s.from[1],
+            s.to[2] - s.from[2],
+        ];
         HandState {
             position: add(s.from, d, u),
             velocity: [d[0] * rate, d[1] * rate, d[2] * rate],
@@ -237,7 +274,11 @@ mod tests {
             assert_eq!(probings.iter().filter(|s| s.1 == region).count(), 5);
         }
         for phase in [Phase::Approach, Phase::Press, Phase::Hold, Phase::Release] {
-            assert_eq!(seen.iter().filter(|s| s.2 == phase).count(), 15, "{phase:?}");
+            assert_eq!(
+                seen.iter().filter(|s| s.2 == phase).count(),
+                15,
+                "{phase:?}"
+            );
         }
         assert!((deepest + c.press_depth_m).abs() < 1e-9);
     }

@@ -112,15 +112,20 @@ impl Replay {
                 problem: "[device.replay] path is not set".into(),
             });
         }
-        let text = std::fs::read_to_string(Path::new(&c.path)).map_err(|e| DeviceError::Replay {
-            path: c.path.clone(),
-            problem: e.to_string(),
-        })?;
+        let text =
+            std::fs::read_to_string(Path::new(&c.path)).map_err(|e| DeviceError::Replay {
+                path: c.path.clone(),
+                problem: e.to_string(),
+            })?;
         let poses = parse_trajectory(&text, &c.path)?;
         Replay::new(poses, c, start_ns)
     }
 
-    pub fn new(poses: Vec<TimedPose>, c: &ReplayConfig, start_ns: u64) -> Result<Replay, DeviceError> {
+    pub fn new(
+        poses: Vec<TimedPose>,
+        c: &ReplayConfig,
+        start_ns: u64,
+    ) -> Result<Replay, DeviceError> {
         if !(c.time_scale.is_finite() && c.time_scale > 0.0) {
             return Err(DeviceError::Replay {
                 path: c.path.clone(),
@@ -171,10 +176,16 @@ impl Device for Replay {
         let a = self.poses[self.cursor];
         let b = self.poses[(self.cursor + 1).min(self.poses.len() - 1)];
         let span = b.t_s - a.t_s;
-        let u = if span > 0.0 { ((t - a.t_s) / span).clamp(0.0, 1.0) } else { 0.0 };
+        let u = if span > 0.0 {
+            ((t - a.t_s) / span).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
         let mut q = [0.0; 4];
         // Shortest-arc nlerp.
-        let dot: f64 = (0..4).map(|k| a.pose.orientation[k] * b.pose.orientation[k]).sum();
+        let dot: f64 = (0..4)
+            .map(|k| a.pose.orientation[k] * b.pose.orientation[k])
+            .sum();
         let sign = if dot < 0.0 { -1.0 } else { 1.0 };
         for k in 0..4 {
             q[k] = lerp(a.pose.orientation[k], sign * b.pose.orientation[k], u);
@@ -191,7 +202,11 @@ impl Device for Replay {
             ],
             orientation: q,
         };
-        let inv = if span > 0.0 && !self.finished { self.time_scale / span } else { 0.0 };
+        let inv = if span > 0.0 && !self.finished {
+            self.time_scale / span
+        } else {
+            0.0
+        };
         for k in 0..3 {
             out.velocity[k] = (b.pose.position[k] - a.pose.position[k]) * inv;
         }
@@ -215,7 +230,8 @@ impl Device for Replay {
 mod tests {
     use super::*;
 
-    const CSV: &str = "t_s,px_m,py_m,pz_m,qx,qy,qz,qw\n0,0,0,0.01,0,0,0,1\n1,0,0,0,0,0,0,1\n2,0.01,0,0,0,0,0,1\n";
+    const CSV: &str =
+        "t_s,px_m,py_m,pz_m,qx,qy,qz,qw\n0,0,0,0.01,0,0,0,1\n1,0,0,0,0,0,0,1\n2,0.01,0,0,0,0,0,1\n";
 
     #[test]
     fn interpolates_and_finishes() {
@@ -235,20 +251,38 @@ mod tests {
 
     #[test]
     fn errors_name_file_and_line() {
-        let e = parse_trajectory("t_s,px_m,py_m,pz_m,qx,qy,qz,qw\n0,0,0,0,0,0,0,1\n1,0,x,0,0,0,0,1\n", "a.csv")
-            .unwrap_err()
-            .to_string();
-        assert!(e.contains("a.csv") && e.contains("line 3") && e.contains("py_m"), "{e}");
+        let e = parse_trajectory(
+            "t_s,px_m,py_m,pz_m,qx,qy,qz,qw\n0,0,0,0,0,0,0,1\n1,0,x,0,0,0,0,1\n",
+            "a.csv",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("a.csv") && e.contains("line 3") && e.contains("py_m"),
+            "{e}"
+        );
         let e = parse_trajectory("t,x\n", "b.csv").unwrap_err().to_string();
         assert!(e.contains("b.csv") && e.contains("line 1"), "{e}");
-        let e = parse_trajectory("t_s,px_m,py_m,pz_m,qx,qy,qz,qw\n1,0,0,0,0,0,0,1\n1,0,0,0,0,0,0,1\n", "c.csv")
+        let e = parse_trajectory(
+            "t_s,px_m,py_m,pz_m,qx,qy,qz,qw\n1,0,0,0,0,0,0,1\n1,0,0,0,0,0,0,1\n",
+            "c.csv",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("line 3") && e.contains("does not increase"),
+            "{e}"
+        );
+        let e = parse_trajectory("t_s,px_m,py_m,pz_m,qx,qy,qz,qw\n0,0,0\n", "d.csv")
             .unwrap_err()
             .to_string();
-        assert!(e.contains("line 3") && e.contains("does not increase"), "{e}");
-        let e = parse_trajectory("t_s,px_m,py_m,pz_m,qx,qy,qz,qw\n0,0,0\n", "d.csv").unwrap_err().to_string();
         assert!(e.contains("line 2") && e.contains("3 columns"), "{e}");
         // NaN positions parse (they are quarantined at the tick).
-        let p = parse_trajectory("t_s,px_m,py_m,pz_m,qx,qy,qz,qw\n0,NaN,0,0,0,0,0,1\n", "e.csv").unwrap();
+        let p = parse_trajectory(
+            "t_s,px_m,py_m,pz_m,qx,qy,qz,qw\n0,NaN,0,0,0,0,0,1\n",
+            "e.csv",
+        )
+        .unwrap();
         assert!(p[0].pose.position[0].is_nan());
     }
 }

@@ -15,7 +15,7 @@ use super::{Device, DeviceError, DeviceSample};
 use launch_config::DeviceConfig;
 use msgs::haptic_to_physics::DeviceKind;
 use msgs::Pose;
-use std::ffi::{c_char, c_int, c_uint, c_ushort, c_ulong, c_void, CStr, CString};
+use std::ffi::{c_char, c_int, c_uint, c_ulong, c_ushort, c_void, CStr, CString};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Mutex;
 
@@ -64,7 +64,8 @@ struct HdApi {
     enable: unsafe extern "C" fn(HdEnum),
     start_scheduler: unsafe extern "C" fn(),
     stop_scheduler: unsafe extern "C" fn(),
-    schedule_asynchronous: unsafe extern "C" fn(SchedulerCallback, *mut c_void, c_ushort) -> HdSchedulerHandle,
+    schedule_asynchronous:
+        unsafe extern "C" fn(SchedulerCallback, *mut c_void, c_ushort) -> HdSchedulerHandle,
     unschedule: unsafe extern "C" fn(HdSchedulerHandle),
     begin_frame: unsafe extern "C" fn(Hhd),
     end_frame: unsafe extern "C" fn(Hhd),
@@ -151,7 +152,10 @@ impl HdApi {
             } else {
                 CStr::from_ptr(s).to_string_lossy().into_owned()
             };
-            Some(format!("HD error 0x{:04x} ({text}), internal {}", e.error_code, e.internal_error_code))
+            Some(format!(
+                "HD error 0x{:04x} ({text}), internal {}",
+                e.error_code, e.internal_error_code
+            ))
         }
     }
 }
@@ -274,16 +278,36 @@ pub fn quaternion_from_matrix(m: [[f64; 3]; 3]) -> [f64; 4] {
     let tr = m[0][0] + m[1][1] + m[2][2];
     let q = if tr > 0.0 {
         let s = (tr + 1.0).sqrt() * 2.0;
-        [(m[2][1] - m[1][2]) / s, (m[0][2] - m[2][0]) / s, (m[1][0] - m[0][1]) / s, 0.25 * s]
+        [
+            (m[2][1] - m[1][2]) / s,
+            (m[0][2] - m[2][0]) / s,
+            (m[1][0] - m[0][1]) / s,
+            0.25 * s,
+        ]
     } else if m[0][0] > m[1][1] && m[0][0] > m[2][2] {
         let s = (1.0 + m[0][0] - m[1][1] - m[2][2]).sqrt() * 2.0;
-        [0.25 * s, (m[0][1] + m[1][0]) / s, (m[0][2] + m[2][0]) / s, (m[2][1] - m[1][2]) / s]
+        [
+            0.25 * s,
+            (m[0][1] + m[1][0]) / s,
+            (m[0][2] + m[2][0]) / s,
+            (m[2][1] - m[1][2]) / s,
+        ]
     } else if m[1][1] > m[2][2] {
         let s = (1.0 + m[1][1] - m[0][0] - m[2][2]).sqrt() * 2.0;
-        [(m[0][1] + m[1][0]) / s, 0.25 * s, (m[1][2] + m[2][1]) / s, (m[0][2] - m[2][0]) / s]
+        [
+            (m[0][1] + m[1][0]) / s,
+            0.25 * s,
+            (m[1][2] + m[2][1]) / s,
+            (m[0][2] - m[2][0]) / s,
+        ]
     } else {
         let s = (1.0 + m[2][2] - m[0][0] - m[1][1]).sqrt() * 2.0;
-        [(m[0][2] + m[2][0]) / s, (m[1][2] + m[2][1]) / s, 0.25 * s, (m[1][0] - m[0][1]) / s]
+        [
+            (m[0][2] + m[2][0]) / s,
+            (m[1][2] + m[2][1]) / s,
+            0.25 * s,
+            (m[1][0] - m[0][1]) / s,
+        ]
     };
     let n = q.iter().map(|v| v * v).sum::<f64>().sqrt();
     q.map(|v| v / n)
@@ -319,17 +343,25 @@ impl Touch {
                 HD_CALIBRATION_NEEDS_UPDATE if c.auto_calibrate => {
                     let mut styles: c_int = 0;
                     (api.get_integerv)(HD_CALIBRATION_STYLE, &mut styles);
-                    let style = if styles & HD_CALIBRATION_AUTO != 0 { HD_CALIBRATION_AUTO } else { HD_CALIBRATION_INKWELL };
+                    let style = if styles & HD_CALIBRATION_AUTO != 0 {
+                        HD_CALIBRATION_AUTO
+                    } else {
+                        HD_CALIBRATION_INKWELL
+                    };
                     (api.update_calibration)(style);
                     tracing::info!("Touch calibration updated");
                 }
                 HD_CALIBRATION_NEEDS_UPDATE => {
                     (api.disable_device)(hhd);
-                    return Err(touch_err("calibration needs an update and auto_calibrate is off".into()));
+                    return Err(touch_err(
+                        "calibration needs an update and auto_calibrate is off".into(),
+                    ));
                 }
                 HD_CALIBRATION_NEEDS_MANUAL_INPUT => {
                     (api.disable_device)(hhd);
-                    return Err(touch_err("calibration needs manual input: put the stylus in the inkwell".into()));
+                    return Err(touch_err(
+                        "calibration needs manual input: put the stylus in the inkwell".into(),
+                    ));
                 }
                 other => tracing::warn!("unexpected calibration status 0x{other:04x}"),
             }
@@ -345,7 +377,11 @@ impl Touch {
         let user = &*servo as *const Servo as *mut c_void;
         // SAFETY: the Servo box outlives the scheduled callback (unscheduled in Drop).
         let scheduler = unsafe {
-            let h = (servo.api.schedule_asynchronous)(servo_callback, user, HD_DEFAULT_SCHEDULER_PRIORITY);
+            let h = (servo.api.schedule_asynchronous)(
+                servo_callback,
+                user,
+                HD_DEFAULT_SCHEDULER_PRIORITY,
+            );
             (servo.api.start_scheduler)();
             h
         };
@@ -399,13 +435,24 @@ impl Device for Touch {
             quaternion_from_matrix(m)
         };
         out.velocity[3..].fill(0.0);
-        out.joint_angles = [s.joints[0], s.joints[1], s.joints[2], s.gimbal[0], s.gimbal[1], s.gimbal[2]];
+        out.joint_angles = [
+            s.joints[0],
+            s.joints[1],
+            s.joints[2],
+            s.gimbal[0],
+            s.gimbal[1],
+            s.gimbal[2],
+        ];
         out.buttons = s.buttons as u32;
         Ok(())
     }
 
     fn command_force(&mut self, now_ns: u64, force: [f64; 3]) -> Result<(), DeviceError> {
-        let f = if force.iter().all(|v| v.is_finite()) { force } else { [0.0; 3] };
+        let f = if force.iter().all(|v| v.is_finite()) {
+            force
+        } else {
+            [0.0; 3]
+        };
         let mut s = self.servo.state.lock().unwrap_or_else(|p| p.into_inner());
         s.force = scene_to_device(f);
         s.force_set_ns = now_ns;
@@ -453,7 +500,10 @@ mod tests {
             Err(e) => e.to_string(),
             Ok(_) => panic!("no libHD here"),
         };
-        assert!(e.contains("libHD-not-installed-here.so") && e.contains("emulated"), "{e}");
+        assert!(
+            e.contains("libHD-not-installed-here.so") && e.contains("emulated"),
+            "{e}"
+        );
     }
 
     #[test]

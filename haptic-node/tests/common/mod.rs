@@ -97,7 +97,9 @@ pub fn physics_exe() -> PathBuf {
     let workspace = Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap();
     let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
     let mut build = Command::new(cargo);
-    build.current_dir(workspace).args(["build", "-p", "physics-node", "--bins"]);
+    build
+        .current_dir(workspace)
+        .args(["build", "-p", "physics-node", "--bins"]);
     if dir.ends_with("release") {
         build.arg("--release");
     }
@@ -107,7 +109,9 @@ pub fn physics_exe() -> PathBuf {
             loop {
                 match c.try_wait() {
                     Ok(Some(s)) => break s.success(),
-                    Ok(None) if t0.elapsed() < Duration::from_secs(900) => std::thread::sleep(Duration::from_millis(200)),
+                    Ok(None) if t0.elapsed() < Duration::from_secs(900) => {
+                        std::thread::sleep(Duration::from_millis(200))
+                    }
                     _ => {
                         let _ = c.kill();
                         let _ = c.wait();
@@ -122,10 +126,17 @@ pub fn physics_exe() -> PathBuf {
         exe.exists(),
         "physics-node binary missing at {} (cargo build -p physics-node --bins {})",
         exe.display(),
-        if ok { "succeeded but produced no binary" } else { "failed" }
+        if ok {
+            "succeeded but produced no binary"
+        } else {
+            "failed"
+        }
     );
     if !ok {
-        eprintln!("warning: cargo build -p physics-node failed; using the existing {}", exe.display());
+        eprintln!(
+            "warning: cargo build -p physics-node failed; using the existing {}",
+            exe.display()
+        );
     }
     exe
 }
@@ -203,7 +214,12 @@ impl Watcher {
         }
         panic!(
             "timed out after {timeout:?} waiting for {what}; last state: {:?}",
-            self.seen_states.last().map(|s| (s.rendered_force, s.commanded_force, s.faults, s.proxy_pose.position))
+            self.seen_states.last().map(|s| (
+                s.rendered_force,
+                s.commanded_force,
+                s.faults,
+                s.proxy_pose.position
+            ))
         );
     }
 }
@@ -240,17 +256,27 @@ pub fn assert_rate_limited_and_clamped(w: &Watcher) {
     for pair in w.seen_states.windows(2) {
         let (a, b) = (&pair[0], &pair[1]);
         assert!(norm(b.rendered_force) <= PEAK);
-        if b.sequence == a.sequence + 1 && b.faults & (msgs::haptic_to_physics::fault::NONFINITE_DEVICE | msgs::haptic_to_physics::fault::NONFINITE_FORCE) == 0 {
+        if b.sequence == a.sequence + 1
+            && b.faults
+                & (msgs::haptic_to_physics::fault::NONFINITE_DEVICE
+                    | msgs::haptic_to_physics::fault::NONFINITE_FORCE)
+                == 0
+        {
             let d = [
                 b.rendered_force[0] - a.rendered_force[0],
                 b.rendered_force[1] - a.rendered_force[1],
                 b.rendered_force[2] - a.rendered_force[2],
             ];
-            assert!(norm(d) <= MAX_STEP, "step {} N between ticks {} and {}", norm(d), a.sequence, b.sequence);
+            assert!(
+                norm(d) <= MAX_STEP,
+                "step {} N between ticks {} and {}",
+                norm(d),
+                a.sequence,
+                b.sequence
+            );
         }
     }
 }
-
 
 /// After a `kill -9` of the physics at `killed_ns`: the frame goes stale 20 ms after the last
 /// frame and the force is zero within 10 ms of that.
@@ -265,9 +291,21 @@ pub fn check_ramp_after_kill(w: &Watcher, killed_ns: u64) {
         .expect("frame goes stale")
         .publish_ns;
     // Stale limit 20 ms (+ one tick to notice).
-    assert!(first_stale <= last_frame + 22 * MS, "stale after {} ms", (first_stale - last_frame) as f64 / 1e6);
-    for st in w.seen_states.iter().filter(|st| st.publish_ns >= first_stale + 10 * MS) {
-        assert_eq!(st.rendered_force, [0.0; 3], "force zero 10 ms after staleness (tick {})", st.sequence);
+    assert!(
+        first_stale <= last_frame + 22 * MS,
+        "stale after {} ms",
+        (first_stale - last_frame) as f64 / 1e6
+    );
+    for st in w
+        .seen_states
+        .iter()
+        .filter(|st| st.publish_ns >= first_stale + 10 * MS)
+    {
+        assert_eq!(
+            st.rendered_force, [0.0; 3],
+            "force zero 10 ms after staleness (tick {})",
+            st.sequence
+        );
     }
     let zero_at = w
         .seen_states

@@ -48,12 +48,14 @@ fn main() -> anyhow::Result<()> {
     scene.contact.friction = args.friction;
     scene.solver.kind = args.solver.clone();
     let t_build = Instant::now();
-    let mut sim = Simulation::new(&scene, &data_dir).with_context(|| format!("building scene for {}", args.mesh))?;
+    let mut sim = Simulation::new(&scene, &data_dir)
+        .with_context(|| format!("building scene for {}", args.mesh))?;
     let build_s = t_build.elapsed().as_secs_f64();
 
     let (site, normal) = probing_site(&sim);
     let r = scene.probe.tip_radius;
-    let q = UnitQuaternion::rotation_between(&Vector3::z(), &normal).unwrap_or_else(UnitQuaternion::identity);
+    let q = UnitQuaternion::rotation_between(&Vector3::z(), &normal)
+        .unwrap_or_else(UnitQuaternion::identity);
     let (t1, t2) = physics_node::contact::tangents(&normal);
     let start = site + normal * (r + 0.2e-3);
     sim.teleport_probe(&physics_node::probe::pose(start, q));
@@ -93,7 +95,8 @@ fn main() -> anyhow::Result<()> {
     let steps = durations.len().max(1);
     let total_step_s: f64 = durations.iter().map(|&d| d as f64 * 1e-9).sum();
     durations.sort_unstable();
-    let pct = |p: f64| durations[((p * (steps - 1) as f64).round() as usize).min(steps - 1)] as f64 / 1e3;
+    let pct =
+        |p: f64| durations[((p * (steps - 1) as f64).round() as usize).min(steps - 1)] as f64 / 1e3;
     let (slots, complete) = sim.compliance_cache_info();
     let t1 = sim.phase_times();
     let per_step = |a: u64, b: u64| (a - b) as f64 / 1e3 / steps as f64;
@@ -134,7 +137,11 @@ fn main() -> anyhow::Result<()> {
 /// with an upward normal.
 fn probing_site(sim: &Simulation) -> (Point3<f64>, Vector3<f64>) {
     let sites = sim.probing_sites();
-    if let Some(s) = sites.iter().find(|s| s.region == 2).or_else(|| sites.first()) {
+    if let Some(s) = sites
+        .iter()
+        .find(|s| s.region == 2)
+        .or_else(|| sites.first())
+    {
         return (s.point, s.normal.normalize());
     }
     let top = sim

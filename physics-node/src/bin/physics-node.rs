@@ -2,7 +2,10 @@
 use clap::Parser;
 
 #[derive(Parser, Debug)]
-#[command(name = "physics-node", about = "arthrosim physics node: FEM meniscus, probe contact, contact compliance")]
+#[command(
+    name = "physics-node",
+    about = "arthrosim physics node: FEM meniscus, probe contact, contact compliance"
+)]
 struct Cli {
     #[command(flatten)]
     node: physics_node::node::NodeArgs,

@@ -71,7 +71,12 @@ pub(crate) fn extract_rotation(
         *q = if w < 0.05 {
             // Small step: first-order quaternion, no sin/cos (the iteration absorbs the
             // O(w³) error).
-            UnitQuaternion::new_normalize(Quaternion::new(1.0, 0.5 * omega.x, 0.5 * omega.y, 0.5 * omega.z))
+            UnitQuaternion::new_normalize(Quaternion::new(
+                1.0,
+                0.5 * omega.x,
+                0.5 * omega.y,
+                0.5 * omega.z,
+            ))
         } else {
             UnitQuaternion::from_scaled_axis(omega)
         } * *q;
@@ -134,7 +139,8 @@ pub(crate) fn corotational(
     for a in 0..4 {
         for b in a..4 {
             let d = v * mu * rest.grad[a].dot(&rest.grad[b]);
-            let mut m = gh[b] * gh[a].transpose() * (v * mu) + gh[a] * gh[b].transpose() * (v * lambda);
+            let mut m =
+                gh[b] * gh[a].transpose() * (v * mu) + gh[a] * gh[b].transpose() * (v * lambda);
             m[(0, 0)] += d;
             m[(1, 1)] += d;
             m[(2, 2)] += d;
@@ -166,7 +172,11 @@ pub(crate) fn stable_neo_hookean(
     let v = rest.volume;
     let lam = lambda + mu;
     let j = f.determinant();
-    let (f0, f1, f2) = (f.column(0).into_owned(), f.column(1).into_owned(), f.column(2).into_owned());
+    let (f0, f1, f2) = (
+        f.column(0).into_owned(),
+        f.column(1).into_owned(),
+        f.column(2).into_owned(),
+    );
     let cof = Matrix3::from_columns(&[f1.cross(&f2), f2.cross(&f0), f0.cross(&f1)]);
     let ic = f.norm_squared();
     out.energy = v * (0.5 * mu * (ic - 3.0) - mu * (j - 1.0) + 0.5 * lam * (j - 1.0) * (j - 1.0));
@@ -201,7 +211,9 @@ pub(crate) fn stable_neo_hookean(
             for e in d.iter_mut() {
                 *e = e.max(0.0);
             }
-            h = eig.eigenvectors * SMatrix::<f64, 9, 9>::from_diagonal(&d) * eig.eigenvectors.transpose();
+            h = eig.eigenvectors
+                * SMatrix::<f64, 9, 9>::from_diagonal(&d)
+                * eig.eigenvectors.transpose();
         }
     }
     // K_ab[k][l] = V Σ_{j,m} g_a[j] H[(j,k),(m,l)] g_b[m]; vec index of F_kj is 3j + k.

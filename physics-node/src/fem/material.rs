@@ -154,7 +154,9 @@ impl Material {
                 self.youngs_modulus
             )));
         }
-        if !self.poisson_ratio.is_finite() || self.poisson_ratio >= 0.5 || self.poisson_ratio <= -1.0
+        if !self.poisson_ratio.is_finite()
+            || self.poisson_ratio >= 0.5
+            || self.poisson_ratio <= -1.0
         {
             return Err(FemError::Material(format!(
                 "Poisson's ratio must be in (-1, 0.5), got {}",

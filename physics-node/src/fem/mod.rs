@@ -179,7 +179,10 @@ impl FemSettings {
 
     fn validate(&self) -> Result<(), FemError> {
         if !(self.dt.is_finite() && self.dt > 0.0) {
-            return Err(FemError::Input(format!("dt must be > 0 s, got {}", self.dt)));
+            return Err(FemError::Input(format!(
+                "dt must be > 0 s, got {}",
+                self.dt
+            )));
         }
         if !self.gravity.iter().all(|g| g.is_finite()) {
             return Err(FemError::Input("gravity is not finite".into()));
@@ -302,7 +305,9 @@ impl FemModel {
         }
         for (i, p) in mesh.nodes.iter().enumerate() {
             if !p.iter().all(|c| c.is_finite()) {
-                return Err(FemError::Mesh(format!("node {i} has a non-finite coordinate")));
+                return Err(FemError::Mesh(format!(
+                    "node {i} has a non-finite coordinate"
+                )));
             }
         }
         let mut rest_elems = Vec::with_capacity(mesh.tets.len());
@@ -503,7 +508,9 @@ impl FemModel {
     /// Sets a node's committed position (kinematic held nodes, test set-ups) and free position.
     pub fn set_position(&mut self, node: usize, p: Point3<f64>) -> Result<(), FemError> {
         if node >= self.x.len() || !p.iter().all(|c| c.is_finite()) {
-            return Err(FemError::Input(format!("set_position: bad node {node} or position")));
+            return Err(FemError::Input(format!(
+                "set_position: bad node {node} or position"
+            )));
         }
         self.x[node] = p;
         self.x_free[node] = p;
@@ -513,7 +520,9 @@ impl FemModel {
     /// Sets a free node's committed velocity.
     pub fn set_velocity(&mut self, node: usize, v: Vector3<f64>) -> Result<(), FemError> {
         if node >= self.x.len() || !v.iter().all(|c| c.is_finite()) {
-            return Err(FemError::Input(format!("set_velocity: bad node {node} or velocity")));
+            return Err(FemError::Input(format!(
+                "set_velocity: bad node {node} or velocity"
+            )));
         }
         if self.free_index(node).is_some() {
             self.v[node] = v;
@@ -539,7 +548,13 @@ impl FemModel {
     /// One pass over the elements at positions `self.x` (or at rest): elastic forces into
     /// `self.force`, `k_scale · K` into `self.a` (zeroed first), and K·v into `self.kv`.
     fn assemble(&mut self, at_rest: bool, k_scale: f64, want_k: bool) {
-        self.assemble_with(at_rest, k_scale, want_k, ROTATION_ITERATIONS, ROTATION_TOLERANCE)
+        self.assemble_with(
+            at_rest,
+            k_scale,
+            want_k,
+            ROTATION_ITERATIONS,
+            ROTATION_TOLERANCE,
+        )
     }
 
     fn assemble_with(
@@ -637,7 +652,10 @@ impl FemModel {
 
     /// A0 = M + h C0 + h² K0 at rest into `self.a`.
     fn assemble_rest_system(&mut self, dt: f64) {
-        let (alpha, beta) = (self.settings.rayleigh_mass, self.settings.rayleigh_stiffness);
+        let (alpha, beta) = (
+            self.settings.rayleigh_mass,
+            self.settings.rayleigh_stiffness,
+        );
         let k_scale = dt * beta + dt * dt;
         self.assemble(true, k_scale, true);
         for (row, &node) in self.free_nodes.iter().enumerate() {
@@ -670,7 +688,10 @@ impl FemModel {
             return Err(FemError::Input(format!("dt must be > 0 s, got {dt}")));
         }
         self.last_dt = dt;
-        let (alpha, beta) = (self.settings.rayleigh_mass, self.settings.rayleigh_stiffness);
+        let (alpha, beta) = (
+            self.settings.rayleigh_mass,
+            self.settings.rayleigh_stiffness,
+        );
         let k_scale = dt * beta + dt * dt;
         self.assemble(false, k_scale, true);
         let g = self.settings.gravity;
@@ -719,7 +740,9 @@ impl FemModel {
         let inv_dt = 1.0 / self.last_dt;
         for &(node, dx) in node_dx {
             if node >= self.x.len() {
-                return Err(FemError::Input(format!("correction for node {node} out of range")));
+                return Err(FemError::Input(format!(
+                    "correction for node {node} out of range"
+                )));
             }
             if self.free_index[node] == NO_BLOCK {
                 continue;
@@ -755,7 +778,11 @@ impl FemModel {
     }
 
     /// `free_motion` then `commit` (no contact).
-    pub fn step(&mut self, dt: f64, external_forces: &[Vector3<f64>]) -> Result<SolveStats, FemError> {
+    pub fn step(
+        &mut self,
+        dt: f64,
+        external_forces: &[Vector3<f64>],
+    ) -> Result<SolveStats, FemError> {
         let s = self.free_motion(dt, external_forces)?;
         self.commit();
         Ok(s)
@@ -848,7 +875,11 @@ impl FemModel {
                 let warped = pc == Preconditioner::WarpedRestCholesky;
                 for (row, &node) in self.free_nodes.iter().enumerate() {
                     let r = Vector3::new(self.r[3 * row], self.r[3 * row + 1], self.r[3 * row + 2]);
-                    let z = if warped { self.node_rot[node].transpose() * r } else { r };
+                    let z = if warped {
+                        self.node_rot[node].transpose() * r
+                    } else {
+                        r
+                    };
                     self.z[3 * row] = z.x;
                     self.z[3 * row + 1] = z.y;
                     self.z[3 * row + 2] = z.z;
@@ -859,7 +890,11 @@ impl FemModel {
                 if warped {
                     for (row, &node) in self.free_nodes.iter().enumerate() {
                         let z = self.node_rot[node]
-                            * Vector3::new(self.z[3 * row], self.z[3 * row + 1], self.z[3 * row + 2]);
+                            * Vector3::new(
+                                self.z[3 * row],
+                                self.z[3 * row + 1],
+                                self.z[3 * row + 2],
+                            );
                         self.z[3 * row] = z.x;
                         self.z[3 * row + 1] = z.y;
                         self.z[3 * row + 2] = z.z;
@@ -906,7 +941,13 @@ impl FemModel {
             }
             let alpha = rz / pq;
             let mut rr = 0.0;
-            for (((dv, r), p), q) in self.dv.iter_mut().zip(self.r.iter_mut()).zip(&self.p).zip(&self.q) {
+            for (((dv, r), p), q) in self
+                .dv
+                .iter_mut()
+                .zip(self.r.iter_mut())
+                .zip(&self.p)
+                .zip(&self.q)
+            {
                 *dv += alpha * p;
                 *r -= alpha * q;
                 rr += *r * *r;
@@ -933,7 +974,9 @@ impl FemModel {
 
     /// Element rotations of the last assembly (corotational frame per tet).
     pub fn element_rotation(&self, tet: usize) -> Option<Matrix3<f64>> {
-        self.elem_rot.get(tet).map(|q| q.to_rotation_matrix().into_inner())
+        self.elem_rot
+            .get(tet)
+            .map(|q| q.to_rotation_matrix().into_inner())
     }
 
     /// Recomputes per-node rotations: the average of the incident element rotations,
@@ -978,12 +1021,25 @@ impl FemModel {
             match self.material.model {
                 MaterialModel::Corotational => {
                     let mut q = self.elem_rot[e];
-                    element::extract_rotation(&f, &mut q, ROTATION_ITERATIONS_COLD, ROTATION_TOLERANCE_COLD);
+                    element::extract_rotation(
+                        &f,
+                        &mut q,
+                        ROTATION_ITERATIONS_COLD,
+                        ROTATION_TOLERANCE_COLD,
+                    );
                     let rot = q.to_rotation_matrix().into_inner();
                     element::corotational(re, &f, &rot, self.mu, self.lambda, false, &mut out);
                 }
                 MaterialModel::StableNeoHookean => {
-                    element::stable_neo_hookean(re, &f, self.mu, self.lambda, false, false, &mut out);
+                    element::stable_neo_hookean(
+                        re,
+                        &f,
+                        self.mu,
+                        self.lambda,
+                        false,
+                        false,
+                        &mut out,
+                    );
                 }
             }
             total += out.energy;
@@ -1015,9 +1071,17 @@ impl FemModel {
     /// Elastic nodal forces at the committed positions (N), written to `out` (len = nodes).
     pub fn elastic_forces(&mut self, out: &mut [Vector3<f64>]) -> Result<(), FemError> {
         if out.len() != self.x.len() {
-            return Err(FemError::Input("elastic_forces: wrong output length".into()));
+            return Err(FemError::Input(
+                "elastic_forces: wrong output length".into(),
+            ));
         }
-        self.assemble_with(false, 0.0, false, ROTATION_ITERATIONS_COLD, ROTATION_TOLERANCE_COLD);
+        self.assemble_with(
+            false,
+            0.0,
+            false,
+            ROTATION_ITERATIONS_COLD,
+            ROTATION_TOLERANCE_COLD,
+        );
         for i in 0..out.len() {
             out[i] = self.force[i] - (self.x[i] - self.rest[i]) * self.support[i];
         }
@@ -1084,12 +1148,22 @@ impl FemModel {
         self.v.fill(Vector3::zeros());
         let mut chol: Option<SparseCholesky> = None;
         let mut rhs = vec![0.0; 3 * self.free_nodes.len()];
-        let g = if with_gravity { self.settings.gravity } else { Vector3::zeros() };
+        let g = if with_gravity {
+            self.settings.gravity
+        } else {
+            Vector3::zeros()
+        };
         let mut result = Err(FemError::Solver(format!(
             "static solve did not converge in {max_iterations} Newton iterations"
         )));
         for it in 1..=max_iterations {
-            self.assemble_with(false, 1.0, true, ROTATION_ITERATIONS_COLD, ROTATION_TOLERANCE_COLD);
+            self.assemble_with(
+                false,
+                1.0,
+                true,
+                ROTATION_ITERATIONS_COLD,
+                ROTATION_TOLERANCE_COLD,
+            );
             for (row, &node) in self.free_nodes.iter().enumerate() {
                 let ks = self.support[node];
                 let blk = &mut self.a[self.pattern.diag[row]];
@@ -1115,7 +1189,9 @@ impl FemModel {
                 self.x[node] += d;
             }
             if !step.is_finite() {
-                result = Err(FemError::Diverged("static solve produced non-finite positions".into()));
+                result = Err(FemError::Diverged(
+                    "static solve produced non-finite positions".into(),
+                ));
                 break;
             }
             if step <= tolerance * size {
@@ -1188,7 +1264,11 @@ impl RestCompliance {
     /// (`x.len() == 3 * nodes * ncols`); solved as blocks of up to `max_block_columns`.
     pub fn solve_block_in_place(&mut self, x: &mut [f64], ncols: usize) {
         let full = 3 * self.n_nodes;
-        assert_eq!(x.len(), full * ncols, "RestCompliance: right-hand side size");
+        assert_eq!(
+            x.len(),
+            full * ncols,
+            "RestCompliance: right-hand side size"
+        );
         let red = 3 * self.free_nodes.len();
         let mut c0 = 0;
         while c0 < ncols {

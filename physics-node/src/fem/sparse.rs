@@ -11,7 +11,7 @@ use faer::sparse::linalg::cholesky::{
 };
 use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
 use faer::{Conj, MatMut, Par, Side};
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::Matrix3;
 
 use super::FemError;
 
@@ -135,11 +135,18 @@ impl BlockPattern {
             // SAFETY: row_ptr is non-decreasing and ends within `cols`/`a` (asserted above and
             // by construction), every column index is < n, and x has 3n entries.
             unsafe {
-                let (k0, k1) = (*self.row_ptr.get_unchecked(i), *self.row_ptr.get_unchecked(i + 1));
+                let (k0, k1) = (
+                    *self.row_ptr.get_unchecked(i),
+                    *self.row_ptr.get_unchecked(i + 1),
+                );
                 for k in k0..k1 {
                     let j = *self.cols.get_unchecked(k) as usize * 3;
                     let m = a.get_unchecked(k).as_slice();
-                    let (x0, x1, x2) = (*x.get_unchecked(j), *x.get_unchecked(j + 1), *x.get_unchecked(j + 2));
+                    let (x0, x1, x2) = (
+                        *x.get_unchecked(j),
+                        *x.get_unchecked(j + 1),
+                        *x.get_unchecked(j + 2),
+                    );
                     // Column-major 3×3.
                     s0 += m[0] * x0 + m[3] * x1 + m[6] * x2;
                     s1 += m[1] * x0 + m[4] * x1 + m[7] * x2;
@@ -328,7 +335,10 @@ impl SparseCholesky {
     /// X ← A⁻¹ X for `ncols` right-hand sides stored column-major (`x.len() == dim * ncols`).
     /// Solving columns as one block is several times faster than one by one.
     pub fn solve_block_in_place(&mut self, x: &mut [f64], ncols: usize) {
-        assert!(self.factored, "SparseCholesky used after a failed factorization");
+        assert!(
+            self.factored,
+            "SparseCholesky used after a failed factorization"
+        );
         assert_eq!(x.len(), self.dim * ncols, "right-hand side size");
         let llt = LltRef::new(&self.symbolic, &self.l_values);
         for chunk in x.chunks_mut(self.dim * self.max_cols) {

@@ -21,7 +21,14 @@ pub fn box_mesh(lx: f64, ly: f64, lz: f64, nx: usize, ny: usize, nz: usize) -> T
             }
         }
     }
-    let perms = [[0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]];
+    let perms = [
+        [0, 1, 2],
+        [0, 2, 1],
+        [1, 0, 2],
+        [1, 2, 0],
+        [2, 0, 1],
+        [2, 1, 0],
+    ];
     let mut tets = Vec::with_capacity(6 * nx * ny * nz);
     for k in 0..nz {
         for j in 0..ny {
@@ -47,5 +54,7 @@ pub fn box_mesh(lx: f64, ly: f64, lz: f64, nx: usize, ny: usize, nz: usize) -> T
 
 /// Indices of the nodes whose position satisfies `pred`.
 pub fn nodes_where(mesh: &TetMesh, pred: impl Fn(&Point3<f64>) -> bool) -> Vec<usize> {
-    (0..mesh.nodes.len()).filter(|&i| pred(&mesh.nodes[i])).collect()
+    (0..mesh.nodes.len())
+        .filter(|&i| pred(&mesh.nodes[i]))
+        .collect()
 }

@@ -33,12 +33,17 @@ fn zero_forces(m: &FemModel) -> Vec<Vector3<f64>> {
 
 /// Deterministic pseudo-random numbers in [-1, 1] (no rand dependency).
 fn lcg(seed: &mut u64) -> f64 {
-    *seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+    *seed = seed
+        .wrapping_mul(6364136223846793005)
+        .wrapping_add(1442695040888963407);
     ((*seed >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
 }
 
 fn signed_volume(p: &[Point3<f64>], t: &[usize; 4]) -> f64 {
-    (p[t[1]] - p[t[0]]).cross(&(p[t[2]] - p[t[0]])).dot(&(p[t[3]] - p[t[0]])) / 6.0
+    (p[t[1]] - p[t[0]])
+        .cross(&(p[t[2]] - p[t[0]]))
+        .dot(&(p[t[3]] - p[t[0]]))
+        / 6.0
 }
 
 #[test]
@@ -94,7 +99,11 @@ fn cg_and_direct_agree() {
     let mut direct = cube_model(LinearSolver::Direct);
     let mut f = zero_forces(&direct);
     // A sideways pull on a top corner: large enough to rotate elements.
-    let corner = direct.positions().iter().position(|p| (p - Point3::new(0.01, 0.01, 0.01)).norm() < 1e-9).unwrap();
+    let corner = direct
+        .positions()
+        .iter()
+        .position(|p| (p - Point3::new(0.01, 0.01, 0.01)).norm() < 1e-9)
+        .unwrap();
     f[corner] = Vector3::new(2.0, -1.0, 0.5);
     for _ in 0..20 {
         cg.step(0.01, &f).unwrap();
@@ -119,8 +128,12 @@ fn rigid_rotation_produces_no_elastic_force() {
         ..settings(LinearSolver::Direct)
     };
     for model_kind in [MaterialModel::Corotational, MaterialModel::StableNeoHookean] {
-        let mut m = FemModel::new(&mesh, Material::lateral().with_model(model_kind), &[], s).unwrap();
-        let rot = Rotation3::from_axis_angle(&nalgebra::Unit::new_normalize(Vector3::new(1.0, 2.0, -0.5)), 2.3);
+        let mut m =
+            FemModel::new(&mesh, Material::lateral().with_model(model_kind), &[], s).unwrap();
+        let rot = Rotation3::from_axis_angle(
+            &nalgebra::Unit::new_normalize(Vector3::new(1.0, 2.0, -0.5)),
+            2.3,
+        );
         let shift = Vector3::new(0.3, -0.1, 0.05);
         let rotated: Vec<Point3<f64>> = mesh.nodes.iter().map(|p| rot * p + shift).collect();
         for (i, p) in rotated.iter().enumerate() {
@@ -130,7 +143,10 @@ fn rigid_rotation_produces_no_elastic_force() {
         m.elastic_forces(&mut f).unwrap();
         let fmax = f.iter().map(|v| v.norm()).fold(0.0, f64::max);
         // Reference: the force scale of a 1% strain on this mesh, E·A·ε/n ≈ 3.5e6·5e-5·0.01.
-        assert!(fmax < 1e-9, "{model_kind:?}: elastic force {fmax} N after a rigid rotation");
+        assert!(
+            fmax < 1e-9,
+            "{model_kind:?}: elastic force {fmax} N after a rigid rotation"
+        );
         assert!(m.elastic_energy() < 1e-15);
         // Stepping keeps it still.
         for _ in 0..5 {
@@ -175,7 +191,9 @@ fn patch_test_reproduces_linear_field() {
     let (mesh, boundary) = irregular_patch();
     let interior = mesh.nodes.len() - boundary.len();
     assert!(interior == 8);
-    let g = Matrix3::new(0.010, 0.004, -0.002, 0.001, -0.006, 0.003, 0.002, 0.005, 0.008);
+    let g = Matrix3::new(
+        0.010, 0.004, -0.002, 0.001, -0.006, 0.003, 0.002, 0.005, 0.008,
+    );
     let c = Vector3::new(0.1, -0.2, 0.3);
     let field = |p: &Point3<f64>| p + g * p.coords + c;
     for model_kind in [MaterialModel::Corotational, MaterialModel::StableNeoHookean] {
@@ -183,8 +201,13 @@ fn patch_test_reproduces_linear_field() {
             gravity: Vector3::zeros(),
             ..settings(LinearSolver::Direct)
         };
-        let mut m =
-            FemModel::new(&mesh, Material::lateral().with_model(model_kind), &boundary, s).unwrap();
+        let mut m = FemModel::new(
+            &mesh,
+            Material::lateral().with_model(model_kind),
+            &boundary,
+            s,
+        )
+        .unwrap();
         for &b in &boundary {
             m.set_position(b, field(&mesh.nodes[b])).unwrap();
         }
@@ -192,14 +215,21 @@ fn patch_test_reproduces_linear_field() {
         assert!(it >= 1);
         for i in 0..mesh.nodes.len() {
             let err = (m.positions()[i] - field(&mesh.nodes[i])).norm();
-            assert!(err < 1e-10, "{model_kind:?}: node {i} off the linear field by {err}");
+            assert!(
+                err < 1e-10,
+                "{model_kind:?}: node {i} off the linear field by {err}"
+            );
         }
         // Constant stress: every element has the same deformation gradient I + G.
         let mut f = zero_forces(&m);
         m.elastic_forces(&mut f).unwrap();
         for (i, fi) in f.iter().enumerate() {
             if !boundary.contains(&i) {
-                assert!(fi.norm() < 1e-6, "interior node {i} unbalanced by {}", fi.norm());
+                assert!(
+                    fi.norm() < 1e-6,
+                    "interior node {i} unbalanced by {}",
+                    fi.norm()
+                );
             }
         }
     }
@@ -261,7 +291,11 @@ fn cantilever_matches_euler_bernoulli() {
     let (coarse, eb) = cantilever_deflection_nu(20, 2, LinearSolver::Direct, 0.0);
     let (fine, _) = cantilever_deflection_nu(100, 10, LinearSolver::Direct, 0.0);
     let err = (fine - eb).abs() / eb;
-    assert!(err < 0.05, "fine mesh δ = {fine:.6e} m vs Euler–Bernoulli {eb:.6e} m ({:.1}%)", err * 100.0);
+    assert!(
+        err < 0.05,
+        "fine mesh δ = {fine:.6e} m vs Euler–Bernoulli {eb:.6e} m ({:.1}%)",
+        err * 100.0
+    );
     // Linear tets are too stiff on coarse meshes and converge from below.
     assert!(coarse < fine, "coarse {coarse} fine {fine}");
 }
@@ -291,7 +325,10 @@ fn energy_does_not_grow_in_free_vibration() {
         for step in 0..200 {
             m.step(0.001, &zero).unwrap();
             let e = m.elastic_energy() + m.kinetic_energy();
-            assert!(e <= prev * (1.0 + 1e-6) + 1e-15, "{model_kind:?} step {step}: energy grew {prev} → {e}");
+            assert!(
+                e <= prev * (1.0 + 1e-6) + 1e-15,
+                "{model_kind:?} step {step}: energy grew {prev} → {e}"
+            );
             moved |= m.kinetic_energy() > 0.1 * e0;
             prev = e;
         }
@@ -313,15 +350,26 @@ fn inverted_element_recovers() {
         let mut m =
             FemModel::new(&mesh, Material::lateral().with_model(model_kind), &fixed, s).unwrap();
         // Push the centre node down through the bottom layer: its lower tets invert.
-        let centre = nodes_where(&mesh, |p| (p - Point3::new(0.005, 0.005, 0.005)).norm() < 1e-9)[0];
-        m.set_position(centre, Point3::new(0.005, 0.005, -0.002)).unwrap();
-        let inverted = mesh.tets.iter().filter(|t| signed_volume(m.positions(), t) < 0.0).count();
+        let centre = nodes_where(&mesh, |p| {
+            (p - Point3::new(0.005, 0.005, 0.005)).norm() < 1e-9
+        })[0];
+        m.set_position(centre, Point3::new(0.005, 0.005, -0.002))
+            .unwrap();
+        let inverted = mesh
+            .tets
+            .iter()
+            .filter(|t| signed_volume(m.positions(), t) < 0.0)
+            .count();
         assert!(inverted > 0);
         let zero = zero_forces(&m);
         for _ in 0..300 {
             m.step(0.01, &zero).unwrap();
         }
-        let inverted = mesh.tets.iter().filter(|t| signed_volume(m.positions(), t) <= 0.0).count();
+        let inverted = mesh
+            .tets
+            .iter()
+            .filter(|t| signed_volume(m.positions(), t) <= 0.0)
+            .count();
         assert_eq!(inverted, 0, "{model_kind:?}");
         let err = (m.positions()[centre] - mesh.nodes[centre]).norm();
         assert!(err < 1e-4, "{model_kind:?}: centre node {err} m from rest");
@@ -349,8 +397,15 @@ fn neo_hookean_matches_linear_at_small_strain_and_stiffens_in_compression() {
     a.elastic_forces(&mut fa).unwrap();
     b.elastic_forces(&mut fb).unwrap();
     let scale = fa.iter().map(|v| v.norm()).fold(0.0, f64::max);
-    let diff = fa.iter().zip(&fb).map(|(x, y)| (x - y).norm()).fold(0.0, f64::max);
-    assert!(scale > 0.0 && diff < 1e-3 * scale, "diff {diff} scale {scale}");
+    let diff = fa
+        .iter()
+        .zip(&fb)
+        .map(|(x, y)| (x - y).norm())
+        .fold(0.0, f64::max);
+    assert!(
+        scale > 0.0 && diff < 1e-3 * scale,
+        "diff {diff} scale {scale}"
+    );
 
     // Uniaxial stress (laterally free), homogeneous F = diag(a, a, 1 − strain) with a chosen
     // so that the lateral faces carry no load; compare the axial reaction on the top face.
@@ -358,14 +413,19 @@ fn neo_hookean_matches_linear_at_small_strain_and_stiffens_in_compression() {
         let set = |m: &mut FemModel, a: f64| {
             for i in 0..mesh.nodes.len() {
                 let p = mesh.nodes[i];
-                m.set_position(i, Point3::new(p.x * a, p.y * a, p.z * (1.0 - strain))).unwrap();
+                m.set_position(i, Point3::new(p.x * a, p.y * a, p.z * (1.0 - strain)))
+                    .unwrap();
             }
             let mut f = zero_forces(m);
             m.elastic_forces(&mut f).unwrap();
-            let lateral: f64 =
-                nodes_where(&mesh, |p| (p.x - 0.01).abs() < 1e-9).iter().map(|&i| f[i].x).sum();
-            let axial: f64 =
-                nodes_where(&mesh, |p| (p.z - 0.01).abs() < 1e-9).iter().map(|&i| f[i].z).sum();
+            let lateral: f64 = nodes_where(&mesh, |p| (p.x - 0.01).abs() < 1e-9)
+                .iter()
+                .map(|&i| f[i].x)
+                .sum();
+            let axial: f64 = nodes_where(&mesh, |p| (p.z - 0.01).abs() < 1e-9)
+                .iter()
+                .map(|&i| f[i].z)
+                .sum();
             (lateral, axial)
         };
         // Lateral face force: positive (pulls in) when a is too large.
@@ -385,13 +445,22 @@ fn neo_hookean_matches_linear_at_small_strain_and_stiffens_in_compression() {
     let small_a = axial_force(&mut a, 0.001);
     let small_b = axial_force(&mut b, 0.001);
     // Linear: σ = E ε.
-    assert!((small_a - e * 0.001 * area).abs() < 1e-6 * small_a, "{small_a}");
-    assert!((small_a - small_b).abs() < 0.01 * small_a, "{small_a} {small_b}");
+    assert!(
+        (small_a - e * 0.001 * area).abs() < 1e-6 * small_a,
+        "{small_a}"
+    );
+    assert!(
+        (small_a - small_b).abs() < 0.01 * small_a,
+        "{small_a} {small_b}"
+    );
     let big_a = axial_force(&mut a, 0.4);
     let big_b = axial_force(&mut b, 0.4);
     assert!((big_a - e * 0.4 * area).abs() < 1e-6 * big_a, "{big_a}");
     // Neo-Hookean: 1.36× the linear nominal stress at 40% (closed form of this energy).
-    assert!(big_b > 1.3 * big_a && big_b < 1.42 * big_a, "corotational {big_a} N, neo-Hookean {big_b} N");
+    assert!(
+        big_b > 1.3 * big_a && big_b < 1.42 * big_a,
+        "corotational {big_a} N, neo-Hookean {big_b} N"
+    );
 }
 
 #[test]
@@ -455,13 +524,20 @@ fn node_rotations_follow_a_rigid_rotation_and_correction_moves_nodes() {
     for (i, p) in mesh.nodes.iter().enumerate() {
         m.set_position(i, rot * p).unwrap();
     }
-    m.free_motion(0.01, &zero_forces(&m)).unwrap();
-    m.update_node_rotations();
+    // The step's rotation extraction is warm-started with a few iterations per call, so a
+    // sudden 1 rad turn takes a few steps to be tracked exactly.
+    for _ in 0..10 {
+        m.free_motion(0.01, &zero_forces(&m)).unwrap();
+        m.update_node_rotations();
+    }
+    // Step tolerance of the extraction is 1e-7 rad.
     for r in m.node_rotations() {
-        assert!((r - rot.matrix()).norm() < 1e-9);
+        let err = (r - rot.matrix()).norm();
+        assert!(err < 1e-6, "node rotation off by {err}");
     }
     let before = m.free_positions()[3];
-    m.apply_correction(&[(3, Vector3::new(0.0, 0.0, 1e-3))]).unwrap();
+    m.apply_correction(&[(3, Vector3::new(0.0, 0.0, 1e-3))])
+        .unwrap();
     assert!((m.free_positions()[3] - before - Vector3::new(0.0, 0.0, 1e-3)).norm() < 1e-15);
     assert!((m.free_velocities()[3].z - 0.1).abs() < 1e-12);
     m.commit();
@@ -484,7 +560,10 @@ fn support_springs_carry_the_weight() {
         .iter()
         .map(|&i| -500.0 * (m.positions()[i].z - mesh.nodes[i].z))
         .sum();
-    assert!((spring - weight).abs() < 1e-6 * weight, "springs {spring} N, weight {weight} N");
+    assert!(
+        (spring - weight).abs() < 1e-6 * weight,
+        "springs {spring} N, weight {weight} N"
+    );
 }
 
 #[test]
@@ -494,7 +573,8 @@ fn material_change_rescales_response() {
     m.solve_static(&f, true, 20, 1e-10).unwrap();
     let sag0 = 0.01 - m.positions().iter().map(|p| p.z).fold(f64::MIN, f64::max);
     m.reset();
-    m.set_material(Material::lateral().degenerated(2.0).unwrap()).unwrap();
+    m.set_material(Material::lateral().degenerated(2.0).unwrap())
+        .unwrap();
     m.solve_static(&f, true, 20, 1e-10).unwrap();
     let sag2 = 0.01 - m.positions().iter().map(|p| p.z).fold(f64::MIN, f64::max);
     assert!((sag2 / sag0 - 1.0 / 0.59).abs() < 1e-3, "{sag0} {sag2}");

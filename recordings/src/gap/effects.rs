@@ -85,9 +85,9 @@ impl Effect {
     }
     pub fn params(self) -> Vec<ParamSpec> {
         match self {
-            Effect::Modulus => vec![p("modulus_scale", "", 0.2, 5.0, 1.0, true)],
+            Effect::Modulus => vec![p("modulus_scale", "", 0.02, 5.0, 1.0, true)],
             Effect::Hardening => vec![
-                p("small_strain_scale", "", 0.05, 5.0, 1.0, true),
+                p("small_strain_scale", "", 0.01, 5.0, 1.0, true),
                 p("stiffening_rate", "1/mm", 0.0, 2.0, 0.0, false),
             ],
             Effect::Viscoelastic => vec![

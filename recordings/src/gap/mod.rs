@@ -346,7 +346,8 @@ pub fn diagnose_data(
     }
     ranking.sort_by(|a, b| a.score.total_cmp(&b.score));
 
-    let verdict = decide(&singles, &ranking, r0, noise, opts.min_shrink);
+    // two effects need several independent trials to be told apart (not one table)
+    let verdict = decide(&singles, &ranking, r0, noise, opts.min_shrink, data.len() >= 3);
     let winner = ranking.iter().find(|c| c.effect == verdict.effect);
     let heldout = Heldout {
         scheme,
@@ -398,7 +399,7 @@ pub fn diagnose_data(
 
 /// The verdict: the best-ranked candidate if it beats the baseline beyond noise; a pair only
 /// when the best single leaves a residual well above noise and the pair removes much of it.
-fn decide(singles: &[CandidateScore], ranking: &[CandidateScore], r0: f64, noise: f64, min_shrink: f64) -> Verdict {
+fn decide(singles: &[CandidateScore], ranking: &[CandidateScore], r0: f64, noise: f64, min_shrink: f64, pairs_allowed: bool) -> Verdict {
     let none = |reason: String| Verdict {
         effect: "none".into(),
         heldout_shrink: 0.0,
@@ -456,6 +457,25 @@ fn decide(singles: &[CandidateScore], ranking: &[CandidateScore], r0: f64, noise
         params: win.params.clone(),
         reason,
     }
+}
+
+/// Each effect of a candidate has a parameter at least 3 standard errors from neutral
+/// (effects without parameters count as significant).
+fn every_effect_significant(c: &CandidateScore) -> bool {
+    c.effect.split('+').all(|name| {
+        let e = match Effect::parse(name) {
+            Some(e) => e,
+            None => return false,
+        };
+        let specs = e.params();
+        if specs.is_empty() {
+            return true;
+        }
+        c.params.iter().filter(|p| p.effect == name).zip(&specs).any(|(p, s)| {
+            let d = (p.value - s.neutral).abs();
+            p.std.is_finite() && d > 3.0 * p.std && d > 1e-9
+        })
+    })
 }
 
 /// Residual of the baseline broken down by axis, phase, region and depth band.

@@ -3,7 +3,8 @@
 //!
 //! The truth replays the study protocol (five probings in each of three regions: approach,
 //! loading, hold, a tangential slide on two of the five, unloading) through the physics
-//! model at the node's 0.01 s step (the diagnosis replays at 0.02 s); re-simulated effects are
+//! model (step `truth_dt`, default the diagnosis' 0.02 s: the contact force of the current
+//! physics depends strongly on the step, which would swamp every injected effect); re-simulated effects are
 //! simulated exactly (friction μ, the tilted specimen, elastic support, the fine mesh,
 //! neo-Hookean material for hardening), the rest applied to the truth's own force
 //! (stiffening, QLV, device bias and tool inertia, sensor delay and low-pass); then sensor
@@ -122,7 +123,7 @@ impl RealitySpec {
             probings_per_region: 5,
             regions: Region::ALL.to_vec(),
             mesh: "default:lateral:coarse".into(),
-            truth_dt: 0.01,
+            truth_dt: 0.02,
         })
     }
 

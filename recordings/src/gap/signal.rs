@@ -206,10 +206,11 @@ mod tests {
         let a: Vec<f64> = ta.iter().map(|&t| f(t)).collect();
         let b: Vec<f64> = ta.iter().map(|&t| f(t - 0.12)).collect();
         let (lag, c) = lag_by_xcorr(&ta, &a, &ta, &b, 0.5, 0.005).unwrap();
-        assert!((lag - 0.12).abs() < 0.006, "lag {lag}");
+        // within 10 ms at ~38 Hz irregular sampling (26 ms intervals)
+        assert!((lag - 0.12).abs() < 0.01, "lag {lag}");
         assert!(c > 0.95);
         let (lag2, _) = lag_by_xcorr(&ta, &b, &ta, &a, 0.5, 0.005).unwrap();
-        assert!((lag2 + 0.12).abs() < 0.006, "lag {lag2}");
+        assert!((lag2 + 0.12).abs() < 0.01, "lag {lag2}");
     }
 
     #[test]

@@ -147,16 +147,22 @@ impl ComplianceCache {
         victim
     }
 
-    /// Block (a, b) of A0⁻¹ applied to `u`: rows of free row `fa`, columns of slot `sb`.
+    /// Block (a, b) of A0⁻¹: rows of free row `fa`, columns of slot `sb`.
     #[inline]
-    fn apply_block(&self, fa: usize, sb: u32, u: &Vector3<f64>) -> Vector3<f64> {
+    fn block(&self, fa: usize, sb: u32) -> Matrix3<f64> {
         let base = sb as usize * 3 * self.dim + 3 * fa;
         let d = self.dim;
         let c = &self.columns;
-        Vector3::new(
-            c[base] * u.x + c[base + d] * u.y + c[base + 2 * d] * u.z,
-            c[base + 1] * u.x + c[base + d + 1] * u.y + c[base + 2 * d + 1] * u.z,
-            c[base + 2] * u.x + c[base + d + 2] * u.y + c[base + 2 * d + 2] * u.z,
+        Matrix3::new(
+            c[base],
+            c[base + d],
+            c[base + 2 * d],
+            c[base + 1],
+            c[base + d + 1],
+            c[base + 2 * d + 1],
+            c[base + 2],
+            c[base + d + 2],
+            c[base + 2 * d + 2],
         )
     }
 }
@@ -165,8 +171,6 @@ impl ComplianceCache {
 pub struct ConstraintCorrection {
     /// Per contact and local node: cache slot (NONE: held node / no slot).
     slots: Vec<[u32; 3]>,
-    /// Per row and local node: w_a R_aᵀ d_r.
-    rotated: Vec<[Vector3<f64>; 3]>,
     pinned: Vec<u32>,
     /// Tissue velocity correction in the rest frame, per free dof.
     dv_local: Vec<f64>,
@@ -176,7 +180,6 @@ impl ConstraintCorrection {
     pub fn new(dim: usize, max_contacts: usize) -> ConstraintCorrection {
         ConstraintCorrection {
             slots: Vec::with_capacity(max_contacts),
-            rotated: Vec::with_capacity(3 * max_contacts),
             pinned: Vec::with_capacity(3 * max_contacts),
             dv_local: vec![0.0; dim],
         }
@@ -197,9 +200,7 @@ impl ConstraintCorrection {
         stride: usize,
     ) {
         let m = contacts.len();
-        let rows = 3 * m;
         self.slots.clear();
-        self.rotated.clear();
         self.pinned.clear();
         for c in contacts {
             let mut s = [NONE; 3];
@@ -211,46 +212,53 @@ impl ConstraintCorrection {
             }
             self.slots.push(s);
         }
-        for c in contacts {
-            for d in [c.normal, c.t1, c.t2] {
-                let mut u = [Vector3::zeros(); 3];
-                for a in 0..3 {
-                    u[a] = rotations[c.nodes[a]].transpose() * d * c.weights[a];
-                }
-                self.rotated.push(u);
-            }
-        }
-        for r in 0..rows {
-            let kr = r / 3;
+        // Per contact pair: the world-frame tissue compliance between the two contact points,
+        // M = Σ_a Σ_b w_a w_b R_a A0⁻¹_ab R_bᵀ (each 3×3 block of A0⁻¹ read once), then
+        // W_block = Dᵀ_kr M D_ks with D = [n t1 t2], plus the probe's part.
+        for kr in 0..m {
             let cr = &contacts[kr];
-            let dr = direction(cr, r % 3);
-            let hr_ang = probe.arm_free(cr.sphere).cross(&dr);
-            for s in r..rows {
-                let ks = s / 3;
+            let dr_mat = Matrix3::from_columns(&[cr.normal, cr.t1, cr.t2]);
+            let arm_r = probe.arm_free(cr.sphere);
+            for ks in kr..m {
                 let cs = &contacts[ks];
-                // Tissue: Σ_a Σ_b (w_a R_aᵀ d_r)ᵀ A0⁻¹_ab (w_b R_bᵀ d_s).
-                let mut tissue = 0.0;
+                let mut tissue = Matrix3::zeros();
                 for b in 0..3 {
                     let sb = self.slots[ks][b];
-                    if sb == NONE {
+                    if sb == NONE || cs.weights[b] == 0.0 {
                         continue;
                     }
-                    let ub = &self.rotated[s][b];
+                    let rb = &rotations[cs.nodes[b]];
                     for a in 0..3 {
                         let fa = cache.free_index(cr.nodes[a]);
-                        if fa == NONE {
+                        if fa == NONE || cr.weights[a] == 0.0 {
                             continue;
                         }
-                        tissue += self.rotated[r][a].dot(&cache.apply_block(fa as usize, sb, ub));
+                        let block = cache.block(fa as usize, sb);
+                        tissue += rotations[cr.nodes[a]]
+                            * block
+                            * rb.transpose()
+                            * (cr.weights[a] * cs.weights[b]);
                     }
                 }
-                let ds = direction(cs, s % 3);
-                let hs_ang = probe.arm_free(cs.sphere).cross(&ds);
-                let (lin, ang) = probe.mobility(&ds, &hs_ang);
-                let probe_part = dr.dot(&lin) + hr_ang.dot(&ang);
-                let v = dt * (tissue + probe_part);
-                w[r * stride + s] = v;
-                w[s * stride + r] = v;
+                let ds_mat = Matrix3::from_columns(&[cs.normal, cs.t1, cs.t2]);
+                let wt = dr_mat.transpose() * tissue * ds_mat;
+                let arm_s = probe.arm_free(cs.sphere);
+                for i in 0..3 {
+                    let dr = dr_mat.column(i).into_owned();
+                    let hr_ang = arm_r.cross(&dr);
+                    let r = 3 * kr + i;
+                    let j0 = if ks == kr { i } else { 0 };
+                    for j in j0..3 {
+                        let ds = ds_mat.column(j).into_owned();
+                        let hs_ang = arm_s.cross(&ds);
+                        let (lin, ang) = probe.mobility(&ds, &hs_ang);
+                        let probe_part = dr.dot(&lin) + hr_ang.dot(&ang);
+                        let v = dt * (wt[(i, j)] + probe_part);
+                        let c = 3 * ks + j;
+                        w[r * stride + c] = v;
+                        w[c * stride + r] = v;
+                    }
+                }
             }
         }
     }

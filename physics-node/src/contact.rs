@@ -19,6 +19,9 @@ use parry3d_f64::query::PointQueryWithLocation;
 use parry3d_f64::shape::{TriMesh, TriMeshFlags, Triangle, TrianglePointLocation};
 
 const NO_TRIANGLE: u32 = u32::MAX;
+/// Contacts kept per probe sphere (the most violated). A ball in the crater of crushed
+/// tissue rests on many small faces; fewer than ~8 let it slip between them.
+pub const FEATURES_PER_SPHERE: usize = 8;
 
 #[inline]
 fn to_g(v: &Vector3<f64>) -> GVec {
@@ -78,6 +81,9 @@ pub struct TissueSurface {
     /// Incident triangles per surface vertex (CSR).
     vertex_tri_start: Vec<u32>,
     vertex_tris: Vec<u32>,
+    /// Triangles whose nodes are all held (the inferior surface on the bone): the rigid
+    /// support sheet stands in for them, so tissue contacts skip them.
+    pub rigid: Vec<bool>,
     /// Bounding box of the refitted surface.
     pub lo: Vector3<f64>,
     pub hi: Vector3<f64>,
@@ -152,6 +158,7 @@ impl TissueSurface {
         let trimesh = TriMesh::with_flags(verts, local, TriMeshFlags::DEFORMABLE).ok()?;
         let mut s = TissueSurface {
             face_normals: vec![Vector3::zeros(); triangles.len()],
+            rigid: vec![false; triangles.len()],
             triangles,
             nodes,
             trimesh,
@@ -395,6 +402,9 @@ impl ContactDetector {
             let hi = p0 + Vector3::repeat(reach);
             let aabb = Aabb::new(to_g(&lo), to_g(&hi));
             for t in surface.trimesh.bvh().intersect_aabb(&aabb) {
+                if surface.rigid[t as usize] {
+                    continue;
+                }
                 let tri_shape = surface.trimesh.triangle(t);
                 let (proj, loc) = tri_shape.project_local_point_and_get_location(to_g(&p0), false);
                 let c = from_g(proj.point);
@@ -450,7 +460,8 @@ impl ContactDetector {
                     false,
                 );
             }
-            if self.candidates.len() == first {
+            self.keep_closest(first);
+            if self.candidates.len() == first && !surface.rigid[tri as usize] {
                 // Nothing but the nearest feature (numerically on an edge of a far side):
                 // fall back to it with its pseudo-normal.
                 let dist = to_point.norm();
@@ -562,6 +573,21 @@ impl ContactDetector {
                     true,
                 );
             }
+            self.keep_closest(first);
+        }
+    }
+
+    /// Keeps the [`FEATURES_PER_SPHERE`] most violated candidates of one sphere (those from
+    /// `first` on): more add rows to W, not support.
+    fn keep_closest(&mut self, first: usize) {
+        let mine = &mut self.candidates[first..];
+        if mine.len() > FEATURES_PER_SPHERE {
+            mine.sort_unstable_by(|a, b| {
+                a.free_violation[0]
+                    .total_cmp(&b.free_violation[0])
+                    .then(a.triangle.cmp(&b.triangle))
+            });
+            self.candidates.truncate(first + FEATURES_PER_SPHERE);
         }
     }
 
@@ -582,7 +608,7 @@ impl ContactDetector {
         // Best of the triangle and its edge neighbours: smallest in-plane clamp distance.
         let mut best = (t, f64::INFINITY);
         for cand in core::iter::once(t).chain(surface.neighbors[t as usize].iter().copied()) {
-            if cand == NO_TRIANGLE {
+            if cand == NO_TRIANGLE || surface.rigid[cand as usize] {
                 continue;
             }
             let n = surface.face_normal(cand);

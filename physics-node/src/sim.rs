@@ -171,7 +171,7 @@ impl Simulation {
             .map_err(|e| PhysicsError::Fem(e.to_string()))?;
 
         let triangles = boundary_triangles(&mesh.tets);
-        let surface = TissueSurface::new(triangles.clone(), &mesh.nodes)
+        let mut surface = TissueSurface::new(triangles.clone(), &mesh.nodes)
             .ok_or_else(|| PhysicsError::Mesh("tet mesh has no boundary surface".into()))?;
         // Support sheet: boundary triangles whose nodes are all held, turned to face the tissue.
         let support_tris: Vec<[usize; 3]> = triangles
@@ -180,6 +180,9 @@ impl Simulation {
             .map(|t| [t[0], t[2], t[1]])
             .collect();
         let support = TissueSurface::new(support_tris, &mesh.nodes);
+        for (flag, t) in surface.rigid.iter_mut().zip(&triangles) {
+            *flag = t.iter().all(|&n| rest.free_index(n).is_none());
+        }
         let free_index: Vec<u32> = (0..mesh.nodes.len())
             .map(|n| {
                 rest.free_index(n)

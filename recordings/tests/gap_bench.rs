@@ -9,3 +9,15 @@ fn gap_diagnose_15_trials() {
     let v = recordings::gap::selftest::bench(&effect, 5, &recordings::gap::Options::default()).unwrap();
     println!("{v}");
 }
+
+/// The full case cycle through the physics model (release; slow):
+/// `GAP_CASES=14 cargo test --release -p recordings --test gap_bench -- --ignored --nocapture selftest_cycle`
+#[test]
+#[ignore]
+fn selftest_cycle() {
+    let n: usize = std::env::var("GAP_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(14);
+    let opts = recordings::gap::selftest::SelftestOptions { verbose: true, ..Default::default() };
+    let r = recordings::gap::selftest::selftest(n, 21, &opts).unwrap();
+    print!("{}", r.table());
+    println!("{}", serde_json::to_string(&r.summary()).unwrap());
+}

@@ -30,6 +30,14 @@
 //! warm start from the previous step's Δv. Preconditioners: none (SOFA), block Jacobi, or the
 //! rest-state Cholesky factor (optionally warped by the node rotations), which typically
 //! converges in a few iterations.
+//!
+//! # Cost (release, `cargo run --release -p physics-node --example fem_timing`)
+//! Study lateral mesh (258 nodes, 632 tets, 144 free): free motion p50 ≈ 0.27 ms with
+//! `cg-warped-cholesky` (≈ 3 iterations), ≈ 0.42–0.66 ms with plain 25-iteration CG, measured
+//! on a shared 2-core machine at load 6–7. The 2,560-node default mesh (10,584 tets) takes
+//! 13–15 ms with 25-iteration CG under the same load: the block product (≈ 35%) and the
+//! element kernels (≈ 50%) dominate. Rotation extraction is warm-started (tolerance 1e-7 rad,
+//! at most 4 iterations per step).
 
 mod element;
 pub mod material;

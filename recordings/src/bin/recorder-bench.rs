@@ -29,6 +29,9 @@ struct Args {
     /// Active contacts per physics step (rows = 3 × contacts; W is rows²).
     #[arg(long, default_value_t = 4)]
     contacts: u32,
+    /// Record each step's contact problem too (`[recording] contact_problem = true`).
+    #[arg(long)]
+    contact_problem: bool,
     /// Output folder (default: a fresh temporary folder).
     #[arg(long)]
     out: Option<PathBuf>,
@@ -72,9 +75,14 @@ fn main() -> anyhow::Result<()> {
     std::fs::create_dir_all(&out)?;
     let session = format!("recorder-bench-{}", std::process::id());
 
-    let mut child = Command::new(&recorder)
-        .args(["--session", &session, "--out"])
-        .arg(&out)
+    let mut command = Command::new(&recorder);
+    command.args(["--session", &session, "--out"]).arg(&out);
+    if args.contact_problem {
+        let launch = out.join("bench-launch.toml");
+        std::fs::write(&launch, "[recording]\ncontact_problem = true\n")?;
+        command.arg("--launch").arg(&launch);
+    }
+    let mut child = command
         .env("RUST_LOG", "warn")
         .stdout(Stdio::piped())
         .stderr(Stdio::inherit())
@@ -210,6 +218,7 @@ fn main() -> anyhow::Result<()> {
         "seconds": wall,
         "tick_hz": args.tick_hz,
         "contacts": rows / 3,
+        "contact_problem": args.contact_problem,
         "samples_published": samples_published,
         "samples_received": samples_received,
         "mcap_messages": get("messages_written"),

@@ -204,6 +204,9 @@ fn main() -> anyhow::Result<()> {
         .args(["bench", "--domain", &domain.to_string()])
         .args(["--timeout", &format!("{}", args.seconds + 120.0)])
         .env("CYCLONEDDS_URI", uri);
+    if args.reliability == "best_effort" {
+        peer_cmd.arg("--best-effort");
+    }
     let peer = Proc::spawn("cyclone peer", peer_cmd)?;
     peer.wait_line("READY", Duration::from_secs(30))?;
     let mut bridge_cmd = in_ns(bridge_exe.to_str().context("bridge path")?);

@@ -215,9 +215,9 @@ class DiagnosticArray(IdlStruct, typename=ros("diagnostic_msgs", "DiagnosticArra
     status: sequence[DiagnosticStatus] = field(default_factory=list)
 
 
-def qos(depth=100, latched=False):
+def qos(depth=100, latched=False, best_effort=False):
     return Qos(
-        Policy.Reliability.Reliable(duration(seconds=1)),
+        Policy.Reliability.BestEffort if best_effort else Policy.Reliability.Reliable(duration(seconds=1)),
         Policy.Durability.TransientLocal if latched else Policy.Durability.Volatile,
         Policy.History.KeepLast(depth),
     )
@@ -399,8 +399,10 @@ def run_bench(args):
     ns = args.namespace
     dp = DomainParticipant(args.domain)
     depth = 100000
-    pose_r = DataReader(dp, Topic(dp, topic_of(ns, "probe/pose"), PoseStamped), qos=qos(depth))
-    wrench_r = DataReader(dp, Topic(dp, topic_of(ns, "probe/wrench"), WrenchStamped), qos=qos(depth))
+    # A reliable reader matches only reliable writers; follow the bench's setting.
+    be = args.best_effort
+    pose_r = DataReader(dp, Topic(dp, topic_of(ns, "probe/pose"), PoseStamped), qos=qos(depth, best_effort=be))
+    wrench_r = DataReader(dp, Topic(dp, topic_of(ns, "probe/wrench"), WrenchStamped), qos=qos(depth, best_effort=be))
     ws = WaitSet(dp)
     for r in (pose_r, wrench_r):
         ws.attach(ReadCondition(r, SampleState.Any | ViewState.Any | InstanceState.Any))
@@ -496,6 +498,7 @@ def main():
     ap.add_argument("--namespace", default="/arthrosim")
     ap.add_argument("--timeout", type=float, default=60.0)
     ap.add_argument("--linger", type=float, default=2.0)
+    ap.add_argument("--best-effort", action="store_true", help="bench: best-effort readers")
     args = ap.parse_args()
     if args.mode == "check":
         if not args.expect:

@@ -177,7 +177,10 @@ impl Default for ContactConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ProbeConfig {
-    /// `default` (built-in hook probe of capsules) or a path to an OBJ collision model.
+    /// `default` (built-in hook probe: tip ball, 3 mm hook, 40 mm shaft, as chains of balls of
+    /// `tip_radius`), `sphere` (the tip ball alone, for indentation tests) or a path to an OBJ
+    /// collision model (its vertices and sampled edges become contact points; radius 0, so
+    /// `contact.contact_distance` acts as their thickness).
     pub model: String,
     /// Transform for an OBJ collision model.
     pub transform: TransformConfig,

@@ -695,3 +695,53 @@ impl ContactDetector {
         });
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fem::test_meshes::box_mesh;
+
+    #[test]
+    fn boundary_of_a_box_is_closed_and_outward() {
+        let mesh = box_mesh(0.02, 0.01, 0.005, 4, 3, 2);
+        let tris = boundary_triangles(&mesh.tets);
+        // 2 triangles per boundary quad.
+        assert_eq!(tris.len(), 2 * 2 * (4 * 3 + 4 * 2 + 3 * 2));
+        let centre = Vector3::new(0.01, 0.005, 0.0025);
+        let mut edges: Vec<(usize, usize)> = Vec::new();
+        for t in &tris {
+            let [a, b, c] = t.map(|i| mesh.nodes[i].coords);
+            let n = (b - a).cross(&(c - a));
+            assert!(
+                n.dot(&((a + b + c) / 3.0 - centre)) > 0.0,
+                "inward triangle {t:?}"
+            );
+            for (u, v) in [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])] {
+                edges.push((u.min(v), u.max(v)));
+            }
+        }
+        edges.sort_unstable();
+        for e in edges.chunks(2) {
+            assert_eq!(e[0], e[1], "open edge");
+        }
+    }
+
+    #[test]
+    fn tangents_are_orthonormal() {
+        for n in [
+            Vector3::z(),
+            Vector3::new(0.3, -0.4, 0.866).normalize(),
+            -Vector3::x(),
+        ] {
+            let (t1, t2) = tangents(&n);
+            assert!(
+                t1.dot(&n).abs() < 1e-12 && t2.dot(&n).abs() < 1e-12 && t1.dot(&t2).abs() < 1e-12
+            );
+            assert!((t1.norm() - 1.0).abs() < 1e-12 && (t2.norm() - 1.0).abs() < 1e-12);
+            assert!(
+                (t1.cross(&t2) - n).norm() < 1e-12,
+                "right-handed (n, t1, t2)"
+            );
+        }
+    }
+}

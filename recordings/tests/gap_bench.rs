@@ -15,8 +15,14 @@ fn gap_diagnose_15_trials() {
 #[test]
 #[ignore]
 fn selftest_cycle() {
-    let n: usize = std::env::var("GAP_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(14);
-    let opts = recordings::gap::selftest::SelftestOptions { verbose: true, ..Default::default() };
+    let n: usize = std::env::var("GAP_CASES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(14);
+    let opts = recordings::gap::selftest::SelftestOptions {
+        verbose: true,
+        ..Default::default()
+    };
     let r = recordings::gap::selftest::selftest(n, 21, &opts).unwrap();
     print!("{}", r.table());
     println!("{}", serde_json::to_string(&r.summary()).unwrap());

@@ -9,7 +9,12 @@ fn rows(n: usize) -> String {
     let mut s = String::from(HEADER);
     s.push('\n');
     for i in 0..n {
-        s.push_str(&format!("{},0,0,{},0,0,{},0,0,0,1\n", i as f64 * 0.026, i as f64 * 0.1, 0.01 - i as f64 * 1e-4));
+        s.push_str(&format!(
+            "{},0,0,{},0,0,{},0,0,0,1\n",
+            i as f64 * 0.026,
+            i as f64 * 0.1,
+            0.01 - i as f64 * 1e-4
+        ));
     }
     s
 }
@@ -46,7 +51,10 @@ fn missing_column_is_named() {
     let s = rows(6).replacen("fy_N,", "", 1);
     let e = parse_trial_csv(&s, Path::new("x.csv")).unwrap_err();
     let msg = e.to_string();
-    assert!(msg.contains("x.csv:1") && msg.contains("missing column(s) fy_N"), "{msg}");
+    assert!(
+        msg.contains("x.csv:1") && msg.contains("missing column(s) fy_N"),
+        "{msg}"
+    );
 }
 
 #[test]
@@ -55,7 +63,10 @@ fn nan_row_names_line_and_column() {
     s = s.replacen("0.078,0,0,0.30000000000000004", "0.078,0,NaN,0.3", 1);
     let e = parse_trial_csv(&s, Path::new("n.csv")).unwrap_err();
     assert_eq!(line_of(&e), Some(5), "{e}");
-    assert!(e.to_string().contains("fy_N") && e.to_string().contains("non-finite"), "{e}");
+    assert!(
+        e.to_string().contains("fy_N") && e.to_string().contains("non-finite"),
+        "{e}"
+    );
     let s2 = rows(8).replacen("0.052,0,0,0.2", "0.052,0,zz,0.2", 1);
     let e2 = parse_trial_csv(&s2, Path::new("n.csv")).unwrap_err();
     assert_eq!(line_of(&e2), Some(4), "{e2}");
@@ -78,7 +89,11 @@ fn short_row_and_zero_quaternion() {
     let mut s = rows(6);
     s.push_str("0.5,0,0\n");
     assert_eq!(line_of(&parse_trial_csv(&s, Path::new("s.csv")).unwrap_err()), Some(8));
-    let z = rows(6).replacen("0.026,0,0,0.1,0,0,0.0099,0,0,0,1", "0.026,0,0,0.1,0,0,0.0099,0,0,0,0", 1);
+    let z = rows(6).replacen(
+        "0.026,0,0,0.1,0,0,0.0099,0,0,0,1",
+        "0.026,0,0,0.1,0,0,0.0099,0,0,0,0",
+        1,
+    );
     let e = parse_trial_csv(&z, Path::new("z.csv")).unwrap_err();
     assert!(e.to_string().contains("zero quaternion"), "{e}");
 }
@@ -89,30 +104,70 @@ fn experiment_folder_errors_name_toml_line() {
     // unknown region
     let d = dir("region");
     std::fs::write(d.join("a.csv"), rows(6)).unwrap();
-    std::fs::write(d.join("experiment.toml"), "[specimen]\nmesh = \"default:lateral:coarse\"\n\n[[trial]]\nfile = \"a.csv\"\nregion = \"lateral\"\n").unwrap();
+    std::fs::write(
+        d.join("experiment.toml"),
+        "[specimen]\nmesh = \"default:lateral:coarse\"\n\n[[trial]]\nfile = \"a.csv\"\nregion = \"lateral\"\n",
+    )
+    .unwrap();
     let e = load_experiment(&d, &data).unwrap_err();
-    assert!(e.to_string().contains("experiment.toml:6") && e.to_string().contains("unknown region"), "{e}");
+    assert!(
+        e.to_string().contains("experiment.toml:6") && e.to_string().contains("unknown region"),
+        "{e}"
+    );
     // mesh not found
-    std::fs::write(d.join("experiment.toml"), "[specimen]\nmesh = \"missing.msh\"\n\n[[trial]]\nfile = \"a.csv\"\n").unwrap();
+    std::fs::write(
+        d.join("experiment.toml"),
+        "[specimen]\nmesh = \"missing.msh\"\n\n[[trial]]\nfile = \"a.csv\"\n",
+    )
+    .unwrap();
     let e = load_experiment(&d, &data).unwrap_err();
-    assert!(e.to_string().contains("experiment.toml:1") && e.to_string().contains("mesh not found"), "{e}");
-    std::fs::write(d.join("experiment.toml"), "[specimen]\nmesh = \"default:lateral:huge\"\n\n[[trial]]\nfile = \"a.csv\"\n").unwrap();
-    assert!(load_experiment(&d, &data).unwrap_err().to_string().contains("mesh not found"));
+    assert!(
+        e.to_string().contains("experiment.toml:1") && e.to_string().contains("mesh not found"),
+        "{e}"
+    );
+    std::fs::write(
+        d.join("experiment.toml"),
+        "[specimen]\nmesh = \"default:lateral:huge\"\n\n[[trial]]\nfile = \"a.csv\"\n",
+    )
+    .unwrap();
+    assert!(load_experiment(&d, &data)
+        .unwrap_err()
+        .to_string()
+        .contains("mesh not found"));
     // trial file missing
-    std::fs::write(d.join("experiment.toml"), "[[trial]]\nfile = \"a.csv\"\n\n[[trial]]\nfile = \"b.csv\"\n").unwrap();
+    std::fs::write(
+        d.join("experiment.toml"),
+        "[[trial]]\nfile = \"a.csv\"\n\n[[trial]]\nfile = \"b.csv\"\n",
+    )
+    .unwrap();
     let e = load_experiment(&d, &data).unwrap_err();
-    assert!(e.to_string().contains("experiment.toml:4") && e.to_string().contains("b.csv"), "{e}");
+    assert!(
+        e.to_string().contains("experiment.toml:4") && e.to_string().contains("b.csv"),
+        "{e}"
+    );
     // unknown key
-    std::fs::write(d.join("experiment.toml"), "[material]\nyoung = 3\n[[trial]]\nfile = \"a.csv\"\n").unwrap();
+    std::fs::write(
+        d.join("experiment.toml"),
+        "[material]\nyoung = 3\n[[trial]]\nfile = \"a.csv\"\n",
+    )
+    .unwrap();
     let e = load_experiment(&d, &data).unwrap_err();
     assert!(e.to_string().contains("experiment.toml:2"), "{e}");
     // bad CSV inside a good folder names the CSV
     std::fs::write(d.join("b.csv"), rows(6).replacen("0.104", "0.01", 1)).unwrap();
-    std::fs::write(d.join("experiment.toml"), "[[trial]]\nfile = \"b.csv\"\nregion = \"mid\"\n").unwrap();
+    std::fs::write(
+        d.join("experiment.toml"),
+        "[[trial]]\nfile = \"b.csv\"\nregion = \"mid\"\n",
+    )
+    .unwrap();
     let e = load_experiment(&d, &data).unwrap_err();
     assert!(e.to_string().contains("b.csv:6"), "{e}");
     // good folder
-    std::fs::write(d.join("experiment.toml"), "[[trial]]\nfile = \"a.csv\"\nregion = \"Posterior\"\n").unwrap();
+    std::fs::write(
+        d.join("experiment.toml"),
+        "[[trial]]\nfile = \"a.csv\"\nregion = \"Posterior\"\n",
+    )
+    .unwrap();
     let exp = load_experiment(&d, &data).unwrap();
     assert_eq!(exp.trials[0].region, Some(Region::Posterior));
     assert_eq!(exp.spec.specimen.mesh, "default:lateral:coarse");
@@ -127,9 +182,15 @@ fn force_displacement_table() {
     let t = read_force_displacement(&p).unwrap();
     assert_eq!(t.force_n[0], 0.31);
     std::fs::write(&p, "displacement_mm,force\n0,0.31\n").unwrap();
-    assert!(read_force_displacement(&p).unwrap_err().to_string().contains("missing column"));
+    assert!(read_force_displacement(&p)
+        .unwrap_err()
+        .to_string()
+        .contains("missing column"));
     std::fs::write(&p, "displacement_mm,force_N\n0,0.31\n1,nan\n2,1\n3,2\n").unwrap();
-    assert!(read_force_displacement(&p).unwrap_err().to_string().contains("fd.csv:3"));
+    assert!(read_force_displacement(&p)
+        .unwrap_err()
+        .to_string()
+        .contains("fd.csv:3"));
     let cadaver = recordings::gap::data_dir().join("empirical/cadaver_probing_force_displacement.csv");
     if cadaver.is_file() || std::env::var("CI").is_ok() {
         let t = read_force_displacement(&cadaver).unwrap();

@@ -20,7 +20,11 @@ fn sites() -> Vec<Site> {
             let tilt = 0.25 * (j as f64 - 2.0) / 2.0;
             let n = [tilt * a.cos(), tilt * a.sin(), 1.0];
             let m = (n[0] * n[0] + n[1] * n[1] + 1.0).sqrt();
-            v.push(Site { region: r, point: [x, y, 0.005 + 0.001 * j as f64], normal: [n[0] / m, n[1] / m, n[2] / m] });
+            v.push(Site {
+                region: r,
+                point: [x, y, 0.005 + 0.001 * j as f64],
+                normal: [n[0] / m, n[1] / m, n[2] / m],
+            });
         }
     }
     v
@@ -82,7 +86,11 @@ impl ForceModel for Hertz {
             let mut f = [fnorm * n[0], fnorm * n[1], fnorm * n[2]];
             if v.friction > 0.0 && fnorm > 0.0 && k > 0 {
                 let q = path.poses[k - 1].position;
-                let mut vel = [(p[0] - q[0]) / path.dt, (p[1] - q[1]) / path.dt, (p[2] - q[2]) / path.dt];
+                let mut vel = [
+                    (p[0] - q[0]) / path.dt,
+                    (p[1] - q[1]) / path.dt,
+                    (p[2] - q[2]) / path.dt,
+                ];
                 let vn = vel[0] * n[0] + vel[1] * n[1] + vel[2] * n[2];
                 for i in 0..3 {
                     vel[i] -= vn * n[i];
@@ -105,10 +113,21 @@ impl ForceModel for Hertz {
 }
 
 fn run(cases: usize, seed: u64, verbose: bool) -> recordings::gap::selftest::SelftestResult {
-    let model = Hertz { sites: sites(), e: 3.5e6 };
-    let opts = SelftestOptions { verbose, ..Default::default() };
+    let model = Hertz {
+        sites: sites(),
+        e: 3.5e6,
+    };
+    let opts = SelftestOptions {
+        verbose,
+        ..Default::default()
+    };
     let s = model.sites.clone();
-    let factory = |_: &Experiment| -> Result<Box<dyn ForceModel>, GapError> { Ok(Box::new(Hertz { sites: sites(), e: 3.5e6 })) };
+    let factory = |_: &Experiment| -> Result<Box<dyn ForceModel>, GapError> {
+        Ok(Box::new(Hertz {
+            sites: sites(),
+            e: 3.5e6,
+        }))
+    };
     selftest_with(cases, seed, &opts, &model, &s, &factory).unwrap()
 }
 

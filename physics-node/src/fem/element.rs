@@ -44,17 +44,17 @@ impl TetRest {
 /// Rotation closest to `a` (Müller et al. 2016, "A robust method to extract the rotational
 /// part of deformations"), warm-started from `q`. Always a proper rotation, also for
 /// inverted elements (where polar decomposition would give a reflection); converges in one
-/// or two iterations when `q` is last step's rotation.
+/// or two iterations when `q` is last step's rotation. Returns the rotation matrix of the
+/// final `q` (reusing the converged iteration's matrix instead of rebuilding it).
 #[inline]
 pub(crate) fn extract_rotation(
     a: &Matrix3<f64>,
     q: &mut UnitQuaternion<f64>,
     max_iter: usize,
     tolerance: f64,
-) {
+) -> Matrix3<f64> {
     for _ in 0..max_iter {
-        let r = q.to_rotation_matrix();
-        let r = r.matrix();
+        let r = q.to_rotation_matrix().into_inner();
         let num = r.column(0).cross(&a.column(0))
             + r.column(1).cross(&a.column(1))
             + r.column(2).cross(&a.column(2));
@@ -66,7 +66,7 @@ pub(crate) fn extract_rotation(
         let omega = num / den;
         let w = omega.norm();
         if !w.is_finite() || w <= tolerance {
-            break;
+            return r;
         }
         *q = if w < 0.05 {
             // Small step: first-order quaternion, no sin/cos (the iteration absorbs the
@@ -82,6 +82,7 @@ pub(crate) fn extract_rotation(
         } * *q;
         q.renormalize_fast();
     }
+    q.to_rotation_matrix().into_inner()
 }
 
 /// Forces on the 4 nodes and stiffness blocks K[a][b] (only a ≤ b filled; K[b][a] = K[a][b]ᵀ).

@@ -555,11 +555,14 @@ impl FemModel {
 
     /// One pass over the elements at positions `self.x` (or at rest): elastic forces into
     /// `self.force`, `k_scale · K` into `self.a` (zeroed first), and K·v into `self.kv`.
-    fn assemble(&mut self, at_rest: bool, k_scale: f64, want_k: bool) {
+    /// `full`: fill both triangles of `self.a` (Cholesky gathers the lower one); otherwise
+    /// only the diagonal and upper blocks, which is all the CG product reads.
+    fn assemble(&mut self, at_rest: bool, k_scale: f64, want_k: bool, full: bool) {
         self.assemble_with(
             at_rest,
             k_scale,
             want_k,
+            full,
             ROTATION_ITERATIONS,
             ROTATION_TOLERANCE,
         )
@@ -570,6 +573,7 @@ impl FemModel {
         at_rest: bool,
         k_scale: f64,
         want_k: bool,
+        full: bool,
         rot_iters: usize,
         rot_tol: f64,
     ) {
@@ -584,6 +588,7 @@ impl FemModel {
             force,
             kv,
             elem_blocks,
+            free_index,
             material,
             mu,
             lambda,
@@ -612,8 +617,7 @@ impl FemModel {
                     let rot = if at_rest {
                         Matrix3::identity()
                     } else {
-                        element::extract_rotation(&f, &mut elem_rot[e], rot_iters, rot_tol);
-                        elem_rot[e].to_rotation_matrix().into_inner()
+                        element::extract_rotation(&f, &mut elem_rot[e], rot_iters, rot_tol)
                     };
                     element::corotational(re, &f, &rot, mu, lambda, want_k, &mut out);
                 }
@@ -646,12 +650,20 @@ impl FemModel {
                     if idx == NO_BLOCK {
                         continue;
                     }
-                    a[idx as usize] += kab * k_scale;
                     kv[t[ia]] += kab * v[t[ib]];
-                    if ia != ib {
-                        let kba = kab.transpose();
+                    if ia == ib {
+                        a[idx as usize] += kab * k_scale;
+                        continue;
+                    }
+                    let kba = kab.transpose();
+                    kv[t[ib]] += kba * v[t[ia]];
+                    if full {
+                        a[idx as usize] += kab * k_scale;
                         a[eb[ib * 4 + ia] as usize] += kba * k_scale;
-                        kv[t[ib]] += kba * v[t[ia]];
+                    } else if free_index[t[ia]] < free_index[t[ib]] {
+                        a[idx as usize] += kab * k_scale;
+                    } else {
+                        a[eb[ib * 4 + ia] as usize] += kba * k_scale;
                     }
                 }
             }
@@ -665,7 +677,7 @@ impl FemModel {
             self.settings.rayleigh_stiffness,
         );
         let k_scale = dt * beta + dt * dt;
-        self.assemble(true, k_scale, true);
+        self.assemble(true, k_scale, true, true);
         for (row, &node) in self.free_nodes.iter().enumerate() {
             let d = (1.0 + dt * alpha) * self.mass[node] + k_scale * self.support[node];
             let blk = &mut self.a[self.pattern.diag[row]];
@@ -701,7 +713,9 @@ impl FemModel {
             self.settings.rayleigh_stiffness,
         );
         let k_scale = dt * beta + dt * dt;
-        self.assemble(false, k_scale, true);
+        // CG reads only the upper triangle; the direct solver factors the lower one.
+        let full = matches!(self.settings.solver, LinearSolver::Direct);
+        self.assemble(false, k_scale, true, full);
         let g = self.settings.gravity;
         for (row, &node) in self.free_nodes.iter().enumerate() {
             let m = self.mass[node];
@@ -912,7 +926,8 @@ impl FemModel {
         }
     }
 
-    /// Preconditioned CG on A Δv = rhs, warm-started from the previous Δv.
+    /// Preconditioned CG on A Δv = rhs, warm-started from the previous Δv. Products read
+    /// only the upper triangle of `self.a`.
     fn cg(&mut self, max_iter: usize, tol: f64, pc: Preconditioner) -> SolveStats {
         let b_norm = dot(&self.rhs, &self.rhs).sqrt();
         if b_norm == 0.0 {
@@ -920,7 +935,7 @@ impl FemModel {
             return SolveStats::default();
         }
         // r = b − A x0
-        self.pattern.mul(&self.a, &self.dv, &mut self.q);
+        self.pattern.mul_dot_upper(&self.a, &self.dv, &mut self.q);
         for i in 0..self.r.len() {
             self.r[i] = self.rhs[i] - self.q[i];
         }
@@ -938,12 +953,19 @@ impl FemModel {
                 relative_residual: r_norm / b_norm,
             };
         }
-        self.precondition(pc);
-        self.p.copy_from_slice(&self.z);
-        let mut rz = dot(&self.r, &self.z);
+        // Unpreconditioned: z = r, so skip the copy and reuse r·r for r·z.
+        let plain = pc == Preconditioner::None;
+        let mut rz = if plain {
+            self.p.copy_from_slice(&self.r);
+            dot(&self.r, &self.r)
+        } else {
+            self.precondition(pc);
+            self.p.copy_from_slice(&self.z);
+            dot(&self.r, &self.z)
+        };
         while iterations < max_iter {
             iterations += 1;
-            let pq = self.pattern.mul_dot(&self.a, &self.p, &mut self.q);
+            let pq = self.pattern.mul_dot_upper(&self.a, &self.p, &mut self.q);
             if !(pq > 0.0) {
                 break;
             }
@@ -964,11 +986,16 @@ impl FemModel {
             if r_norm / b_norm <= tol {
                 break;
             }
-            self.precondition(pc);
-            let rz_new = dot(&self.r, &self.z);
+            let rz_new = if plain {
+                rr
+            } else {
+                self.precondition(pc);
+                dot(&self.r, &self.z)
+            };
             let beta = rz_new / rz;
             rz = rz_new;
-            for (p, z) in self.p.iter_mut().zip(&self.z) {
+            let z: &[f64] = if plain { &self.r } else { &self.z };
+            for (p, z) in self.p.iter_mut().zip(z) {
                 *p = z + beta * *p;
             }
         }
@@ -998,13 +1025,12 @@ impl FemModel {
             }
         }
         for i in 0..self.x.len() {
-            element::extract_rotation(
+            self.node_rot[i] = element::extract_rotation(
                 &self.node_rot_sum[i],
                 &mut self.node_rot_q[i],
                 ROTATION_ITERATIONS,
                 ROTATION_TOLERANCE,
             );
-            self.node_rot[i] = self.node_rot_q[i].to_rotation_matrix().into_inner();
         }
     }
 
@@ -1087,6 +1113,7 @@ impl FemModel {
             false,
             0.0,
             false,
+            true,
             ROTATION_ITERATIONS_COLD,
             ROTATION_TOLERANCE_COLD,
         );
@@ -1168,6 +1195,7 @@ impl FemModel {
             self.assemble_with(
                 false,
                 1.0,
+                true,
                 true,
                 ROTATION_ITERATIONS_COLD,
                 ROTATION_TOLERANCE_COLD,

@@ -162,6 +162,63 @@ impl BlockPattern {
     }
 }
 
+impl BlockPattern {
+    /// y = A x reading only the diagonal and upper blocks (A symmetric: the lower block
+    /// (j, i) is the transpose of the upper (i, j)), returning x·y. Half the memory traffic
+    /// of [`Self::mul_dot`]; lower blocks of `a` may be stale. Same result up to the order
+    /// of the sums.
+    pub(crate) fn mul_dot_upper(&self, a: &[Matrix3<f64>], x: &[f64], y: &mut [f64]) -> f64 {
+        let n = self.n;
+        assert!(a.len() >= self.cols.len() && x.len() >= 3 * n && y.len() >= 3 * n);
+        assert!(self.row_ptr.len() == n + 1 && self.row_ptr[n] <= self.cols.len());
+        assert!(self.diag.len() == n);
+        y[..3 * n].fill(0.0);
+        let mut dot = 0.0;
+        for i in 0..n {
+            // SAFETY: as in `mul_dot`; in addition diag[i] lies in row i's range and the
+            // columns after it are sorted and > i (hence < n), so every y index is < 3n.
+            unsafe {
+                let (d, k1) = (
+                    *self.diag.get_unchecked(i),
+                    *self.row_ptr.get_unchecked(i + 1),
+                );
+                let (xi0, xi1, xi2) = (
+                    *x.get_unchecked(3 * i),
+                    *x.get_unchecked(3 * i + 1),
+                    *x.get_unchecked(3 * i + 2),
+                );
+                let m = a.get_unchecked(d).as_slice();
+                // Column-major 3×3. y[i] already holds the transposed contributions of the
+                // rows above.
+                let mut s0 = *y.get_unchecked(3 * i) + m[0] * xi0 + m[3] * xi1 + m[6] * xi2;
+                let mut s1 = *y.get_unchecked(3 * i + 1) + m[1] * xi0 + m[4] * xi1 + m[7] * xi2;
+                let mut s2 = *y.get_unchecked(3 * i + 2) + m[2] * xi0 + m[5] * xi1 + m[8] * xi2;
+                for k in d + 1..k1 {
+                    let j = *self.cols.get_unchecked(k) as usize * 3;
+                    let m = a.get_unchecked(k).as_slice();
+                    let (x0, x1, x2) = (
+                        *x.get_unchecked(j),
+                        *x.get_unchecked(j + 1),
+                        *x.get_unchecked(j + 2),
+                    );
+                    s0 += m[0] * x0 + m[3] * x1 + m[6] * x2;
+                    s1 += m[1] * x0 + m[4] * x1 + m[7] * x2;
+                    s2 += m[2] * x0 + m[5] * x1 + m[8] * x2;
+                    // Lower block (j, i) = mᵀ.
+                    *y.get_unchecked_mut(j) += m[0] * xi0 + m[1] * xi1 + m[2] * xi2;
+                    *y.get_unchecked_mut(j + 1) += m[3] * xi0 + m[4] * xi1 + m[5] * xi2;
+                    *y.get_unchecked_mut(j + 2) += m[6] * xi0 + m[7] * xi1 + m[8] * xi2;
+                }
+                *y.get_unchecked_mut(3 * i) = s0;
+                *y.get_unchecked_mut(3 * i + 1) = s1;
+                *y.get_unchecked_mut(3 * i + 2) = s2;
+                dot += s0 * xi0 + s1 * xi1 + s2 * xi2;
+            }
+        }
+        dot
+    }
+}
+
 /// Map from a block pattern to the scalar lower-triangular CSC that faer factors.
 #[derive(Debug, Clone)]
 struct LowerCsc {

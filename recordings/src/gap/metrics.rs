@@ -266,13 +266,7 @@ mod tests {
         let meas: Vec<[f64; 3]> = depth.iter().map(|d| [0.0, 0.0, *d]).collect();
         let pred: Vec<[f64; 3]> = depth.iter().map(|d| [0.1, 0.0, 2.0 * d]).collect();
         let phase: Vec<Phase> = (0..depth.len())
-            .map(|i| {
-                if i <= 20 {
-                    Phase::Loading
-                } else {
-                    Phase::Unloading
-                }
-            })
+            .map(|i| if i <= 20 { Phase::Loading } else { Phase::Unloading })
             .collect();
         let m = trial_metrics(&meas, &pred, n, &depth, &phase);
         assert!((m.slope_measured.unwrap() - 1.0).abs() < 1e-9);

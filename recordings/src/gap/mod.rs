@@ -399,7 +399,14 @@ pub fn diagnose_data(
 
 /// The verdict: the best-ranked candidate if it beats the baseline beyond noise; a pair only
 /// when the best single leaves a residual well above noise and the pair removes much of it.
-fn decide(singles: &[CandidateScore], ranking: &[CandidateScore], r0: f64, noise: f64, min_shrink: f64, pairs_allowed: bool) -> Verdict {
+fn decide(
+    singles: &[CandidateScore],
+    ranking: &[CandidateScore],
+    r0: f64,
+    noise: f64,
+    min_shrink: f64,
+    pairs_allowed: bool,
+) -> Verdict {
     let none = |reason: String| Verdict {
         effect: "none".into(),
         heldout_shrink: 0.0,

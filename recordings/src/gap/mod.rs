@@ -437,7 +437,7 @@ fn decide(
         100.0 * best.heldout_shrink,
         best.delta_bic
     );
-    if best.heldout_rmse > 1.3 * noise {
+    if pairs_allowed && best.heldout_rmse > 1.3 * noise {
         if let Some(pair) = ranking
             .iter()
             .filter(|c| c.effect.contains('+'))
@@ -464,25 +464,6 @@ fn decide(
         params: win.params.clone(),
         reason,
     }
-}
-
-/// Each effect of a candidate has a parameter at least 3 standard errors from neutral
-/// (effects without parameters count as significant).
-fn every_effect_significant(c: &CandidateScore) -> bool {
-    c.effect.split('+').all(|name| {
-        let e = match Effect::parse(name) {
-            Some(e) => e,
-            None => return false,
-        };
-        let specs = e.params();
-        if specs.is_empty() {
-            return true;
-        }
-        c.params.iter().filter(|p| p.effect == name).zip(&specs).any(|(p, s)| {
-            let d = (p.value - s.neutral).abs();
-            p.std.is_finite() && d > 3.0 * p.std && d > 1e-9
-        })
-    })
 }
 
 /// Residual of the baseline broken down by axis, phase, region and depth band.

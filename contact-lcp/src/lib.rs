@@ -326,8 +326,12 @@ fn solve_block(b: &[[f64; 3]; 3], others: &[f64; 3], mu: f64) -> Option<[f64; 3]
         // Frictionless: tangential impulses are zero, the normal is a scalar projection.
         return Some([(-others[0] / wnn).max(0.0), 0.0, 0.0]);
     }
-    // Sticking trial: all three rows satisfied, δ = 0.
-    let stick = solve3(b, &[-others[0], -others[1], -others[2]])?;
+    // Sticking trial: all three rows satisfied, δ = 0. A block whose tangential part is
+    // singular (a contact on a triangle with held nodes, or a kinematic probe) falls back to
+    // row-wise projection instead of failing the whole step.
+    let Some(stick) = solve3(b, &[-others[0], -others[1], -others[2]]) else {
+        return Some(solve_rows(b, others, mu));
+    };
     if stick[0] <= 0.0 {
         // Would pull: separation. (δn = others_n ≥ 0 then, since B is positive definite.)
         return Some([0.0; 3]);
@@ -339,7 +343,7 @@ fn solve_block(b: &[[f64; 3]; 3], others: &[f64; 3], mu: f64) -> Option<[f64; 3]
     // (with normal fixed) projected onto the disc of radius μ λn.
     let det_t = b[1][1] * b[2][2] - b[1][2] * b[2][1];
     if !(det_t > 0.0) {
-        return None;
+        return Some(solve_rows(b, others, mu));
     }
     let mut l = stick;
     project_cone(&mut l, mu);
@@ -364,6 +368,35 @@ fn solve_block(b: &[[f64; 3]; 3], others: &[f64; 3], mu: f64) -> Option<[f64; 3]
         }
     }
     Some(l)
+}
+
+/// Row-wise projected Gauss–Seidel on one contact block (normal row, then each tangent row
+/// with a positive diagonal), projected onto the friction cone after each pass. Used when
+/// the block cannot be solved as a whole; rows without compliance keep a zero impulse.
+/// Requires `b[0][0] > 0` (checked by the caller).
+fn solve_rows(b: &[[f64; 3]; 3], others: &[f64; 3], mu: f64) -> [f64; 3] {
+    let mut l = [0.0; 3];
+    for _ in 0..SLIDING_PASSES {
+        let prev = l;
+        l[0] = (-(others[0] + b[0][1] * l[1] + b[0][2] * l[2]) / b[0][0]).max(0.0);
+        for t in 1..3 {
+            let u = 3 - t;
+            l[t] = if b[t][t] > 0.0 {
+                -(others[t] + b[t][0] * l[0] + b[t][u] * l[u]) / b[t][t]
+            } else {
+                0.0
+            };
+        }
+        project_cone(&mut l, mu);
+        let change = (l[0] - prev[0])
+            .abs()
+            .max((l[1] - prev[1]).abs())
+            .max((l[2] - prev[2]).abs());
+        if change <= 1e-14 * l[0].max(f64::MIN_POSITIVE) {
+            break;
+        }
+    }
+    l
 }
 
 /// Solves a 3×3 system by Cramer's rule; `None` when singular or not finite.
@@ -676,6 +709,35 @@ mod tests {
                 d[3 * k]
             );
         }
+    }
+
+    /// Regression: with friction, a contact whose tangential compliance is singular (a
+    /// kinematic probe on a triangle with held nodes) failed the whole step with
+    /// "diagonal compliance block … is not positive definite".
+    #[test]
+    fn friction_with_singular_tangent_block_solves_the_normal_row() {
+        let wn = 2.0e-3;
+        let w = single(wn, 0.0);
+        let dfree = [-1e-3, 2e-4, 0.0];
+        let mut lambda = [0.0; 3];
+        let p = Problem {
+            compliance: &w,
+            free_violation: &dfree,
+            friction_mu: 0.3,
+            row_count: 3,
+        };
+        let out = solve(&p, &mut lambda, &tight()).expect("solvable normal row");
+        assert!(out.converged);
+        assert!(
+            (lambda[0] - 1e-3 / wn).abs() < 1e-12,
+            "λn = −δn/Wnn, got {}",
+            lambda[0]
+        );
+        assert_eq!(
+            lambda[1], 0.0,
+            "a row without compliance carries no impulse"
+        );
+        assert_eq!(lambda[2], 0.0);
     }
 
     #[test]

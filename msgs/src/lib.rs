@@ -43,7 +43,10 @@ impl Pose {
 
     /// True when every component is finite (quarantine check for incoming poses).
     pub fn is_finite(&self) -> bool {
-        self.position.iter().chain(self.orientation.iter()).all(|v| v.is_finite())
+        self.position
+            .iter()
+            .chain(self.orientation.iter())
+            .all(|v| v.is_finite())
     }
 }
 
@@ -368,13 +371,20 @@ mod tests {
     #[test]
     fn payload_sizes_are_fixed_and_aligned() {
         assert_eq!(core::mem::size_of::<Pose>(), 56);
-        assert_eq!(core::mem::size_of::<physics_to_haptic::ContactFrame>() % 8, 0);
-        assert_eq!(core::mem::size_of::<haptic_to_physics::DeviceState>() % 8, 0);
+        assert_eq!(
+            core::mem::size_of::<physics_to_haptic::ContactFrame>() % 8,
+            0
+        );
+        assert_eq!(
+            core::mem::size_of::<haptic_to_physics::DeviceState>() % 8,
+            0
+        );
     }
 
     #[test]
     fn zeroed_frame_is_valid_only_with_positive_dt() {
-        let mut slot = Box::new(core::mem::MaybeUninit::<physics_to_haptic::ContactFrame>::uninit());
+        let mut slot =
+            Box::new(core::mem::MaybeUninit::<physics_to_haptic::ContactFrame>::uninit());
         let frame = physics_to_haptic::ContactFrame::zeroed_in(&mut slot);
         frame.probe_free_pose = Pose::IDENTITY;
         assert!(!frame.is_valid(), "dt = 0 must be rejected");

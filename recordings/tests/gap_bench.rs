@@ -6,7 +6,8 @@
 #[ignore]
 fn gap_diagnose_15_trials() {
     let effect = std::env::var("GAP_BENCH_EFFECT").unwrap_or_else(|_| "hardening".into());
-    let v = recordings::gap::selftest::bench(&effect, 5, &recordings::gap::Options::default()).unwrap();
+    let v =
+        recordings::gap::selftest::bench(&effect, 5, &recordings::gap::Options::default()).unwrap();
     println!("{v}");
 }
 

@@ -88,7 +88,10 @@ fn non_monotonic_time_is_rejected() {
 fn short_row_and_zero_quaternion() {
     let mut s = rows(6);
     s.push_str("0.5,0,0\n");
-    assert_eq!(line_of(&parse_trial_csv(&s, Path::new("s.csv")).unwrap_err()), Some(8));
+    assert_eq!(
+        line_of(&parse_trial_csv(&s, Path::new("s.csv")).unwrap_err()),
+        Some(8)
+    );
     let z = rows(6).replacen(
         "0.026,0,0,0.1,0,0,0.0099,0,0,0,1",
         "0.026,0,0,0.1,0,0,0.0099,0,0,0,0",
@@ -191,7 +194,8 @@ fn force_displacement_table() {
         .unwrap_err()
         .to_string()
         .contains("fd.csv:3"));
-    let cadaver = recordings::gap::data_dir().join("empirical/cadaver_probing_force_displacement.csv");
+    let cadaver =
+        recordings::gap::data_dir().join("empirical/cadaver_probing_force_displacement.csv");
     if cadaver.is_file() || std::env::var("CI").is_ok() {
         let t = read_force_displacement(&cadaver).unwrap();
         assert_eq!(t.displacement_mm.len(), 9);

@@ -5,7 +5,9 @@ use recordings::gap::{self, SimForceModel};
 
 fn data_present() -> bool {
     let d = gap::data_dir();
-    let ok = d.join("meniscus/lateral_meniscus_computation.msh").is_file();
+    let ok = d
+        .join("meniscus/lateral_meniscus_computation.msh")
+        .is_file();
     if !ok && std::env::var("CI").map(|v| v == "true").unwrap_or(false) {
         panic!("CI=true but the study data is missing at {}", d.display());
     }
@@ -102,5 +104,9 @@ fn small_selftest_identifies_effects() {
     eprintln!("{}", r.table());
     let s = r.summary();
     assert!(s.accuracy >= 2.0 / 3.0, "accuracy {}", s.accuracy);
-    assert!(s.heldout_shrink_mean >= 0.5, "shrink {}", s.heldout_shrink_mean);
+    assert!(
+        s.heldout_shrink_mean >= 0.5,
+        "shrink {}",
+        s.heldout_shrink_mean
+    );
 }

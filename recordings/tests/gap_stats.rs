@@ -81,7 +81,9 @@ impl ForceModel for Hertz {
                 })
                 .unwrap();
             let n = s.normal;
-            let d = -((p[0] - s.point[0]) * n[0] + (p[1] - s.point[1]) * n[1] + (p[2] - s.point[2]) * n[2]);
+            let d = -((p[0] - s.point[0]) * n[0]
+                + (p[1] - s.point[1]) * n[1]
+                + (p[2] - s.point[2]) * n[2]);
             let fnorm = self.normal_force(v, d);
             let mut f = [fnorm * n[0], fnorm * n[1], fnorm * n[2]];
             if v.friction > 0.0 && fnorm > 0.0 && k > 0 {
@@ -137,5 +139,9 @@ fn statistics_identify_effects_on_analytic_stand_in() {
     eprintln!("{}", r.table());
     let s = r.summary();
     assert!(s.accuracy >= 0.85, "accuracy {}", s.accuracy);
-    assert!(s.heldout_shrink_mean >= 0.6, "shrink {}", s.heldout_shrink_mean);
+    assert!(
+        s.heldout_shrink_mean >= 0.6,
+        "shrink {}",
+        s.heldout_shrink_mean
+    );
 }

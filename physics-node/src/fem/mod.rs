@@ -39,8 +39,8 @@
 //! element kernels (≈ 50%) dominate. Rotation extraction is warm-started (tolerance 1e-7 rad,
 //! at most 4 iterations per step). The CG step assembles and multiplies only the diagonal and
 //! upper blocks of the symmetric system (half the memory traffic of the product; the direct
-//! solver and the rest factor still get both triangles): 2,560-node mesh ≈ 6 ms p50 with
-//! plain 25-iteration CG (was ≈ 7.2 ms in the same session, load 4–6).
+//! solver and the rest factor still get both triangles): 2,560-node mesh 6.1–6.7 ms p50 with
+//! plain 25-iteration CG against 6.8–7.0 ms before (alternating A/B runs, load 3.5–3.9).
 
 mod element;
 pub mod material;

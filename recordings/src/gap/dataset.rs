@@ -184,13 +184,21 @@ pub fn prepare(
         })
         .collect();
     let tg: Vec<f64> = (0..n).map(|k| path.t0 + k as f64 * dt).collect();
-    let depth: Vec<f64> = trial.t.iter().map(|&t| interp(&tg, &depth_grid, t)).collect();
+    let depth: Vec<f64> = trial
+        .t
+        .iter()
+        .map(|&t| interp(&tg, &depth_grid, t))
+        .collect();
     let phase: Vec<Phase> = trial
         .t
         .iter()
         .map(|&t| ph_grid[(((t - path.t0) / dt).round() as usize).min(n - 1)])
         .collect();
-    let base_at_t = trial.t.iter().map(|&t| sample_uniform(path.t0, dt, &base, t)).collect();
+    let base_at_t = trial
+        .t
+        .iter()
+        .map(|&t| sample_uniform(path.t0, dt, &base, t))
+        .collect();
     TrialData {
         name: trial.name.clone(),
         region: trial.region,

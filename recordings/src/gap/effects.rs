@@ -38,7 +38,14 @@ pub struct ParamSpec {
     pub log: bool,
 }
 
-const fn p(name: &'static str, unit: &'static str, lo: f64, hi: f64, neutral: f64, log: bool) -> ParamSpec {
+const fn p(
+    name: &'static str,
+    unit: &'static str,
+    lo: f64,
+    hi: f64,
+    neutral: f64,
+    log: bool,
+) -> ParamSpec {
     ParamSpec {
         name,
         unit,
@@ -105,7 +112,14 @@ impl Effect {
                 p("bias_z", "N", -3.0, 3.0, 0.0, false),
                 p("tool_mass", "kg", -0.2, 0.2, 0.0, false),
             ],
-            Effect::Support => vec![p("support_compliance", "m/N per node", 0.0, 2.0e-3, 0.0, false)],
+            Effect::Support => vec![p(
+                "support_compliance",
+                "m/N per node",
+                0.0,
+                2.0e-3,
+                0.0,
+                false,
+            )],
             Effect::Mesh => vec![],
             Effect::Sensor => vec![
                 p("delay", "s", 0.0, 0.3, 0.0, false),
@@ -157,7 +171,10 @@ impl Effect {
                     ..v.clone()
                 },
             ],
-            Effect::Mesh => vec![Variant { fine_mesh: true, ..v }],
+            Effect::Mesh => vec![Variant {
+                fine_mesh: true,
+                ..v
+            }],
             _ => vec![],
         }
     }
@@ -204,7 +221,13 @@ fn axpy(dst: &mut [[f64; 3]], a: f64, x: &[[f64; 3]], y: Option<&[[f64; 3]]>) {
 
 /// Model force on the trial's grid and at its measurement times for candidate `c` at `theta`.
 /// `grid` and `out` are scratch buffers (resized here).
-pub fn predict(c: &Candidate, theta: &[f64], td: &TrialData, grid: &mut Vec<[f64; 3]>, out: &mut Vec<[f64; 3]>) {
+pub fn predict(
+    c: &Candidate,
+    theta: &[f64],
+    td: &TrialData,
+    grid: &mut Vec<[f64; 3]>,
+    out: &mut Vec<[f64; 3]>,
+) {
     grid.clear();
     grid.extend_from_slice(&td.base);
     let mut k = 0;
@@ -245,7 +268,8 @@ pub fn predict(c: &Candidate, theta: &[f64], td: &TrialData, grid: &mut Vec<[f64
                     let a2 = ang * ang / (2.0 * h * h);
                     for (i, g) in grid.iter_mut().enumerate() {
                         for q in 0..3 {
-                            g[q] += a1 * (rp[i][q] - rm[i][q]) + a2 * (rp[i][q] + rm[i][q] - 2.0 * td.base[i][q]);
+                            g[q] += a1 * (rp[i][q] - rm[i][q])
+                                + a2 * (rp[i][q] + rm[i][q] - 2.0 * td.base[i][q]);
                         }
                     }
                 }
@@ -311,13 +335,20 @@ mod tests {
     fn qlv_relaxes_in_hold_to_long_term_modulus() {
         // ramp to 1 N in 0.1 s then hold 10 s: relaxes from ~1 to (1 − g)
         let dt = 0.01;
-        let mut f: Vec<[f64; 3]> = (0..1010).map(|i| [0.0, 0.0, (i as f64 / 10.0).min(1.0)]).collect();
+        let mut f: Vec<[f64; 3]> = (0..1010)
+            .map(|i| [0.0, 0.0, (i as f64 / 10.0).min(1.0)])
+            .collect();
         qlv_in_place(&mut f, dt, 0.4, 0.5);
         assert!(f[10][2] > 0.95 && f[10][2] <= 1.0, "peak {}", f[10][2]);
         let at = |t: f64| f[(t / dt) as usize + 10][2];
         let expect = |t: f64| 0.6 + 0.4 * (-t / 0.5f64).exp();
         for t in [0.5, 1.0, 2.0] {
-            assert!((at(t) - expect(t)).abs() < 0.02, "t={t}: {} vs {}", at(t), expect(t));
+            assert!(
+                (at(t) - expect(t)).abs() < 0.02,
+                "t={t}: {} vs {}",
+                at(t),
+                expect(t)
+            );
         }
         assert!((f[1009][2] - 0.6).abs() < 1e-3);
     }

@@ -218,13 +218,18 @@ pub const CSV_COLUMNS: [&str; 11] = [
 ];
 
 pub(crate) fn line_of(text: &str, offset: usize) -> usize {
-    text[..offset.min(text.len())].bytes().filter(|&b| b == b'\n').count() + 1
+    text[..offset.min(text.len())]
+        .bytes()
+        .filter(|&b| b == b'\n')
+        .count()
+        + 1
 }
 
 /// Read `dir/experiment.toml` and every trial CSV. `data_dir` resolves `study:` meshes.
 pub fn load_experiment(dir: &Path, data_dir: &Path) -> Result<Experiment, GapError> {
     let toml_path = dir.join("experiment.toml");
-    let text = std::fs::read_to_string(&toml_path).map_err(|e| GapError::Io(toml_path.clone(), e))?;
+    let text =
+        std::fs::read_to_string(&toml_path).map_err(|e| GapError::Io(toml_path.clone(), e))?;
     let raw: RawSpec = toml::from_str(&text).map_err(|e| {
         let line = e.span().map(|s| line_of(&text, s.start)).unwrap_or(0);
         GapError::Line {
@@ -261,7 +266,10 @@ pub fn load_experiment(dir: &Path, data_dir: &Path) -> Result<Experiment, GapErr
             Some(r) => Some(Region::parse(r.get_ref()).ok_or_else(|| GapError::Line {
                 file: toml_path.clone(),
                 line: line_of(&text, r.span().start),
-                msg: format!("unknown region {:?} (expected posterior, mid or anterior)", r.get_ref()),
+                msg: format!(
+                    "unknown region {:?} (expected posterior, mid or anterior)",
+                    r.get_ref()
+                ),
             })?),
         };
         let path = dir.join(&rt.file);
@@ -311,7 +319,10 @@ pub fn load_experiment(dir: &Path, data_dir: &Path) -> Result<Experiment, GapErr
 
 fn check_material(spec: &ExperimentSpec) -> Result<(), String> {
     if !["lateral", "medial", "custom"].contains(&spec.material.preset.as_str()) {
-        return Err(format!("unknown material preset {:?}", spec.material.preset));
+        return Err(format!(
+            "unknown material preset {:?}",
+            spec.material.preset
+        ));
     }
     if let Some(e) = spec.material.youngs_modulus {
         if !(e.is_finite() && e > 0.0) {
@@ -336,7 +347,10 @@ pub fn check_mesh(s: &SpecimenSpec, dir: &Path, data_dir: &Path) -> Result<(), S
         let ok = matches!(rest, "lateral" | "medial" | "coarse" | "fine" | "finest")
             || rest
                 .split_once(':')
-                .map(|(side, lvl)| matches!(side, "lateral" | "medial") && matches!(lvl, "coarse" | "fine" | "finest"))
+                .map(|(side, lvl)| {
+                    matches!(side, "lateral" | "medial")
+                        && matches!(lvl, "coarse" | "fine" | "finest")
+                })
                 .unwrap_or(false);
         if !ok {
             return Err(format!("mesh not found: unknown built-in mesh {m:?}"));
@@ -349,7 +363,10 @@ pub fn check_mesh(s: &SpecimenSpec, dir: &Path, data_dir: &Path) -> Result<(), S
         };
         let p = data_dir.join(file);
         if !p.is_file() {
-            return Err(format!("mesh not found: {} (set ARTHROSIM_DATA)", p.display()));
+            return Err(format!(
+                "mesh not found: {} (set ARTHROSIM_DATA)",
+                p.display()
+            ));
         }
     } else {
         let p = dir.join(m);
@@ -358,7 +375,10 @@ pub fn check_mesh(s: &SpecimenSpec, dir: &Path, data_dir: &Path) -> Result<(), S
         }
     }
     if !["inferior", "none"].contains(&s.fixed.as_str()) && !dir.join(&s.fixed).is_file() {
-        return Err(format!("fixed-node file not found: {}", dir.join(&s.fixed).display()));
+        return Err(format!(
+            "fixed-node file not found: {}",
+            dir.join(&s.fixed).display()
+        ));
     }
     Ok(())
 }
@@ -377,7 +397,10 @@ pub fn parse_trial_csv(text: &str, path: &Path) -> Result<TrialColumns, GapError
         line,
         msg,
     };
-    let mut lines = text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty());
+    let mut lines = text
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty());
     let (hline, header) = lines.next().ok_or_else(|| err(1, "empty file".into()))?;
     let names: Vec<&str> = header.split(',').map(|s| s.trim()).collect();
     let mut idx = [0usize; 11];
@@ -389,7 +412,10 @@ pub fn parse_trial_csv(text: &str, path: &Path) -> Result<TrialColumns, GapError
         }
     }
     if !missing.is_empty() {
-        return Err(err(hline + 1, format!("missing column(s) {}", missing.join(", "))));
+        return Err(err(
+            hline + 1,
+            format!("missing column(s) {}", missing.join(", ")),
+        ));
     }
     let (mut t, mut f, mut p) = (Vec::new(), Vec::new(), Vec::new());
     for (ln, line) in lines {
@@ -404,17 +430,26 @@ pub fn parse_trial_csv(text: &str, path: &Path) -> Result<TrialColumns, GapError
         let mut v = [0.0f64; 11];
         for k in 0..11 {
             let c = cells[idx[k]];
-            let x: f64 = c
-                .parse()
-                .map_err(|_| err(lineno, format!("column {}: not a number: {c:?}", CSV_COLUMNS[k])))?;
+            let x: f64 = c.parse().map_err(|_| {
+                err(
+                    lineno,
+                    format!("column {}: not a number: {c:?}", CSV_COLUMNS[k]),
+                )
+            })?;
             if !x.is_finite() {
-                return Err(err(lineno, format!("column {}: non-finite value {c}", CSV_COLUMNS[k])));
+                return Err(err(
+                    lineno,
+                    format!("column {}: non-finite value {c}", CSV_COLUMNS[k]),
+                ));
             }
             v[k] = x;
         }
         if let Some(&last) = t.last() {
             if v[0] <= last {
-                return Err(err(lineno, format!("time not increasing: {} after {}", v[0], last)));
+                return Err(err(
+                    lineno,
+                    format!("time not increasing: {} after {}", v[0], last),
+                ));
             }
         }
         let qn = (v[7] * v[7] + v[8] * v[8] + v[9] * v[9] + v[10] * v[10]).sqrt();
@@ -429,13 +464,21 @@ pub fn parse_trial_csv(text: &str, path: &Path) -> Result<TrialColumns, GapError
         });
     }
     if t.len() < 5 {
-        return Err(err(hline + 1, format!("only {} samples (need at least 5)", t.len())));
+        return Err(err(
+            hline + 1,
+            format!("only {} samples (need at least 5)", t.len()),
+        ));
     }
     Ok((t, f, p))
 }
 
 /// Write a trial CSV in the experiment format.
-pub fn write_trial_csv(path: &Path, t: &[f64], force: &[[f64; 3]], pose: &[Pose]) -> Result<(), GapError> {
+pub fn write_trial_csv(
+    path: &Path,
+    t: &[f64],
+    force: &[[f64; 3]],
+    pose: &[Pose],
+) -> Result<(), GapError> {
     use std::fmt::Write as _;
     let mut s = String::with_capacity(t.len() * 120);
     s.push_str(&CSV_COLUMNS.join(","));
@@ -478,14 +521,22 @@ pub fn read_force_displacement(path: &Path) -> Result<ForceDisplacement, GapErro
         line,
         msg,
     };
-    let mut lines = text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty());
+    let mut lines = text
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty());
     let (hl, header) = lines.next().ok_or_else(|| err(1, "empty file".into()))?;
     let names: Vec<&str> = header.split(',').map(|s| s.trim()).collect();
     let di = names.iter().position(|n| *n == "displacement_mm");
     let fi = names.iter().position(|n| *n == "force_N");
     let (di, fi) = match (di, fi) {
         (Some(a), Some(b)) => (a, b),
-        _ => return Err(err(hl + 1, "missing column(s): need displacement_mm,force_N".into())),
+        _ => {
+            return Err(err(
+                hl + 1,
+                "missing column(s): need displacement_mm,force_N".into(),
+            ))
+        }
     };
     let (mut d, mut f) = (Vec::new(), Vec::new());
     for (ln, line) in lines {
@@ -509,14 +560,20 @@ pub fn read_force_displacement(path: &Path) -> Result<ForceDisplacement, GapErro
         let fv = parse(cells[fi], "force_N")?;
         if let Some(&last) = d.last() {
             if dv < last {
-                return Err(err(ln + 1, format!("displacement decreasing: {dv} after {last}")));
+                return Err(err(
+                    ln + 1,
+                    format!("displacement decreasing: {dv} after {last}"),
+                ));
             }
         }
         d.push(dv);
         f.push(fv);
     }
     if d.len() < 4 {
-        return Err(err(hl + 1, format!("only {} rows (need at least 4)", d.len())));
+        return Err(err(
+            hl + 1,
+            format!("only {} rows (need at least 4)", d.len()),
+        ));
     }
     Ok(ForceDisplacement {
         file: path.to_path_buf(),

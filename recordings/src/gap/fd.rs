@@ -6,7 +6,9 @@
 //! pressed along the inward normal of the mid-region probing site, depth 0 being where the
 //! simulated contact begins (found by a first approach sweep); the measured force acts along
 //! the simulated force direction at the same depth (the table has no direction).
-use super::experiment::{read_force_displacement, Experiment, ExperimentSpec, Region, SpecimenSpec, Trial, TrialSpec};
+use super::experiment::{
+    read_force_displacement, Experiment, ExperimentSpec, Region, SpecimenSpec, Trial, TrialSpec,
+};
 use super::model::{replay, ForceModel, ProbePath, Variant};
 use super::signal::{add, interp, norm, scale};
 use super::sim_model::SimForceModel;
@@ -52,9 +54,13 @@ pub fn diagnose_force_displacement(file: &Path, opts: &Options) -> Result<Report
         msg: format!("{} ({e})", conv.mesh),
     })?;
     let mid: Vec<_> = sites.iter().filter(|s| s.region == conv.region).collect();
-    let site = mid
-        .get(mid.len() / 2)
-        .ok_or_else(|| GapError::Sim(format!("no {} probing site on {}", conv.region.name(), conv.mesh)))?;
+    let site = mid.get(mid.len() / 2).ok_or_else(|| {
+        GapError::Sim(format!(
+            "no {} probing site on {}",
+            conv.region.name(),
+            conv.mesh
+        ))
+    })?;
     diagnose_table_with(file, &conv, &model, site.point, site.normal, opts)
 }
 
@@ -69,7 +75,11 @@ pub fn diagnose_table_with(
 ) -> Result<Report, GapError> {
     let start = std::time::Instant::now();
     let table = read_force_displacement(file)?;
-    let offset = if conv.subtract_first_row { table.force_n[0] } else { 0.0 };
+    let offset = if conv.subtract_first_row {
+        table.force_n[0]
+    } else {
+        0.0
+    };
     let depth_m: Vec<f64> = table
         .displacement_mm
         .iter()
@@ -106,7 +116,8 @@ pub fn diagnose_table_with(
         .map(|k| offset_along_n - (above - conv.speed * dt * k as f64))
         .collect();
     let dir_at = |d: f64| -> [f64; 3] {
-        let v = [0, 1, 2].map(|q| interp(&depth_grid, &f.iter().map(|x| x[q]).collect::<Vec<_>>(), d));
+        let v =
+            [0, 1, 2].map(|q| interp(&depth_grid, &f.iter().map(|x| x[q]).collect::<Vec<_>>(), d));
         let m = norm(v);
         if m > 1e-9 {
             scale(v, 1.0 / m)

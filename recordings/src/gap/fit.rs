@@ -64,7 +64,10 @@ pub fn make_folds(data: &[TrialData]) -> (String, Vec<Fold>) {
                 .iter()
                 .map(|d| (0..d.t.len()).map(|j| j % k == f).collect())
                 .collect();
-            let calib = held.iter().map(|v| v.iter().map(|b| !b).collect()).collect();
+            let calib = held
+                .iter()
+                .map(|v| v.iter().map(|b| !b).collect())
+                .collect();
             folds.push(Fold {
                 label: format!("fold {}", f + 1),
                 calib,
@@ -124,7 +127,12 @@ pub fn sse(c: &Candidate, theta: &[f64], data: &[TrialData], mask: &[Vec<bool>])
 }
 
 /// Nelder–Mead on the unit cube (coordinates clamped), from `x0`.
-pub fn nelder_mead(f: &dyn Fn(&[f64]) -> f64, x0: &[f64], step: f64, max_eval: usize) -> (Vec<f64>, f64) {
+pub fn nelder_mead(
+    f: &dyn Fn(&[f64]) -> f64,
+    x0: &[f64],
+    step: f64,
+    max_eval: usize,
+) -> (Vec<f64>, f64) {
     let k = x0.len();
     if k == 0 {
         return (vec![], f(&[]));
@@ -133,7 +141,11 @@ pub fn nelder_mead(f: &dyn Fn(&[f64]) -> f64, x0: &[f64], step: f64, max_eval: u
     let mut simplex: Vec<Vec<f64>> = vec![x0.to_vec()];
     for i in 0..k {
         let mut x = x0.to_vec();
-        x[i] = if x[i] + step <= 1.0 { x[i] + step } else { x[i] - step };
+        x[i] = if x[i] + step <= 1.0 {
+            x[i] + step
+        } else {
+            x[i] - step
+        };
         simplex.push(x);
     }
     let mut fv: Vec<f64> = simplex.iter().map(|x| f(x)).collect();
@@ -153,7 +165,8 @@ pub fn nelder_mead(f: &dyn Fn(&[f64]) -> f64, x0: &[f64], step: f64, max_eval: u
                     .fold(0.0, f64::max)
             })
             .fold(0.0, f64::max);
-        if (fv[k] - fv[0]).abs() <= 1e-10 * fv[0].abs().max(1e-12) && spread < 1e-6 || spread < 1e-7 {
+        if (fv[k] - fv[0]).abs() <= 1e-10 * fv[0].abs().max(1e-12) && spread < 1e-6 || spread < 1e-7
+        {
             break;
         }
         let mut c = vec![0.0; k];
@@ -208,7 +221,12 @@ pub fn nelder_mead(f: &dyn Fn(&[f64]) -> f64, x0: &[f64], step: f64, max_eval: u
 }
 
 /// Least-squares fit of `c` on the masked samples; multi-start Nelder–Mead in unit space.
-pub fn fit(c: &Candidate, data: &[TrialData], mask: &[Vec<bool>], inits: &[Vec<f64>]) -> (Vec<f64>, f64) {
+pub fn fit(
+    c: &Candidate,
+    data: &[TrialData],
+    mask: &[Vec<bool>],
+    inits: &[Vec<f64>],
+) -> (Vec<f64>, f64) {
     let specs: Vec<ParamSpec> = c.params().into_iter().map(|(_, p)| p).collect();
     let k = specs.len();
     let obj = |u: &[f64]| sse(c, &to_theta(&specs, u), data, mask).0;
@@ -342,8 +360,10 @@ pub fn score_candidate(
     let (theta, sse_all) = fit(c, data, &all, inits);
     let n_all = data.iter().map(|d| 3 * d.t.len()).sum::<usize>();
     let k = theta.len();
-    let bic = n_all as f64 * (sse_all / n_all as f64).max(1e-30).ln() + k as f64 * (n_all as f64).ln();
-    let mut held_pred: Vec<Vec<[f64; 3]>> = data.iter().map(|d| vec![[0.0; 3]; d.t.len()]).collect();
+    let bic =
+        n_all as f64 * (sse_all / n_all as f64).max(1e-30).ln() + k as f64 * (n_all as f64).ln();
+    let mut held_pred: Vec<Vec<[f64; 3]>> =
+        data.iter().map(|d| vec![[0.0; 3]; d.t.len()]).collect();
     let (mut hs, mut hn) = (0.0, 0usize);
     let (mut grid, mut out) = (Vec::new(), Vec::new());
     for f in folds {
@@ -435,7 +455,10 @@ mod tests {
     fn nelder_mead_finds_quadratic_minimum() {
         let f = |x: &[f64]| (x[0] - 0.3).powi(2) + 10.0 * (x[1] - 0.8).powi(2) + 0.1;
         let (x, v) = nelder_mead(&f, &[0.5, 0.5], 0.1, 2000);
-        assert!((x[0] - 0.3).abs() < 1e-4 && (x[1] - 0.8).abs() < 1e-4, "{x:?}");
+        assert!(
+            (x[0] - 0.3).abs() < 1e-4 && (x[1] - 0.8).abs() < 1e-4,
+            "{x:?}"
+        );
         assert!((v - 0.1).abs() < 1e-8);
         // bound-constrained: minimum outside the cube lands on the face
         let g = |x: &[f64]| (x[0] + 0.5).powi(2);

@@ -147,7 +147,11 @@ fn plot(w: f64, h: f64, title: &str, xlabel: &str, ylabel: &str, lines: &[Line])
                 s,
                 r#"<polyline fill="none" stroke="{}" stroke-width="1.3" {} points="{}"/>"#,
                 l.color,
-                if l.dashed { r#"stroke-dasharray="4 2""# } else { "" },
+                if l.dashed {
+                    r#"stroke-dasharray="4 2""#
+                } else {
+                    ""
+                },
                 pts.join(" ")
             );
         }
@@ -190,7 +194,13 @@ fn heatmap(r: &Report) -> String {
     let (cw, ch, ml, mt) = (110.0, 26.0, 90.0, 30.0);
     let w = ml + cw * hm.regions.len() as f64 + 10.0;
     let h = mt + ch * hm.phases.len() as f64 + 10.0;
-    let max = hm.rmse.iter().flatten().flatten().cloned().fold(0.0, f64::max);
+    let max = hm
+        .rmse
+        .iter()
+        .flatten()
+        .flatten()
+        .cloned()
+        .fold(0.0, f64::max);
     let mut s = String::new();
     let _ = write!(
         s,

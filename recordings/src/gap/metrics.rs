@@ -44,12 +44,21 @@ pub fn band_of(depth_mm: f64) -> Option<usize> {
     if depth_mm < 0.0 {
         return None;
     }
-    Some(DEPTH_BANDS_MM.iter().rposition(|&e| depth_mm >= e).unwrap_or(0))
+    Some(
+        DEPTH_BANDS_MM
+            .iter()
+            .rposition(|&e| depth_mm >= e)
+            .unwrap_or(0),
+    )
 }
 
 /// Contact normal of a trial: direction of the simulated (else measured) force at its peak.
 pub fn trial_normal(base: &[[f64; 3]], measured: &[[f64; 3]]) -> [f64; 3] {
-    let peak = |f: &[[f64; 3]]| f.iter().copied().max_by(|a, b| norm(*a).total_cmp(&norm(*b)));
+    let peak = |f: &[[f64; 3]]| {
+        f.iter()
+            .copied()
+            .max_by(|a, b| norm(*a).total_cmp(&norm(*b)))
+    };
     for f in [base, measured] {
         if let Some(p) = peak(f) {
             let n = norm(p);
@@ -76,11 +85,20 @@ pub fn depth_series(positions: &[[f64; 3]], base: &[[f64; 3]], normal: [f64; 3])
             .min_by(|a, b| dot(*a, normal).total_cmp(&dot(*b, normal)))
             .unwrap_or([0.0; 3]),
     };
-    positions.iter().map(|p| 1e3 * dot(sub(p_on, *p), normal)).collect()
+    positions
+        .iter()
+        .map(|p| 1e3 * dot(sub(p_on, *p), normal))
+        .collect()
 }
 
 /// Phase of each grid point from the depth rate and the tangential speed.
-pub fn phases(positions: &[[f64; 3]], depth_mm: &[f64], normal: [f64; 3], dt: f64, in_contact: &[bool]) -> Vec<Phase> {
+pub fn phases(
+    positions: &[[f64; 3]],
+    depth_mm: &[f64],
+    normal: [f64; 3],
+    dt: f64,
+    in_contact: &[bool],
+) -> Vec<Phase> {
     let n = positions.len();
     let mut out = vec![Phase::Approach; n];
     // rates over a ±w window so 38 Hz jitter does not flip phases
@@ -150,9 +168,12 @@ pub fn trial_metrics(
     }
     let fnm: Vec<f64> = meas.iter().map(|f| dot(*f, normal)).collect();
     let fnp: Vec<f64> = pred.iter().map(|f| dot(*f, normal)).collect();
-    let range = fnm.iter().cloned().fold(f64::MIN, f64::max) - fnm.iter().cloned().fold(f64::MAX, f64::min);
+    let range =
+        fnm.iter().cloned().fold(f64::MIN, f64::max) - fnm.iter().cloned().fold(f64::MAX, f64::min);
     let rmse = (se / (3.0 * n)).sqrt();
-    let contact: Vec<usize> = (0..meas.len()).filter(|&i| phase[i] != Phase::Approach).collect();
+    let contact: Vec<usize> = (0..meas.len())
+        .filter(|&i| phase[i] != Phase::Approach)
+        .collect();
     let mean_on = |v: &[f64]| {
         if contact.is_empty() {
             0.0
@@ -160,7 +181,9 @@ pub fn trial_metrics(
             contact.iter().map(|&i| v[i]).sum::<f64>() / contact.len() as f64
         }
     };
-    let loading: Vec<usize> = (0..meas.len()).filter(|&i| phase[i] == Phase::Loading).collect();
+    let loading: Vec<usize> = (0..meas.len())
+        .filter(|&i| phase[i] == Phase::Loading)
+        .collect();
     let slope = |v: &[f64]| -> Option<f64> {
         if loading.len() < 3 {
             return None;
@@ -169,7 +192,10 @@ pub fn trial_metrics(
         let mx = loading.iter().map(|&i| depth_mm[i]).sum::<f64>() / k;
         let my = loading.iter().map(|&i| v[i]).sum::<f64>() / k;
         let sxx: f64 = loading.iter().map(|&i| (depth_mm[i] - mx).powi(2)).sum();
-        let sxy: f64 = loading.iter().map(|&i| (depth_mm[i] - mx) * (v[i] - my)).sum();
+        let sxy: f64 = loading
+            .iter()
+            .map(|&i| (depth_mm[i] - mx) * (v[i] - my))
+            .sum();
         (sxx > 1e-12).then(|| sxy / sxx)
     };
     let hyst = |v: &[f64]| -> f64 {
@@ -185,7 +211,8 @@ pub fn trial_metrics(
         nrmse: if range > 1e-9 { rmse / range } else { f64::NAN },
         rmse_normal: (sen / n).sqrt(),
         rmse_tangential: (set / (2.0 * n)).sqrt(),
-        peak_error: fnp.iter().cloned().fold(f64::MIN, f64::max) - fnm.iter().cloned().fold(f64::MIN, f64::max),
+        peak_error: fnp.iter().cloned().fold(f64::MIN, f64::max)
+            - fnm.iter().cloned().fold(f64::MIN, f64::max),
         mean_normal_measured: mean_on(&fnm),
         mean_normal_simulated: mean_on(&fnp),
         slope_measured: slope(&fnm),
@@ -266,13 +293,22 @@ mod tests {
         let meas: Vec<[f64; 3]> = depth.iter().map(|d| [0.0, 0.0, *d]).collect();
         let pred: Vec<[f64; 3]> = depth.iter().map(|d| [0.1, 0.0, 2.0 * d]).collect();
         let phase: Vec<Phase> = (0..depth.len())
-            .map(|i| if i <= 20 { Phase::Loading } else { Phase::Unloading })
+            .map(|i| {
+                if i <= 20 {
+                    Phase::Loading
+                } else {
+                    Phase::Unloading
+                }
+            })
             .collect();
         let m = trial_metrics(&meas, &pred, n, &depth, &phase);
         assert!((m.slope_measured.unwrap() - 1.0).abs() < 1e-9);
         assert!((m.slope_simulated.unwrap() - 2.0).abs() < 1e-9);
         assert!((m.peak_error - 2.0).abs() < 1e-9);
-        assert!(m.hysteresis_measured.abs() < 1e-9, "no hysteresis for an elastic loop");
+        assert!(
+            m.hysteresis_measured.abs() < 1e-9,
+            "no hysteresis for an elastic loop"
+        );
         assert!((m.rmse_tangential - (0.01f64 / 2.0).sqrt()).abs() < 1e-9);
         let se: f64 = depth.iter().map(|d| d * d + 0.01).sum();
         assert!((m.rmse - (se / (3.0 * depth.len() as f64)).sqrt()).abs() < 1e-9);

@@ -37,13 +37,17 @@ pub mod selftest;
 pub mod signal;
 
 pub use effects::{Candidate, Effect};
-pub use experiment::{load_experiment, read_force_displacement, Experiment, ExperimentSpec, Region, Trial};
+pub use experiment::{
+    load_experiment, read_force_displacement, Experiment, ExperimentSpec, Region, Trial,
+};
 pub use fd::diagnose_force_displacement;
 pub use model::{ForceModel, ProbePath, Variant};
 
 use dataset::{BuildOptions, TrialData};
 use fit::{make_folds, score_candidate, CandidateScore};
-use metrics::{band_label, band_of, region_label, trial_metrics, Acc, GroupResidual, Phase, TrialMetrics};
+use metrics::{
+    band_label, band_of, region_label, trial_metrics, Acc, GroupResidual, Phase, TrialMetrics,
+};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use signal::{dot, lag_by_xcorr, noise_sigma, sub};
@@ -54,7 +58,11 @@ pub enum GapError {
     #[error("{}: {msg}", file.display())]
     Input { file: PathBuf, msg: String },
     #[error("{}:{line}: {msg}", file.display())]
-    Line { file: PathBuf, line: usize, msg: String },
+    Line {
+        file: PathBuf,
+        line: usize,
+        msg: String,
+    },
     #[error("{path}: {err}", path = .0.display(), err = .1)]
     Io(PathBuf, std::io::Error),
     #[error("simulation: {0}")]
@@ -197,13 +205,19 @@ pub use sim_model::SimForceModel;
 pub mod sim_model;
 
 /// Diagnose an experiment with a given force model.
-pub fn diagnose(exp: &Experiment, model: &dyn ForceModel, opts: &Options) -> Result<Report, GapError> {
+pub fn diagnose(
+    exp: &Experiment,
+    model: &dyn ForceModel,
+    opts: &Options,
+) -> Result<Report, GapError> {
     let start = std::time::Instant::now();
     let effects: Vec<Effect> = opts
         .effects
         .iter()
         .copied()
-        .filter(|&e| fit::applicable(e, exp.quasi_static) && (e != Effect::Mesh || model.has_refinement()))
+        .filter(|&e| {
+            fit::applicable(e, exp.quasi_static) && (e != Effect::Mesh || model.has_refinement())
+        })
         .collect();
     let data = dataset::build(
         exp,
@@ -310,7 +324,11 @@ pub fn diagnose_data(
     if opts.pairs {
         // forward selection: each of the three best singles paired with every other effect
         // (a second effect can be invisible alone while the first dominates the residual)
-        let top: Vec<&CandidateScore> = singles.iter().filter(|s| s.heldout_shrink > 0.0).take(3).collect();
+        let top: Vec<&CandidateScore> = singles
+            .iter()
+            .filter(|s| s.heldout_shrink > 0.0)
+            .take(3)
+            .collect();
         let mut pairs: Vec<(Candidate, Vec<f64>)> = Vec::new();
         for t in &top {
             let a = Effect::parse(&t.effect).unwrap();
@@ -323,7 +341,13 @@ pub fn diagnose_data(
                 if pairs.iter().any(|(p, _)| *p == c) {
                     continue;
                 }
-                let theta_of = |e: Effect| if e == a { t.theta.clone() } else { o.theta.clone() };
+                let theta_of = |e: Effect| {
+                    if e == a {
+                        t.theta.clone()
+                    } else {
+                        o.theta.clone()
+                    }
+                };
                 let init: Vec<f64> = c.0.iter().flat_map(|&e| theta_of(e)).collect();
                 pairs.push((c, init));
             }
@@ -347,7 +371,14 @@ pub fn diagnose_data(
     ranking.sort_by(|a, b| a.score.total_cmp(&b.score));
 
     // two effects need several independent trials to be told apart (not one table)
-    let verdict = decide(&singles, &ranking, r0, noise, opts.min_shrink, data.len() >= 3);
+    let verdict = decide(
+        &singles,
+        &ranking,
+        r0,
+        noise,
+        opts.min_shrink,
+        data.len() >= 3,
+    );
     let winner = ranking.iter().find(|c| c.effect == verdict.effect);
     let heldout = Heldout {
         scheme,
@@ -414,7 +445,9 @@ fn decide(
         reason,
     };
     if r0 <= 1.15 * noise {
-        return none(format!("baseline residual {r0:.4} N is within noise ({noise:.4} N)"));
+        return none(format!(
+            "baseline residual {r0:.4} N is within noise ({noise:.4} N)"
+        ));
     }
     let best = match singles.first() {
         Some(b) => b,
@@ -529,7 +562,10 @@ pub fn localise(data: &[TrialData]) -> Localisation {
         .filter(|(_, a)| a.n > 0)
         .map(|(p, a)| a.summary(p.name().into()))
         .collect();
-    let by_region: Vec<GroupResidual> = regions.iter().map(|r| region[*r].summary(r.to_string())).collect();
+    let by_region: Vec<GroupResidual> = regions
+        .iter()
+        .map(|r| region[*r].summary(r.to_string()))
+        .collect();
     let by_depth_band: Vec<GroupResidual> = band
         .iter()
         .enumerate()
@@ -585,7 +621,8 @@ pub fn localise(data: &[TrialData]) -> Localisation {
 pub fn write_report(report: &Report, out_dir: &Path) -> Result<(), GapError> {
     std::fs::create_dir_all(out_dir).map_err(|e| GapError::Io(out_dir.to_path_buf(), e))?;
     let jp = out_dir.join("report.json");
-    let json = serde_json::to_string_pretty(report).map_err(|e| GapError::Other(format!("report.json: {e}")))?;
+    let json = serde_json::to_string_pretty(report)
+        .map_err(|e| GapError::Other(format!("report.json: {e}")))?;
     std::fs::write(&jp, json).map_err(|e| GapError::Io(jp.clone(), e))?;
     let hp = out_dir.join("report.html");
     std::fs::write(&hp, html::render(report)).map_err(|e| GapError::Io(hp.clone(), e))?;

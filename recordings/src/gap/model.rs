@@ -81,7 +81,11 @@ impl Variant {
 /// Implementations handle every field of [`Variant`] except `tilt`, which [`replay`] applies
 /// by rotating the trajectory into the specimen frame.
 pub trait ForceModel: Sync + Send {
-    fn replay_untilted(&self, variant: &Variant, path: &ProbePath) -> Result<Vec<[f64; 3]>, GapError>;
+    fn replay_untilted(
+        &self,
+        variant: &Variant,
+        path: &ProbePath,
+    ) -> Result<Vec<[f64; 3]>, GapError>;
     /// Short description for reports.
     fn describe(&self) -> String;
     /// A refined discretisation exists (the `mesh` effect can be assessed).
@@ -92,7 +96,11 @@ pub trait ForceModel: Sync + Send {
 
 /// Replay with the specimen tilted: a specimen rotated by R in the world sees the probe path
 /// R⁻¹·p (about the world origin = specimen footprint centre), and its force comes back as R·f.
-pub fn replay(model: &dyn ForceModel, variant: &Variant, path: &ProbePath) -> Result<Vec<[f64; 3]>, GapError> {
+pub fn replay(
+    model: &dyn ForceModel,
+    variant: &Variant,
+    path: &ProbePath,
+) -> Result<Vec<[f64; 3]>, GapError> {
     if variant.tilt == [0.0; 2] {
         return model.replay_untilted(variant, path);
     }

@@ -12,7 +12,8 @@
 use super::dataset::prepare;
 use super::effects::{predict, Candidate, Effect};
 use super::experiment::{
-    write_trial_csv, ExperimentSpec, MaterialSpec, ProbeSpec, Region, SpecimenSpec, Trial, TrialSpec,
+    write_trial_csv, ExperimentSpec, MaterialSpec, ProbeSpec, Region, SpecimenSpec, Trial,
+    TrialSpec,
 };
 use super::model::{replay, ForceModel, ProbePath, Variant};
 use super::signal::{add, interp, nlerp, norm, scale, sub};
@@ -99,11 +100,9 @@ impl RealitySpec {
             let (name, strength) = match item.split_once('=') {
                 Some((n, s)) => (
                     n.trim(),
-                    Some(
-                        s.trim()
-                            .parse::<f64>()
-                            .map_err(|_| GapError::Other(format!("effect {item:?}: strength is not a number")))?,
-                    ),
+                    Some(s.trim().parse::<f64>().map_err(|_| {
+                        GapError::Other(format!("effect {item:?}: strength is not a number"))
+                    })?),
                 ),
                 None => (item, None),
             };
@@ -132,7 +131,11 @@ impl RealitySpec {
         if self.injected.is_empty() {
             return "none".into();
         }
-        let effects: Vec<Effect> = self.injected.iter().filter_map(|i| Effect::parse(&i.effect)).collect();
+        let effects: Vec<Effect> = self
+            .injected
+            .iter()
+            .filter_map(|i| Effect::parse(&i.effect))
+            .collect();
         Candidate(effects).name()
     }
 }
@@ -151,7 +154,10 @@ fn draw(e: Effect, s: Option<f64>, rng: &mut Rng) -> Injected {
             p.insert("modulus_scale".into(), v);
         }
         Effect::Hardening => {
-            p.insert("stiffening_rate".into(), s.unwrap_or_else(|| rng.range(0.25, 0.45)));
+            p.insert(
+                "stiffening_rate".into(),
+                s.unwrap_or_else(|| rng.range(0.25, 0.45)),
+            );
             p.insert("neo_hookean".into(), 1.0);
         }
         Effect::Viscoelastic => {
@@ -168,7 +174,11 @@ fn draw(e: Effect, s: Option<f64>, rng: &mut Rng) -> Injected {
         }
         Effect::Device => {
             let b = s.unwrap_or_else(|| rng.range(0.2, 0.5));
-            let dir = [rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0)];
+            let dir = [
+                rng.range(-1.0, 1.0),
+                rng.range(-1.0, 1.0),
+                rng.range(-1.0, 1.0),
+            ];
             let n = norm(dir).max(1e-9);
             p.insert("bias_x".into(), b * dir[0] / n);
             p.insert("bias_y".into(), b * dir[1] / n);
@@ -204,7 +214,13 @@ pub struct Truth {
 }
 
 /// The study protocol for one probing: approach along −n, load, hold, optional slide, unload.
-pub fn protocol_path(site: [f64; 3], normal: [f64; 3], depth: f64, slide: Option<[f64; 3]>, dt: f64) -> ProbePath {
+pub fn protocol_path(
+    site: [f64; 3],
+    normal: [f64; 3],
+    depth: f64,
+    slide: Option<[f64; 3]>,
+    dt: f64,
+) -> ProbePath {
     // waypoints: (time, offset along n (m, + = above the surface), tangential offset)
     let above = 3.0e-3;
     let v_app = 3.0e-3; // m/s
@@ -256,7 +272,11 @@ fn post_candidate(spec: &RealitySpec) -> (Candidate, Vec<f64>) {
         let e = Effect::parse(&i.effect).unwrap();
         if !matches!(
             e,
-            Effect::Modulus | Effect::Hardening | Effect::Viscoelastic | Effect::Device | Effect::Sensor
+            Effect::Modulus
+                | Effect::Hardening
+                | Effect::Viscoelastic
+                | Effect::Device
+                | Effect::Sensor
         ) {
             continue;
         }
@@ -289,7 +309,11 @@ fn truth_variant(spec: &RealitySpec) -> Variant {
 }
 
 /// Generate the experiment folder `dir` (experiment.toml + 15 CSVs) and the truth file.
-pub fn write_experiment(spec: &RealitySpec, dir: &Path, truth_path: &Path) -> Result<Truth, GapError> {
+pub fn write_experiment(
+    spec: &RealitySpec,
+    dir: &Path,
+    truth_path: &Path,
+) -> Result<Truth, GapError> {
     let data_dir = super::data_dir();
     let mut scene = SceneConfig::default();
     scene.meniscus.mesh = spec.mesh.clone();
@@ -328,7 +352,10 @@ pub fn write_experiment_with(
     for &region in &spec.regions {
         let rs: Vec<&Site> = sites.iter().filter(|s| s.region == region).collect();
         if rs.is_empty() {
-            return Err(GapError::Sim(format!("no probing site in region {}", region.name())));
+            return Err(GapError::Sim(format!(
+                "no probing site in region {}",
+                region.name()
+            )));
         }
         for j in 0..spec.probings_per_region {
             let s = rs[j % rs.len()];
@@ -374,7 +401,9 @@ pub fn write_experiment_with(
             }
             ts.push(next);
         }
-        let grid_t: Vec<f64> = (0..path.poses.len()).map(|k| path.t0 + k as f64 * path.dt).collect();
+        let grid_t: Vec<f64> = (0..path.poses.len())
+            .map(|k| path.t0 + k as f64 * path.dt)
+            .collect();
         let grid_trial = Trial {
             name: name.clone(),
             file: Default::default(),
@@ -428,7 +457,8 @@ pub fn write_experiment_with(
         probe: ProbeSpec::default(),
         trials,
     };
-    let text = toml::to_string(&exp).map_err(|e| GapError::Other(format!("experiment.toml: {e}")))?;
+    let text =
+        toml::to_string(&exp).map_err(|e| GapError::Other(format!("experiment.toml: {e}")))?;
     let tp = dir.join("experiment.toml");
     std::fs::write(&tp, text).map_err(|e| GapError::Io(tp, e))?;
     let truth = Truth {

@@ -90,7 +90,8 @@ impl SelftestResult {
             cases: self.cases.len(),
             correct,
             accuracy: correct as f64 / self.cases.len().max(1) as f64,
-            heldout_shrink_mean: eff.iter().map(|c| c.heldout_shrink).sum::<f64>() / eff.len().max(1) as f64,
+            heldout_shrink_mean: eff.iter().map(|c| c.heldout_shrink).sum::<f64>()
+                / eff.len().max(1) as f64,
             seed: self.seed,
             elapsed_s: self.cases.iter().map(|c| c.elapsed_s).sum(),
         }
@@ -124,7 +125,12 @@ impl SelftestResult {
             *m.entry((c.truth.clone(), c.found.clone())).or_default() += 1;
         }
         let w = labels.iter().map(|l| l.len()).max().unwrap_or(4).max(10);
-        let _ = write!(s, "\nconfusion (rows truth, columns verdict)\n{:w$}", "", w = w + 2);
+        let _ = write!(
+            s,
+            "\nconfusion (rows truth, columns verdict)\n{:w$}",
+            "",
+            w = w + 2
+        );
         for l in &labels {
             let _ = write!(s, " {:>w$}", l, w = l.len().max(3));
         }
@@ -160,7 +166,11 @@ pub fn case_labels(n: usize, opts: &SelftestOptions) -> Vec<String> {
 }
 
 /// The shipped self-test: truth and diagnosis through the physics model.
-pub fn selftest(cases: usize, seed: u64, opts: &SelftestOptions) -> Result<SelftestResult, GapError> {
+pub fn selftest(
+    cases: usize,
+    seed: u64,
+    opts: &SelftestOptions,
+) -> Result<SelftestResult, GapError> {
     let data = super::data_dir();
     let mut scene = launch_config::SceneConfig::default();
     scene.meniscus.mesh = "default:lateral:coarse".into();
@@ -184,7 +194,11 @@ pub fn selftest_with(
 ) -> Result<SelftestResult, GapError> {
     let root = match &opts.keep_dir {
         Some(d) => d.clone(),
-        None => std::env::temp_dir().join(format!("arthrosim_gap_selftest_{}_{}", std::process::id(), seed)),
+        None => std::env::temp_dir().join(format!(
+            "arthrosim_gap_selftest_{}_{}",
+            std::process::id(),
+            seed
+        )),
     };
     let mut out = Vec::new();
     for (i, label) in case_labels(cases, opts).into_iter().enumerate() {
@@ -247,7 +261,11 @@ pub fn selftest_with(
 /// Benchmark: a generated 15-trial experiment (the study protocol) diagnosed end to end with
 /// the physics model; returns the JSON line (`trials`, `diagnose_s`, `generate_s`, `verdict`).
 pub fn bench(effect: &str, seed: u64, opts: &Options) -> Result<serde_json::Value, GapError> {
-    let root = std::env::temp_dir().join(format!("arthrosim_gap_bench_{}_{}", std::process::id(), seed));
+    let root = std::env::temp_dir().join(format!(
+        "arthrosim_gap_bench_{}_{}",
+        std::process::id(),
+        seed
+    ));
     let spec = RealitySpec::from_effects(&[effect], seed)?;
     let t0 = std::time::Instant::now();
     super::reality::write_experiment(&spec, &root.join("exp"), &root.join("truth.json"))?;

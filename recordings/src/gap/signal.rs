@@ -42,7 +42,14 @@ pub fn sample_uniform(t0: f64, dt: f64, y: &[[f64; 3]], t: f64) -> [f64; 3] {
 /// estimated by the peak of the normalised cross-correlation on a uniform grid of step `h`,
 /// refined by a parabola through the peak. Searches |lag| ≤ `max_lag`.
 /// Returns (lag, peak correlation); None when either signal is flat.
-pub fn lag_by_xcorr(ta: &[f64], a: &[f64], tb: &[f64], b: &[f64], max_lag: f64, h: f64) -> Option<(f64, f64)> {
+pub fn lag_by_xcorr(
+    ta: &[f64],
+    a: &[f64],
+    tb: &[f64],
+    b: &[f64],
+    max_lag: f64,
+    h: f64,
+) -> Option<(f64, f64)> {
     let t0 = ta.first()?.max(*tb.first()?);
     let t1 = ta.last()?.min(*tb.last()?);
     if t1 - t0 < 4.0 * h {
@@ -91,7 +98,10 @@ pub fn noise_sigma(y: &[f64]) -> f64 {
     if y.len() < 5 {
         return 0.0;
     }
-    let mut d: Vec<f64> = y.windows(3).map(|w| (w[0] - 2.0 * w[1] + w[2]).abs()).collect();
+    let mut d: Vec<f64> = y
+        .windows(3)
+        .map(|w| (w[0] - 2.0 * w[1] + w[2]).abs())
+        .collect();
     let m = median(&mut d);
     1.4826 * m / 6f64.sqrt()
 }
@@ -218,7 +228,9 @@ mod tests {
         let mut s = 12345u64;
         let mut gauss = || {
             let mut u = || {
-                s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+                s = s
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
                 ((s >> 11) as f64 + 0.5) / (1u64 << 53) as f64
             };
             let (u1, u2) = (u(), u());
@@ -239,7 +251,11 @@ mod tests {
         y.extend(std::iter::repeat([1.0; 3]).take(1000));
         lowpass_in_place(&mut y, 0.001, 0.05);
         // step response at t = tau reaches 1 - 1/e
-        assert!((y[50][0] - (1.0 - (-1.0f64).exp())).abs() < 0.01, "{}", y[50][0]);
+        assert!(
+            (y[50][0] - (1.0 - (-1.0f64).exp())).abs() < 0.01,
+            "{}",
+            y[50][0]
+        );
         let q = quat_tilt(0.3, 0.0);
         let v = quat_rotate(q, [0.0, 0.0, 1.0]);
         assert!((v[1] + 0.3f64.sin()).abs() < 1e-12 && (v[2] - 0.3f64.cos()).abs() < 1e-12);

@@ -83,10 +83,9 @@ impl SimForceModel {
         sc.contact.friction = v.friction;
         sc.meniscus.support_stiffness = v.support_stiffness;
         if v.fine_mesh {
-            sc.meniscus.mesh = self
-                .fine_mesh
-                .clone()
-                .ok_or_else(|| GapError::Sim(format!("no refined mesh for {}", self.scene.meniscus.mesh)))?;
+            sc.meniscus.mesh = self.fine_mesh.clone().ok_or_else(|| {
+                GapError::Sim(format!("no refined mesh for {}", self.scene.meniscus.mesh))
+            })?;
         }
         Ok(sc)
     }
@@ -112,7 +111,8 @@ impl SimForceModel {
 
     /// A simulation of this scene (for reality generation: probing sites, surface).
     pub fn simulation(&self, v: &Variant, dt: f64) -> Result<Simulation, GapError> {
-        Simulation::new(&self.scene_for(v, dt)?, &self.data_dir).map_err(|e| GapError::Sim(e.to_string()))
+        Simulation::new(&self.scene_for(v, dt)?, &self.data_dir)
+            .map_err(|e| GapError::Sim(e.to_string()))
     }
 }
 

@@ -437,11 +437,7 @@ impl ContactDetector {
                     }
                 };
                 // Edges and vertices are reported by every triangle sharing them: keep one.
-                let duplicate = self.candidates[first..].iter().any(|k| {
-                    (k.point - c).norm_squared() < 1e-18
-                        && (k.normal - normal).norm_squared() < 1e-12
-                });
-                if duplicate {
+                if self.already_found(first, &c, &normal) {
                     continue;
                 }
                 let weights = loc.barycentric_coordinates().unwrap_or([1.0 / 3.0; 3]);
@@ -550,11 +546,7 @@ impl ContactDetector {
                     .pseudo_normal(t, &loc)
                     .try_normalize(0.0)
                     .unwrap_or_else(|| support.face_normal(t));
-                let duplicate = self.candidates[first..].iter().any(|k| {
-                    (k.point - c).norm_squared() < 1e-18
-                        && (k.normal - normal).norm_squared() < 1e-12
-                });
-                if duplicate {
+                if self.already_found(first, &c, &normal) {
                     continue;
                 }
                 let weights = loc.barycentric_coordinates().unwrap_or([1.0 / 3.0; 3]);
@@ -636,6 +628,14 @@ impl ContactDetector {
             free_positions,
             false,
         );
+    }
+
+    /// True when a candidate found since index `first` (this probe sphere) already has this
+    /// point and normal: edges and vertices are reported by every triangle sharing them.
+    fn already_found(&self, first: usize, point: &Vector3<f64>, normal: &Vector3<f64>) -> bool {
+        self.candidates[first..].iter().any(|k| {
+            (k.point - point).norm_squared() < 1e-18 && (k.normal - normal).norm_squared() < 1e-12
+        })
     }
 
     #[allow(clippy::too_many_arguments)]

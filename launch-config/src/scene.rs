@@ -130,10 +130,13 @@ impl Default for MaterialConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SolverConfig {
-    /// `cg` or `direct` (faer sparse Cholesky).
+    /// `cg` (SOFA's CG), `cg-jacobi`, `cg-cholesky`, `cg-warped-cholesky` (CG preconditioned
+    /// by the rest factor, rotation-warped) or `direct` (faer sparse Cholesky every step).
     pub kind: String,
     pub cg_iterations: u32,
     pub cg_tolerance: f64,
+    /// Element rotation of the corotational FEM: `qr` (SOFA's "large", default) or `polar`.
+    pub rotation: String,
 }
 
 impl Default for SolverConfig {
@@ -142,6 +145,7 @@ impl Default for SolverConfig {
             kind: "cg".into(),
             cg_iterations: 25,
             cg_tolerance: 1e-9,
+            rotation: "qr".into(),
         }
     }
 }

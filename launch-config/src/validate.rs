@@ -156,7 +156,19 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
     );
 
     let sol = &s.solver;
-    v.one_of("scene.solver.kind", &sol.kind, &["cg", "direct"]);
+    v.one_of(
+        "scene.solver.kind",
+        &sol.kind,
+        &[
+            "cg",
+            "cg-jacobi",
+            "cg-cholesky",
+            "cg-warped-cholesky",
+            "direct",
+            "warped-precomputed",
+        ],
+    );
+    v.one_of("scene.solver.rotation", &sol.rotation, &["qr", "polar"]);
     if sol.cg_iterations == 0 {
         v.push(
             "scene.solver.cg_iterations",

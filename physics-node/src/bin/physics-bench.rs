@@ -22,9 +22,14 @@ struct Args {
     /// Coulomb friction of the contact.
     #[arg(long, default_value_t = 0.0)]
     friction: f64,
-    /// FEM linear solver (`cg`, `cg-jacobi`, `cg-cholesky`, `cg-warped-cholesky`, `direct`).
-    #[arg(long, default_value = "cg")]
+    /// FEM linear solver (`cg`, `cg-jacobi`, `cg-cholesky`, `cg-warped-cholesky`, `direct`,
+    /// `warped-precomputed`), or `auto`: SOFA's CG, except on `study:medial` where plain CG at
+    /// 25 iterations diverges under contact and the warped-Cholesky PCG is used.
+    #[arg(long, default_value = "auto")]
     solver: String,
+    /// Element rotation (`qr` = SOFA's "large", or `polar`).
+    #[arg(long, default_value = "qr")]
+    rotation: String,
     /// Study data folder (default: $ARTHROSIM_DATA, else ../shared/data).
     #[arg(long)]
     data: Option<PathBuf>,
@@ -46,7 +51,13 @@ fn main() -> anyhow::Result<()> {
         scene.meniscus.fixed = "inferior".into();
     }
     scene.contact.friction = args.friction;
-    scene.solver.kind = args.solver.clone();
+    let solver = match args.solver.as_str() {
+        "auto" if args.mesh == "study:medial" => "cg-warped-cholesky".to_string(),
+        "auto" => scene.solver.kind.clone(),
+        other => other.to_string(),
+    };
+    scene.solver.kind = solver.clone();
+    scene.solver.rotation = args.rotation.clone();
     let t_build = Instant::now();
     let mut sim = Simulation::new(&scene, &data_dir)
         .with_context(|| format!("building scene for {}", args.mesh))?;
@@ -121,7 +132,8 @@ fn main() -> anyhow::Result<()> {
         "contacts_mean": contacts_sum as f64 / steps as f64,
         "contact_fraction": in_contact as f64 / steps as f64,
         "force_mean_n": force_sum / steps as f64,
-        "solver": args.solver,
+        "solver": solver,
+        "rotation": args.rotation,
         "friction": args.friction,
         "compliance_slots": slots,
         "compliance_complete": complete,

@@ -87,6 +87,26 @@ pub enum Preconditioner {
     WarpedRestCholesky,
 }
 
+/// How the corotational element finds its rotation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RotationMethod {
+    /// SOFA's "large": Q of the QR decomposition of F (closed form, SOFA's default).
+    Qr,
+    /// Polar decomposition (nearest rotation, iterative, warm-started; rotation-invariant
+    /// under shear).
+    Polar,
+}
+
+impl RotationMethod {
+    pub fn parse(s: &str) -> Option<RotationMethod> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "qr" | "large" => Some(RotationMethod::Qr),
+            "polar" => Some(RotationMethod::Polar),
+            _ => None,
+        }
+    }
+}
+
 /// Linear solver of the implicit step.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum LinearSolver {
@@ -97,6 +117,12 @@ pub enum LinearSolver {
     },
     /// faer sparse Cholesky, numeric refactorization every step.
     Direct,
+    /// Precomputed, rotation-warped: Δv = R A0⁻¹ Rᵀ b with the rest system A0 factored once
+    /// and per-node rotations R (SOFA's PrecomputedWarpPreconditioner used as the solver, the
+    /// usual choice of haptic scenes). No stiffness assembly and no iteration in the step;
+    /// the elastic force and the implicit K·v term come from one element pass. Linear
+    /// corotational material only.
+    WarpedPrecomputed,
 }
 
 impl LinearSolver {
@@ -126,6 +152,8 @@ pub struct FemSettings {
     /// Stable neo-Hookean: project the element Hessian to PSD (true) or use the consistent
     /// tangent (false; may be indefinite, use the direct solver then).
     pub project_tangent: bool,
+    /// Rotation of the corotational elements (and of the per-node warp).
+    pub rotation: RotationMethod,
 }
 
 impl Default for FemSettings {
@@ -138,6 +166,7 @@ impl Default for FemSettings {
             solver: LinearSolver::sofa_cg(),
             support_stiffness: 0.0,
             project_tangent: true,
+            rotation: RotationMethod::Qr,
         }
     }
 }
@@ -168,10 +197,11 @@ impl FemSettings {
                 preconditioner: Preconditioner::WarpedRestCholesky,
             },
             "direct" => LinearSolver::Direct,
+            "warped-precomputed" => LinearSolver::WarpedPrecomputed,
             other => {
                 return Err(FemError::Input(format!(
                     "unknown solver kind `{other}` (expected `cg`, `cg-jacobi`, `cg-cholesky`, \
-                     `cg-warped-cholesky` or `direct`)"
+                     `cg-warped-cholesky`, `direct` or `warped-precomputed`)"
                 )))
             }
         };
@@ -183,6 +213,12 @@ impl FemSettings {
             solver,
             support_stiffness: scene.meniscus.support_stiffness,
             project_tangent: true,
+            rotation: RotationMethod::parse(&scene.solver.rotation).ok_or_else(|| {
+                FemError::Input(format!(
+                    "unknown rotation `{}` (expected `qr` or `polar`)",
+                    scene.solver.rotation
+                ))
+            })?,
         };
         s.validate()?;
         Ok(s)
@@ -251,7 +287,10 @@ pub struct FemModel {
     /// Free row of each node, NO_BLOCK when held.
     free_index: Vec<u32>,
     free_nodes: Vec<usize>,
+    /// Polar warm start per element (unused with QR).
     elem_rot: Vec<UnitQuaternion<f64>>,
+    /// Rotation of each element at the last assembly.
+    elem_rot_m: Vec<Matrix3<f64>>,
     node_rot_q: Vec<UnitQuaternion<f64>>,
     node_rot: Vec<Matrix3<f64>>,
     node_rot_sum: Vec<Matrix3<f64>>,
@@ -389,6 +428,7 @@ impl FemModel {
             free_index,
             free_nodes,
             elem_rot: vec![UnitQuaternion::identity(); mesh.tets.len()],
+            elem_rot_m: vec![Matrix3::identity(); mesh.tets.len()],
             node_rot_q: vec![UnitQuaternion::identity(); n],
             node_rot: vec![Matrix3::identity(); n],
             node_rot_sum: vec![Matrix3::zeros(); n],
@@ -415,6 +455,15 @@ impl FemModel {
 
     /// Builds whatever factorization the chosen solver needs (allocates; not in the step).
     fn prepare_solver(&mut self) -> Result<(), FemError> {
+        if self.settings.solver == LinearSolver::WarpedPrecomputed
+            && self.material.model != MaterialModel::Corotational
+        {
+            return Err(FemError::Solver(
+                "solver `warped-precomputed` needs the linear corotational material; use `cg` \
+                 or `direct` with neo-Hookean"
+                    .into(),
+            ));
+        }
         if self.free_nodes.is_empty() {
             return Ok(());
         }
@@ -422,7 +471,8 @@ impl FemModel {
             LinearSolver::Cg {
                 preconditioner: Preconditioner::RestCholesky | Preconditioner::WarpedRestCholesky,
                 ..
-            } => {
+            }
+            | LinearSolver::WarpedPrecomputed => {
                 let dt = self.settings.dt;
                 self.assemble_rest_system(dt);
                 self.rest_factor = Some((dt, SparseCholesky::new(&self.pattern, &self.a, 1)?));
@@ -549,6 +599,7 @@ impl FemModel {
         self.v.fill(Vector3::zeros());
         self.v_free.fill(Vector3::zeros());
         self.elem_rot.fill(UnitQuaternion::identity());
+        self.elem_rot_m.fill(Matrix3::identity());
         self.node_rot_q.fill(UnitQuaternion::identity());
         self.node_rot.fill(Matrix3::identity());
         self.dv.fill(0.0);
@@ -587,6 +638,7 @@ impl FemModel {
             rest,
             v,
             elem_rot,
+            elem_rot_m,
             a,
             force,
             kv,
@@ -620,13 +672,29 @@ impl FemModel {
                     let rot = if at_rest {
                         Matrix3::identity()
                     } else {
-                        element::extract_rotation(&f, &mut elem_rot[e], rot_iters, rot_tol)
+                        let r = element_rotation(
+                            settings.rotation,
+                            &f,
+                            &mut elem_rot[e],
+                            &elem_rot_m[e],
+                            rot_iters,
+                            rot_tol,
+                        );
+                        elem_rot_m[e] = r;
+                        r
                     };
                     element::corotational(re, &f, &rot, mu, lambda, want_k, &mut out);
                 }
                 MaterialModel::StableNeoHookean => {
                     if !at_rest {
-                        element::extract_rotation(&f, &mut elem_rot[e], rot_iters, rot_tol);
+                        elem_rot_m[e] = element_rotation(
+                            settings.rotation,
+                            &f,
+                            &mut elem_rot[e],
+                            &elem_rot_m[e],
+                            rot_iters,
+                            rot_tol,
+                        );
                     }
                     element::stable_neo_hookean(
                         re,
@@ -690,6 +758,63 @@ impl FemModel {
         }
     }
 
+    /// Corotational elastic forces at x + h·v with each element's rotation taken at x, into
+    /// `self.force` (`kv` zeroed): for the linear corotational element this is exactly
+    /// f(x) − h K(x) v, the right-hand side of the implicit step without assembling K.
+    fn implicit_elastic_forces(&mut self, h: f64) -> Result<(), FemError> {
+        if self.material.model != MaterialModel::Corotational {
+            return Err(FemError::Solver(
+                "the warped precomputed solver needs the linear corotational material".into(),
+            ));
+        }
+        let FemModel {
+            tets,
+            rest_elems,
+            x,
+            v,
+            elem_rot,
+            elem_rot_m,
+            force,
+            kv,
+            mu,
+            lambda,
+            settings,
+            ..
+        } = self;
+        force.fill(Vector3::zeros());
+        kv.fill(Vector3::zeros());
+        let mut out = ElementOutput::zero();
+        for (e, t) in tets.iter().enumerate() {
+            let re = &rest_elems[e];
+            let f = re.deformation_gradient([
+                x[t[0]].coords,
+                x[t[1]].coords,
+                x[t[2]].coords,
+                x[t[3]].coords,
+            ]);
+            let rot = element_rotation(
+                settings.rotation,
+                &f,
+                &mut elem_rot[e],
+                &elem_rot_m[e],
+                ROTATION_ITERATIONS,
+                ROTATION_TOLERANCE,
+            );
+            elem_rot_m[e] = rot;
+            // F is linear in the positions: F(x + h v) = F(x) + h F(v) (F(v) without the I).
+            let g = &re.grad;
+            let fv = (v[t[1]] - v[t[0]]) * g[1].transpose()
+                + (v[t[2]] - v[t[0]]) * g[2].transpose()
+                + (v[t[3]] - v[t[0]]) * g[3].transpose();
+            let fy = f + fv * h;
+            element::corotational(re, &fy, &rot, *mu, *lambda, false, &mut out);
+            for k in 0..4 {
+                force[t[k]] += out.force[k];
+            }
+        }
+        Ok(())
+    }
+
     // ---- stepping --------------------------------------------------------------------
 
     /// Free motion over `dt` with per-node external forces (N; held nodes ignore theirs):
@@ -716,18 +841,26 @@ impl FemModel {
             self.settings.rayleigh_stiffness,
         );
         let k_scale = dt * beta + dt * dt;
-        // CG reads only the upper triangle; the direct solver factors the lower one.
-        let full = matches!(self.settings.solver, LinearSolver::Direct);
-        self.assemble(false, k_scale, true, full);
+        let warped = self.settings.solver == LinearSolver::WarpedPrecomputed;
+        if warped {
+            // f(x) − (β + dt) K v in one element pass, no stiffness matrix.
+            self.implicit_elastic_forces(beta + dt)?;
+        } else {
+            // CG reads only the upper triangle; the direct solver factors the lower one.
+            let full = matches!(self.settings.solver, LinearSolver::Direct);
+            self.assemble(false, k_scale, true, full);
+        }
         let g = self.settings.gravity;
         for (row, &node) in self.free_nodes.iter().enumerate() {
             let m = self.mass[node];
             let ks = self.support[node];
-            let d = (1.0 + dt * alpha) * m + k_scale * ks;
-            let blk = &mut self.a[self.pattern.diag[row]];
-            blk[(0, 0)] += d;
-            blk[(1, 1)] += d;
-            blk[(2, 2)] += d;
+            if !warped {
+                let d = (1.0 + dt * alpha) * m + k_scale * ks;
+                let blk = &mut self.a[self.pattern.diag[row]];
+                blk[(0, 0)] += d;
+                blk[(1, 1)] += d;
+                blk[(2, 2)] += d;
+            }
             let vi = self.v[node];
             let disp = self.x[node] - self.rest[node];
             let f = external_forces[node] + self.force[node] + g * m
@@ -826,6 +959,23 @@ impl FemModel {
                 chol.refactor(&self.a)?;
                 self.dv.copy_from_slice(&self.rhs);
                 chol.solve_in_place(&mut self.dv);
+                Ok(SolveStats {
+                    iterations: 0,
+                    relative_residual: 0.0,
+                })
+            }
+            LinearSolver::WarpedPrecomputed => {
+                let stale = match &self.rest_factor {
+                    Some((fdt, _)) => *fdt != dt,
+                    None => true,
+                };
+                if stale {
+                    self.refactor_rest_preconditioner(dt)?;
+                }
+                self.update_node_rotations();
+                self.r.copy_from_slice(&self.rhs);
+                self.precondition(Preconditioner::WarpedRestCholesky);
+                self.dv.copy_from_slice(&self.z);
                 Ok(SolveStats {
                     iterations: 0,
                     relative_residual: 0.0,
@@ -1012,25 +1162,24 @@ impl FemModel {
 
     /// Element rotations of the last assembly (corotational frame per tet).
     pub fn element_rotation(&self, tet: usize) -> Option<Matrix3<f64>> {
-        self.elem_rot
-            .get(tet)
-            .map(|q| q.to_rotation_matrix().into_inner())
+        self.elem_rot_m.get(tet).copied()
     }
 
     /// Recomputes per-node rotations: the average of the incident element rotations,
     /// orthonormalised (nearest rotation, warm-started). No allocation.
     pub fn update_node_rotations(&mut self) {
         self.node_rot_sum.fill(Matrix3::zeros());
-        for (e, t) in self.tets.iter().enumerate() {
-            let r = self.elem_rot[e].to_rotation_matrix().into_inner();
+        for (t, r) in self.tets.iter().zip(&self.elem_rot_m) {
             for &i in t {
                 self.node_rot_sum[i] += r;
             }
         }
         for i in 0..self.x.len() {
-            self.node_rot[i] = element::extract_rotation(
+            self.node_rot[i] = element_rotation(
+                self.settings.rotation,
                 &self.node_rot_sum[i],
                 &mut self.node_rot_q[i],
+                &self.node_rot[i],
                 ROTATION_ITERATIONS,
                 ROTATION_TOLERANCE,
             );
@@ -1058,13 +1207,14 @@ impl FemModel {
             match self.material.model {
                 MaterialModel::Corotational => {
                     let mut q = self.elem_rot[e];
-                    element::extract_rotation(
+                    let rot = element_rotation(
+                        self.settings.rotation,
                         &f,
                         &mut q,
+                        &self.elem_rot_m[e],
                         ROTATION_ITERATIONS_COLD,
                         ROTATION_TOLERANCE_COLD,
                     );
-                    let rot = q.to_rotation_matrix().into_inner();
                     element::corotational(re, &f, &rot, self.mu, self.lambda, false, &mut out);
                 }
                 MaterialModel::StableNeoHookean => {
@@ -1242,6 +1392,23 @@ impl FemModel {
         self.x_free.copy_from_slice(&self.x);
         self.v_free.copy_from_slice(&self.v);
         result
+    }
+}
+
+/// Rotation of `a` (a deformation gradient or a sum of rotations) by `method`; QR falls back
+/// to `previous` for a degenerate `a`, polar warm-starts from (and updates) `q`.
+#[inline]
+fn element_rotation(
+    method: RotationMethod,
+    a: &Matrix3<f64>,
+    q: &mut UnitQuaternion<f64>,
+    previous: &Matrix3<f64>,
+    iterations: usize,
+    tolerance: f64,
+) -> Matrix3<f64> {
+    match method {
+        RotationMethod::Qr => element::qr_rotation(a).unwrap_or(*previous),
+        RotationMethod::Polar => element::extract_rotation(a, q, iterations, tolerance),
     }
 }
 

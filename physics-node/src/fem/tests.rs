@@ -123,11 +123,16 @@ fn cg_and_direct_agree() {
 #[test]
 fn rigid_rotation_produces_no_elastic_force() {
     let mesh = box_mesh(0.02, 0.01, 0.005, 4, 2, 2);
-    let s = FemSettings {
-        gravity: Vector3::zeros(),
-        ..settings(LinearSolver::Direct)
-    };
-    for model_kind in [MaterialModel::Corotational, MaterialModel::StableNeoHookean] {
+    for (model_kind, rotation) in [
+        (MaterialModel::Corotational, RotationMethod::Qr),
+        (MaterialModel::Corotational, RotationMethod::Polar),
+        (MaterialModel::StableNeoHookean, RotationMethod::Qr),
+    ] {
+        let s = FemSettings {
+            gravity: Vector3::zeros(),
+            rotation,
+            ..settings(LinearSolver::Direct)
+        };
         let mut m =
             FemModel::new(&mesh, Material::lateral().with_model(model_kind), &[], s).unwrap();
         let rot = Rotation3::from_axis_angle(
@@ -145,7 +150,7 @@ fn rigid_rotation_produces_no_elastic_force() {
         // Reference: the force scale of a 1% strain on this mesh, E·A·ε/n ≈ 3.5e6·5e-5·0.01.
         assert!(
             fmax < 1e-9,
-            "{model_kind:?}: elastic force {fmax} N after a rigid rotation"
+            "{model_kind:?}/{rotation:?}: elastic force {fmax} N after a rigid rotation"
         );
         assert!(m.elastic_energy() < 1e-15);
         // Stepping keeps it still.
@@ -339,12 +344,17 @@ fn energy_does_not_grow_in_free_vibration() {
 
 #[test]
 fn inverted_element_recovers() {
-    for model_kind in [MaterialModel::Corotational, MaterialModel::StableNeoHookean] {
+    for (model_kind, rotation) in [
+        (MaterialModel::Corotational, RotationMethod::Qr),
+        (MaterialModel::Corotational, RotationMethod::Polar),
+        (MaterialModel::StableNeoHookean, RotationMethod::Qr),
+    ] {
         let mesh = box_mesh(0.01, 0.01, 0.01, 2, 2, 2);
         let fixed = nodes_where(&mesh, |p| p.z < 1e-9);
         let s = FemSettings {
             gravity: Vector3::zeros(),
             rayleigh_mass: 5.0,
+            rotation,
             ..settings(LinearSolver::Direct)
         };
         let mut m =
@@ -370,9 +380,12 @@ fn inverted_element_recovers() {
             .iter()
             .filter(|t| signed_volume(m.positions(), t) <= 0.0)
             .count();
-        assert_eq!(inverted, 0, "{model_kind:?}");
+        assert_eq!(inverted, 0, "{model_kind:?}/{rotation:?}");
         let err = (m.positions()[centre] - mesh.nodes[centre]).norm();
-        assert!(err < 1e-4, "{model_kind:?}: centre node {err} m from rest");
+        assert!(
+            err < 1e-4,
+            "{model_kind:?}/{rotation:?}: centre node {err} m from rest"
+        );
     }
 }
 
@@ -578,4 +591,38 @@ fn material_change_rescales_response() {
     m.solve_static(&f, true, 20, 1e-10).unwrap();
     let sag2 = 0.01 - m.positions().iter().map(|p| p.z).fold(f64::MIN, f64::max);
     assert!((sag2 / sag0 - 1.0 / 0.59).abs() < 1e-3, "{sag0} {sag2}");
+}
+
+/// The warped precomputed solver is the exact implicit step near rest (R = I, A = A0), and
+/// stays close to the direct solve on a loaded, bent cube.
+#[test]
+fn warped_precomputed_matches_direct_near_rest_and_stays_bounded() {
+    let mut direct = cube_model(LinearSolver::Direct);
+    let mut warped = cube_model(LinearSolver::WarpedPrecomputed);
+    let n = direct.node_count();
+    let top = (0..n)
+        .max_by(|&a, &b| {
+            let pa = direct.rest_positions()[a];
+            let pb = direct.rest_positions()[b];
+            (pa.z + 1e-3 * pa.x).total_cmp(&(pb.z + 1e-3 * pb.x))
+        })
+        .unwrap();
+    let mut f = zero_forces(&direct);
+    f[top] = Vector3::new(0.2, 0.1, -0.5);
+    let mut worst: f64 = 0.0;
+    for step in 0..300 {
+        direct.step(0.01, &f).unwrap();
+        warped.step(0.01, &f).unwrap();
+        let d = direct.positions()[top] - direct.rest_positions()[top];
+        let w = warped.positions()[top] - warped.rest_positions()[top];
+        let err = (d - w).norm() / d.norm().max(1e-12);
+        if step == 0 {
+            assert!(err < 1e-6, "first step differs by {err}");
+        }
+        worst = worst.max(err);
+    }
+    assert!(
+        worst < 0.05,
+        "warped vs direct: worst relative difference {worst}"
+    );
 }

@@ -165,7 +165,6 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
             "cg-cholesky",
             "cg-warped-cholesky",
             "direct",
-            "warped-precomputed",
         ],
     );
     v.one_of("scene.solver.rotation", &sol.rotation, &["qr", "polar"]);

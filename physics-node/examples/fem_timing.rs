@@ -61,7 +61,6 @@ fn main() {
         ("cg-cholesky", cg(Preconditioner::RestCholesky)),
         ("cg-warped-cholesky", cg(Preconditioner::WarpedRestCholesky)),
         ("direct", LinearSolver::Direct),
-        ("warped-precomputed", LinearSolver::WarpedPrecomputed),
     ];
     for spec in &specs {
         let Some((mesh, fixed)) = load(spec) else {

@@ -22,8 +22,8 @@ struct Args {
     /// Coulomb friction of the contact.
     #[arg(long, default_value_t = 0.0)]
     friction: f64,
-    /// FEM linear solver (`cg`, `cg-jacobi`, `cg-cholesky`, `cg-warped-cholesky`, `direct`,
-    /// `warped-precomputed`), or `auto`: SOFA's CG, except on `study:medial` where plain CG at
+    /// FEM linear solver (`cg`, `cg-jacobi`, `cg-cholesky`, `cg-warped-cholesky`, `direct`),
+    /// or `auto`: SOFA's CG, except on `study:medial` where plain CG at
     /// 25 iterations diverges under contact and the warped-Cholesky PCG is used.
     #[arg(long, default_value = "auto")]
     solver: String,

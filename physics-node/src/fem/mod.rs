@@ -117,12 +117,6 @@ pub enum LinearSolver {
     },
     /// faer sparse Cholesky, numeric refactorization every step.
     Direct,
-    /// Precomputed, rotation-warped: Δv = R A0⁻¹ Rᵀ b with the rest system A0 factored once
-    /// and per-node rotations R (SOFA's PrecomputedWarpPreconditioner used as the solver, the
-    /// usual choice of haptic scenes). No stiffness assembly and no iteration in the step;
-    /// the elastic force and the implicit K·v term come from one element pass. Linear
-    /// corotational material only.
-    WarpedPrecomputed,
 }
 
 impl LinearSolver {
@@ -197,11 +191,10 @@ impl FemSettings {
                 preconditioner: Preconditioner::WarpedRestCholesky,
             },
             "direct" => LinearSolver::Direct,
-            "warped-precomputed" => LinearSolver::WarpedPrecomputed,
             other => {
                 return Err(FemError::Input(format!(
                     "unknown solver kind `{other}` (expected `cg`, `cg-jacobi`, `cg-cholesky`, \
-                     `cg-warped-cholesky`, `direct` or `warped-precomputed`)"
+                     `cg-warped-cholesky` or `direct`)"
                 )))
             }
         };
@@ -455,15 +448,6 @@ impl FemModel {
 
     /// Builds whatever factorization the chosen solver needs (allocates; not in the step).
     fn prepare_solver(&mut self) -> Result<(), FemError> {
-        if self.settings.solver == LinearSolver::WarpedPrecomputed
-            && self.material.model != MaterialModel::Corotational
-        {
-            return Err(FemError::Solver(
-                "solver `warped-precomputed` needs the linear corotational material; use `cg` \
-                 or `direct` with neo-Hookean"
-                    .into(),
-            ));
-        }
         if self.free_nodes.is_empty() {
             return Ok(());
         }
@@ -471,8 +455,7 @@ impl FemModel {
             LinearSolver::Cg {
                 preconditioner: Preconditioner::RestCholesky | Preconditioner::WarpedRestCholesky,
                 ..
-            }
-            | LinearSolver::WarpedPrecomputed => {
+            } => {
                 let dt = self.settings.dt;
                 self.assemble_rest_system(dt);
                 self.rest_factor = Some((dt, SparseCholesky::new(&self.pattern, &self.a, 1)?));
@@ -758,63 +741,6 @@ impl FemModel {
         }
     }
 
-    /// Corotational elastic forces at x + h·v with each element's rotation taken at x, into
-    /// `self.force` (`kv` zeroed): for the linear corotational element this is exactly
-    /// f(x) − h K(x) v, the right-hand side of the implicit step without assembling K.
-    fn implicit_elastic_forces(&mut self, h: f64) -> Result<(), FemError> {
-        if self.material.model != MaterialModel::Corotational {
-            return Err(FemError::Solver(
-                "the warped precomputed solver needs the linear corotational material".into(),
-            ));
-        }
-        let FemModel {
-            tets,
-            rest_elems,
-            x,
-            v,
-            elem_rot,
-            elem_rot_m,
-            force,
-            kv,
-            mu,
-            lambda,
-            settings,
-            ..
-        } = self;
-        force.fill(Vector3::zeros());
-        kv.fill(Vector3::zeros());
-        let mut out = ElementOutput::zero();
-        for (e, t) in tets.iter().enumerate() {
-            let re = &rest_elems[e];
-            let f = re.deformation_gradient([
-                x[t[0]].coords,
-                x[t[1]].coords,
-                x[t[2]].coords,
-                x[t[3]].coords,
-            ]);
-            let rot = element_rotation(
-                settings.rotation,
-                &f,
-                &mut elem_rot[e],
-                &elem_rot_m[e],
-                ROTATION_ITERATIONS,
-                ROTATION_TOLERANCE,
-            );
-            elem_rot_m[e] = rot;
-            // F is linear in the positions: F(x + h v) = F(x) + h F(v) (F(v) without the I).
-            let g = &re.grad;
-            let fv = (v[t[1]] - v[t[0]]) * g[1].transpose()
-                + (v[t[2]] - v[t[0]]) * g[2].transpose()
-                + (v[t[3]] - v[t[0]]) * g[3].transpose();
-            let fy = f + fv * h;
-            element::corotational(re, &fy, &rot, *mu, *lambda, false, &mut out);
-            for k in 0..4 {
-                force[t[k]] += out.force[k];
-            }
-        }
-        Ok(())
-    }
-
     // ---- stepping --------------------------------------------------------------------
 
     /// Free motion over `dt` with per-node external forces (N; held nodes ignore theirs):
@@ -841,26 +767,18 @@ impl FemModel {
             self.settings.rayleigh_stiffness,
         );
         let k_scale = dt * beta + dt * dt;
-        let warped = self.settings.solver == LinearSolver::WarpedPrecomputed;
-        if warped {
-            // f(x) − (β + dt) K v in one element pass, no stiffness matrix.
-            self.implicit_elastic_forces(beta + dt)?;
-        } else {
-            // CG reads only the upper triangle; the direct solver factors the lower one.
-            let full = matches!(self.settings.solver, LinearSolver::Direct);
-            self.assemble(false, k_scale, true, full);
-        }
+        // CG reads only the upper triangle; the direct solver factors the lower one.
+        let full = matches!(self.settings.solver, LinearSolver::Direct);
+        self.assemble(false, k_scale, true, full);
         let g = self.settings.gravity;
         for (row, &node) in self.free_nodes.iter().enumerate() {
             let m = self.mass[node];
             let ks = self.support[node];
-            if !warped {
-                let d = (1.0 + dt * alpha) * m + k_scale * ks;
-                let blk = &mut self.a[self.pattern.diag[row]];
-                blk[(0, 0)] += d;
-                blk[(1, 1)] += d;
-                blk[(2, 2)] += d;
-            }
+            let d = (1.0 + dt * alpha) * m + k_scale * ks;
+            let blk = &mut self.a[self.pattern.diag[row]];
+            blk[(0, 0)] += d;
+            blk[(1, 1)] += d;
+            blk[(2, 2)] += d;
             let vi = self.v[node];
             let disp = self.x[node] - self.rest[node];
             let f = external_forces[node] + self.force[node] + g * m
@@ -959,23 +877,6 @@ impl FemModel {
                 chol.refactor(&self.a)?;
                 self.dv.copy_from_slice(&self.rhs);
                 chol.solve_in_place(&mut self.dv);
-                Ok(SolveStats {
-                    iterations: 0,
-                    relative_residual: 0.0,
-                })
-            }
-            LinearSolver::WarpedPrecomputed => {
-                let stale = match &self.rest_factor {
-                    Some((fdt, _)) => *fdt != dt,
-                    None => true,
-                };
-                if stale {
-                    self.refactor_rest_preconditioner(dt)?;
-                }
-                self.update_node_rotations();
-                self.r.copy_from_slice(&self.rhs);
-                self.precondition(Preconditioner::WarpedRestCholesky);
-                self.dv.copy_from_slice(&self.z);
                 Ok(SolveStats {
                     iterations: 0,
                     relative_residual: 0.0,

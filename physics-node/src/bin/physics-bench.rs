@@ -22,11 +22,15 @@ struct Args {
     /// Coulomb friction of the contact.
     #[arg(long, default_value_t = 0.0)]
     friction: f64,
-    /// FEM linear solver (`cg`, `cg-jacobi`, `cg-cholesky`, `cg-warped-cholesky`, `direct`),
-    /// or `auto`: SOFA's CG, except on `study:medial` where plain CG at
-    /// 25 iterations diverges under contact and the warped-Cholesky PCG is used.
-    #[arg(long, default_value = "auto")]
+    /// FEM linear solver (`cg`, `cg-jacobi`, `cg-cholesky`, `cg-warped-cholesky`, `direct`).
+    #[arg(long, default_value = "cg")]
     solver: String,
+    /// CG iteration cap (default: the scene's, SOFA's 25).
+    #[arg(long)]
+    cg_iterations: Option<u32>,
+    /// CG relative residual tolerance (default: the scene's, SOFA's 1e-9).
+    #[arg(long)]
+    cg_tolerance: Option<f64>,
     /// Element rotation (`qr` = SOFA's "large", or `polar`).
     #[arg(long, default_value = "qr")]
     rotation: String,
@@ -51,13 +55,15 @@ fn main() -> anyhow::Result<()> {
         scene.meniscus.fixed = "inferior".into();
     }
     scene.contact.friction = args.friction;
-    let solver = match args.solver.as_str() {
-        "auto" if args.mesh == "study:medial" => "cg-warped-cholesky".to_string(),
-        "auto" => scene.solver.kind.clone(),
-        other => other.to_string(),
-    };
+    let solver = args.solver.clone();
     scene.solver.kind = solver.clone();
     scene.solver.rotation = args.rotation.clone();
+    if let Some(n) = args.cg_iterations {
+        scene.solver.cg_iterations = n;
+    }
+    if let Some(t) = args.cg_tolerance {
+        scene.solver.cg_tolerance = t;
+    }
     let t_build = Instant::now();
     let mut sim = Simulation::new(&scene, &data_dir)
         .with_context(|| format!("building scene for {}", args.mesh))?;
@@ -134,6 +140,8 @@ fn main() -> anyhow::Result<()> {
         "force_mean_n": force_sum / steps as f64,
         "solver": solver,
         "rotation": args.rotation,
+        "cg_iterations": scene.solver.cg_iterations,
+        "cg_tolerance": scene.solver.cg_tolerance,
         "friction": args.friction,
         "compliance_slots": slots,
         "compliance_complete": complete,

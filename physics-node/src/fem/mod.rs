@@ -645,35 +645,27 @@ impl FemModel {
                 pos[t[3]].coords,
             ];
             let f = re.deformation_gradient(xe);
+            // Both materials keep the element rotation: the corotational element works in it,
+            // and the warped compliance averages it per node.
+            let rot = if at_rest {
+                Matrix3::identity()
+            } else {
+                let r = element_rotation(
+                    settings.rotation,
+                    &f,
+                    &mut elem_rot[e],
+                    &elem_rot_m[e],
+                    rot_iters,
+                    rot_tol,
+                );
+                elem_rot_m[e] = r;
+                r
+            };
             match material.model {
                 MaterialModel::Corotational => {
-                    let rot = if at_rest {
-                        Matrix3::identity()
-                    } else {
-                        let r = element_rotation(
-                            settings.rotation,
-                            &f,
-                            &mut elem_rot[e],
-                            &elem_rot_m[e],
-                            rot_iters,
-                            rot_tol,
-                        );
-                        elem_rot_m[e] = r;
-                        r
-                    };
                     element::corotational(re, &f, &rot, mu, lambda, want_k, &mut out);
                 }
                 MaterialModel::StableNeoHookean => {
-                    if !at_rest {
-                        elem_rot_m[e] = element_rotation(
-                            settings.rotation,
-                            &f,
-                            &mut elem_rot[e],
-                            &elem_rot_m[e],
-                            rot_iters,
-                            rot_tol,
-                        );
-                    }
                     element::stable_neo_hookean(
                         re,
                         &f,

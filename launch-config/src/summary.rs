@@ -7,10 +7,12 @@
 //!   contact's normal impulse when several contacts are active.
 //! - **Normal force** `F_n = −f·n`: the force the probe presses into the tissue along the
 //!   outward normal, negative in compression, the sign the study reports (−4.0 N measured,
-//!   −4.16 N simulated). Its mean is taken over the physics steps with at least one contact.
+//!   −4.16 N simulated). Its mean is taken over the physics steps in contact: at least one
+//!   constraint carries a normal impulse (λn > 0). Constraints inside the alarm distance that
+//!   carry nothing (the probe near, not touching) do not count.
 //! - **Probe displacement** of a probing: `(x₀ − x)·n₀`, how far the probe has moved into the
-//!   tissue along the normal `n₀` of the probing's first contact, from its position `x₀` at
-//!   that first contact; the maximum over the probing's contact steps.
+//!   tissue along the normal `n₀` of the probing's first touching step, from its position `x₀`
+//!   then; the maximum over the probing's contact steps.
 //! - Regions and probings come from the haptic node's `DeviceState.region` /
 //!   `probing_index` annotations (the emulated or replayed protocol), matched to each physics
 //!   step by monotonic time. Without a probing index, each contact episode counts as one
@@ -34,6 +36,8 @@ pub struct ContactSample {
     pub contact_count: u32,
     /// Unit outward tissue normal (zero without contact).
     pub normal: [f64; 3],
+    /// Some constraint carries a normal impulse (the probe touches, not just near).
+    pub touching: bool,
     /// Eq. (1) contact force on the probe, world frame, N.
     pub contact_force: [f64; 3],
     /// Probe position after contact correction, m.
@@ -56,8 +60,9 @@ impl ContactSample {
             }
         }
         let mut normal = unit(weighted);
-        if normal == [0.0; 3] && contacts > 0 {
-            // No impulse yet (touching at the contact distance): first contact's normal.
+        let touching = normal != [0.0; 3];
+        if !touching && contacts > 0 {
+            // No impulse (near, not touching): first constraint's normal, for viewers.
             let r = &frame.constraint_directions[0];
             normal = unit([r[0], r[1], r[2]]);
         }
@@ -69,13 +74,14 @@ impl ContactSample {
             step_duration_ns: frame.step_duration_ns,
             contact_count: contacts as u32,
             normal,
+            touching,
             contact_force: frame.contact_force,
             probe_position: frame.probe_pose.position,
         }
     }
 
     fn in_contact(&self) -> bool {
-        self.contact_count > 0 && self.normal != [0.0; 3]
+        self.contact_count > 0 && self.touching && self.normal != [0.0; 3]
     }
 }
 
@@ -172,7 +178,7 @@ pub struct RegionSummary {
     pub peak_normal_force_n: Option<f64>,
     /// Mean magnitude of the contact force during contact, N.
     pub mean_force_magnitude_n: Option<f64>,
-    /// Largest probe displacement along the first contact's normal over the probings, m.
+    /// Largest probe displacement along the first touching step's normal over the probings, m.
     pub max_probe_displacement_m: Option<f64>,
     /// Mean over probings of each probing's largest displacement, m.
     pub mean_probe_displacement_m: Option<f64>,
@@ -204,9 +210,10 @@ pub struct SessionSummary {
 pub const CONVENTIONS: &str =
     "normal force F_n = -f.n with f the eq. (1) contact force on the probe \
 (world frame) and n the outward tissue normal: negative in compression, as the study reports \
-(-4.0 N measured, -4.16 N simulated); mean over physics steps in contact. Probe displacement: \
-(x0 - x).n0 from the probe position x0 and normal n0 at the probing's first contact, maximum \
-over the probing. Regions/probings from DeviceState annotations.";
+(-4.0 N measured, -4.16 N simulated); mean over physics steps in contact (some normal impulse \
+> 0; constraints inside the alarm distance that carry nothing do not count). Probe \
+displacement: (x0 - x).n0 from the probe position x0 and normal n0 at the probing's first \
+touching step, maximum over the probing. Regions/probings from DeviceState annotations.";
 
 impl SessionSummary {
     /// The region's entry by name.
@@ -449,7 +456,7 @@ impl fmt::Display for SessionSummary {
         write!(
             f,
             "F_n = -f·n: negative in compression (study: -4.0 N measured, -4.16 N simulated); \
-             displacement along the first contact's normal"
+             displacement along the normal of the first touching step"
         )
     }
 }
@@ -470,6 +477,7 @@ mod tests {
             step_duration_ns: 2 * MS,
             contact_count: contact as u32,
             normal: if contact { [0.0, 0.0, 1.0] } else { [0.0; 3] },
+            touching: contact,
             contact_force: [0.0, 0.0, fz],
             probe_position: [0.0, 0.0, z],
         }
@@ -602,5 +610,29 @@ mod tests {
         let s = ContactSample::from_frame(frame);
         assert_eq!(s.normal, [0.0, 0.0, 1.0]);
         assert_eq!(s.contact_count, 2);
+        assert!(s.touching);
+    }
+
+    /// Regression: constraints inside the alarm distance with no impulse counted as contact,
+    /// diluting the mean normal force and starting the displacement millimetres early.
+    #[test]
+    fn near_but_not_touching_is_not_contact() {
+        let mut slot = Box::new(core::mem::MaybeUninit::<ContactFrame>::uninit());
+        let frame = ContactFrame::zeroed_in(&mut slot);
+        frame.contact_count = 1;
+        frame.row_count = 3;
+        frame.constraint_directions[0] = [0.0, 0.0, 1.0, 0.0, 0.0, 0.0];
+        frame.publish_ns = 5 * MS;
+        let near = ContactSample::from_frame(frame);
+        assert!(!near.touching);
+        assert_eq!(near.normal, [0.0, 0.0, 1.0], "viewers still get a normal");
+        let mut rec = SessionRecord::default();
+        rec.contacts.push(near);
+        let s = summarize(&rec);
+        assert!(
+            s.regions.iter().all(|r| r.contact_steps == 0),
+            "{:?}",
+            s.regions
+        );
     }
 }

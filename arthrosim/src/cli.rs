@@ -132,7 +132,8 @@ pub enum NodeCommand {
 pub struct GapArgs {
     #[command(subcommand)]
     pub command: Option<GapCommand>,
-    /// Experiment folder (experiment.toml and one CSV per trial) or an MCAP recording.
+    /// Experiment folder (experiment.toml and one CSV per trial), an arthrosim session
+    /// recording (FILE.mcap), or a folder holding one recording.
     #[arg(
         value_name = "EXPERIMENT_DIR",
         required_unless_present = "force_displacement"
@@ -141,6 +142,11 @@ pub struct GapArgs {
     /// A force–displacement table (like the cadaver one) instead of an experiment folder.
     #[arg(long, value_name = "FILE.csv", conflicts_with = "experiment")]
     pub force_displacement: Option<PathBuf>,
+    /// A haptic session recording (MCAP) of the same trajectories: adds the rendering gap
+    /// (device-rendered vs model force) to the report. Implied when EXPERIMENT_DIR is a
+    /// recording.
+    #[arg(long, value_name = "FILE.mcap", conflicts_with = "force_displacement")]
+    pub session: Option<PathBuf>,
     /// Folder for report.json and report.html.
     #[arg(long, value_name = "REPORT_DIR", required = true)]
     pub out: Option<PathBuf>,

@@ -79,6 +79,7 @@ fn run(args: RunArgs) -> Result<i32> {
     launch.session.seconds = seconds;
     let seconds = (seconds > 0.0).then_some(seconds);
     let out_dir = args.out.clone().unwrap_or_else(launcher::default_out_dir);
+    replay_from_recording(&mut launch, &out_dir)?;
 
     let mut opts = RunOptions::for_current_exe(launch, origin, session, out_dir, seconds)?;
     opts.live = if args.quiet {
@@ -134,6 +135,36 @@ fn run(args: RunArgs) -> Result<i32> {
         eprintln!("error: the session did not end cleanly (see the node lines above and the logs)");
         Ok(1)
     }
+}
+
+/// A replay device fed from a session recording: the recorded device trajectory (every
+/// haptic tick's proxy pose) is written as the haptic node's replay CSV into the session
+/// folder, and the launch file points at that copy (the haptic node itself reads CSV only).
+fn replay_from_recording(launch: &mut launch_config::LaunchFile, out_dir: &Path) -> Result<()> {
+    let path = Path::new(&launch.device.replay.path);
+    let is_mcap = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("mcap"));
+    if launch.device.backend != "replay" || !is_mcap {
+        return Ok(());
+    }
+    std::fs::create_dir_all(out_dir)
+        .with_context(|| format!("creating session folder {}", out_dir.display()))?;
+    let csv = out_dir.join("replay_trajectory.csv");
+    let rows = recordings::export_replay_csv(path, &csv).with_context(|| {
+        format!(
+            "device.replay.path {}: reading the recorded device trajectory",
+            path.display()
+        )
+    })?;
+    tracing::info!(
+        recording = %path.display(),
+        csv = %csv.display(),
+        rows,
+        "replaying the device trajectory of a recorded session"
+    );
+    launch.device.replay.path = csv.display().to_string();
+    Ok(())
 }
 
 fn node_name(n: &launcher::NodeKind) -> &'static str {
@@ -272,13 +303,24 @@ fn gap_command(args: GapArgs) -> Result<i32> {
         pairs: !args.no_pairs,
         ..gap::Options::default()
     };
-    let report = match (&args.experiment, &args.force_displacement) {
+    // the session is read first: a bad recording fails before minutes of replays
+    let rendering = match &args.session {
+        Some(session) => Some(
+            gap::session_rendering_gap(session)
+                .with_context(|| format!("rendering gap of {}", session.display()))?,
+        ),
+        None => None,
+    };
+    let mut report = match (&args.experiment, &args.force_displacement) {
         (_, Some(table)) => gap::diagnose_force_displacement(table, &opts)
             .with_context(|| format!("diagnosing {}", table.display()))?,
         (Some(dir), None) => gap::diagnose_dir(dir, &opts)
             .with_context(|| format!("diagnosing {}", dir.display()))?,
         (None, None) => bail!("give an EXPERIMENT_DIR or --force-displacement FILE.csv"),
     };
+    if let Some(g) = rendering {
+        report.rendering_gap = Some(g);
+    }
     gap::write_report(&report, &out)
         .with_context(|| format!("writing the report to {}", out.display()))?;
     if args.json {
@@ -292,6 +334,18 @@ fn gap_command(args: GapArgs) -> Result<i32> {
         );
         for p in &report.verdict.params {
             println!("  {p:?}");
+        }
+        match &report.rendering_gap {
+            Some(r) => println!("rendering gap: {}", r.summary),
+            None if args.session.is_none()
+                && args
+                    .experiment
+                    .as_deref()
+                    .is_some_and(|p| gap::session::session_file(p).ok().flatten().is_some()) =>
+            {
+                println!("rendering gap: not assessed (the recording has no device ticks)")
+            }
+            None => {}
         }
         println!("report: {}", out.join("report.html").display());
     }

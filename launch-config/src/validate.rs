@@ -298,14 +298,16 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
         if d.replay.path.is_empty() {
             v.push(
                 "device.replay.path",
-                "backend `replay` needs a CSV trajectory (header t_s,px_m,py_m,pz_m,qx,qy,qz,qw)",
+                "backend `replay` needs a CSV trajectory (header t_s,px_m,py_m,pz_m,qx,qy,qz,qw) \
+                 or a session recording (.mcap)",
             );
         } else {
             v.existing_file(
                 "device.replay.path",
                 &d.replay.path,
-                &["csv"],
-                "a path to a CSV trajectory (relative to the launch file's folder)",
+                &["csv", "mcap"],
+                "a path to a CSV trajectory or a session recording (.mcap), relative to the \
+                 launch file's folder",
             );
         }
     }

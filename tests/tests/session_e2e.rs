@@ -157,5 +157,58 @@ fn bounded_default_session_covers_three_regions_and_leaves_nothing_running() {
     // The session folder holds the resolved launch file, logs and the recording.
     assert!(out.join("launch.toml").is_file());
     assert!(out.join("logs/physics.log").is_file());
+    let recording = out.join("session.mcap");
+    assert!(recording.is_file(), "no session.mcap in {}", out.display());
+
+    // The recording drives a new session: replay device fed from the MCAP itself.
+    let replay_out = out.with_extension("replay");
+    let _ = std::fs::remove_dir_all(&replay_out);
+    std::fs::create_dir_all(&replay_out).unwrap();
+    let launch = replay_out.join("replay_launch.toml");
+    std::fs::write(
+        &launch,
+        format!(
+            "[session]\nname = \"replay\"\n[nodes]\nbridge = false\n[launcher]\nrestart = \"never\"\n\
+             [device]\nbackend = \"replay\"\n[device.replay]\npath = \"{}\"\n",
+            recording.display()
+        ),
+    )
+    .unwrap();
+    let replay_session = format!("e2e-replay-{}", std::process::id());
+    let replayed = Command::new(&bin)
+        .args(["run", "--seconds", "8", "--quiet", "--out"])
+        .arg(replay_out.join("session"))
+        .args(["--session", &replay_session])
+        .arg(&launch)
+        .stdin(Stdio::null())
+        .output()
+        .expect("start the replay session");
+    let left = processes_of_session(&replay_session);
+    for (pid, _) in &left {
+        let _ = Command::new("kill").args(["-9", &pid.to_string()]).status();
+    }
+    let replay_context = format!(
+        "--- stdout\n{}\n--- stderr\n{}",
+        String::from_utf8_lossy(&replayed.stdout),
+        String::from_utf8_lossy(&replayed.stderr)
+    );
+    assert!(left.is_empty(), "replay left {left:?}\n{replay_context}");
+    assert!(replayed.status.success(), "{replay_context}");
+    let csv = std::fs::read_to_string(replay_out.join("session/replay_trajectory.csv"))
+        .unwrap_or_else(|e| panic!("replay trajectory not extracted: {e}\n{replay_context}"));
+    assert!(csv.lines().count() > 1000, "{replay_context}");
+    // The replayed proxy follows the recorded probings into the tissue.
+    let forces = std::fs::read_to_string(replay_out.join("session/contact_force.csv"))
+        .unwrap_or_else(|e| panic!("no contact_force.csv from the replay: {e}\n{replay_context}"));
+    let in_contact = forces
+        .lines()
+        .skip(1)
+        .filter(|l| l.split(',').nth(4).is_some_and(|c| c.trim() != "0"))
+        .count();
+    assert!(
+        in_contact > 50,
+        "replayed trajectory made {in_contact} contact steps\n{replay_context}"
+    );
+    let _ = std::fs::remove_dir_all(&replay_out);
     let _ = std::fs::remove_dir_all(&out);
 }

@@ -112,6 +112,18 @@ impl Replay {
                 problem: "[device.replay] path is not set".into(),
             });
         }
+        if Path::new(&c.path)
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("mcap"))
+        {
+            // The node reads CSV only; the launcher converts recordings before starting it.
+            return Err(DeviceError::Replay {
+                path: c.path.clone(),
+                problem: "a session recording: start the replay with `arthrosim run` (which \
+                          extracts its device trajectory) or export it as the replay CSV first"
+                    .into(),
+            });
+        }
         let text =
             std::fs::read_to_string(Path::new(&c.path)).map_err(|e| DeviceError::Replay {
                 path: c.path.clone(),

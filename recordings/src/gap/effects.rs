@@ -36,6 +36,9 @@ pub struct ParamSpec {
     pub neutral: f64,
     /// Optimise in log space.
     pub log: bool,
+    /// Held at `neutral` unless freeing it lowers the BIC clearly (the second Prony term:
+    /// one term is the default model, two only when the data ask for it).
+    pub optional: bool,
 }
 
 const fn p(
@@ -53,6 +56,15 @@ const fn p(
         hi,
         neutral,
         log,
+        optional: false,
+    }
+}
+
+/// An optional parameter (see [`ParamSpec::optional`]).
+const fn opt(p: ParamSpec) -> ParamSpec {
+    ParamSpec {
+        optional: true,
+        ..p
     }
 }
 
@@ -100,6 +112,8 @@ impl Effect {
             Effect::Viscoelastic => vec![
                 p("prony_g1", "", 0.0, 0.9, 0.0, false),
                 p("prony_tau1", "s", 0.05, 10.0, 1.0, true),
+                opt(p("prony_g2", "", 0.0, 0.9, 0.0, false)),
+                opt(p("prony_tau2", "s", 0.5, 50.0, 5.0, true)),
             ],
             Effect::Friction => vec![p("mu", "", 0.0, 0.8, 0.0, false)],
             Effect::Tilt => vec![
@@ -285,7 +299,9 @@ pub fn predict(
                     *g = g.map(|v| v * f);
                 }
             }
-            Effect::Viscoelastic => qlv_in_place(grid, td.path.dt, th[0], th[1]),
+            Effect::Viscoelastic => {
+                qlv_in_place(grid, td.path.dt, &[(th[0], th[1]), (th[2], th[3])])
+            }
             Effect::Device => {
                 for (g, a) in grid.iter_mut().zip(&td.acc_grid) {
                     for q in 0..3 {
@@ -306,22 +322,45 @@ pub fn predict(
     );
 }
 
-/// Quasi-linear viscoelasticity with one Prony term, G(t) = (1 − g) + g e^{−t/τ} (G(0) = 1):
-/// F(t) = ∫ G(t − s) dF_e(s), by the exact recursion for piecewise-linear F_e.
-pub fn qlv_in_place(f: &mut [[f64; 3]], dt: f64, g: f64, tau: f64) {
-    if f.is_empty() || g == 0.0 {
+/// Largest total Prony weight: the long-term modulus stays ≥ 5% of the instantaneous one.
+pub const MAX_PRONY_SUM: f64 = 0.95;
+
+/// Quasi-linear viscoelasticity with Prony terms (g_i, τ_i),
+/// G(t) = 1 − Σ g_i + Σ g_i e^{−t/τ_i} (G(0) = 1): F(t) = ∫ G(t − s) dF_e(s), by the exact
+/// recursion for piecewise-linear F_e. Weights summing above [`MAX_PRONY_SUM`] are scaled
+/// down to it.
+pub fn qlv_in_place(f: &mut [[f64; 3]], dt: f64, terms: &[(f64, f64)]) {
+    let sum: f64 = terms.iter().map(|t| t.0.max(0.0)).sum();
+    if f.is_empty() || sum == 0.0 {
         return;
     }
-    let e = (-dt / tau).exp();
-    // for a ramp over one step the convolution with e^{-t/τ} gives (τ/dt)(1 − e) of the increment
-    let w = tau / dt * (1.0 - e);
-    let mut h = f[0];
+    let s = if sum > MAX_PRONY_SUM {
+        MAX_PRONY_SUM / sum
+    } else {
+        1.0
+    };
+    // per term: weight, decay per step and, for a ramp over one step, the share of the
+    // increment the convolution with e^{-t/τ} gives, (τ/dt)(1 − e)
+    let coef: Vec<(f64, f64, f64)> = terms
+        .iter()
+        .filter(|t| t.0 > 0.0)
+        .map(|&(g, tau)| {
+            let e = (-dt / tau).exp();
+            (g * s, e, tau / dt * (1.0 - e))
+        })
+        .collect();
+    let g_total = sum * s;
+    let mut h = vec![f[0]; coef.len()];
     let mut prev = f[0];
     for v in f.iter_mut() {
         let cur = *v;
         for k in 0..3 {
-            h[k] = e * h[k] + w * (cur[k] - prev[k]);
-            v[k] = (1.0 - g) * cur[k] + g * h[k];
+            let mut out = (1.0 - g_total) * cur[k];
+            for (hj, &(g, e, w)) in h.iter_mut().zip(&coef) {
+                hj[k] = e * hj[k] + w * (cur[k] - prev[k]);
+                out += g * hj[k];
+            }
+            v[k] = out;
         }
         prev = cur;
     }
@@ -338,7 +377,7 @@ mod tests {
         let mut f: Vec<[f64; 3]> = (0..1010)
             .map(|i| [0.0, 0.0, (i as f64 / 10.0).min(1.0)])
             .collect();
-        qlv_in_place(&mut f, dt, 0.4, 0.5);
+        qlv_in_place(&mut f, dt, &[(0.4, 0.5)]);
         assert!(f[10][2] > 0.95 && f[10][2] <= 1.0, "peak {}", f[10][2]);
         let at = |t: f64| f[(t / dt) as usize + 10][2];
         let expect = |t: f64| 0.6 + 0.4 * (-t / 0.5f64).exp();
@@ -351,6 +390,43 @@ mod tests {
             );
         }
         assert!((f[1009][2] - 0.6).abs() < 1e-3);
+    }
+
+    #[test]
+    fn qlv_with_two_terms_relaxes_on_both_time_scales() {
+        // step-like ramp to 1 N in 0.1 s, hold 40 s: G(t) = 0.4 + 0.3 e^{-t/0.3} + 0.3 e^{-t/8}
+        let dt = 0.01;
+        let mut f: Vec<[f64; 3]> = (0..4010)
+            .map(|i| [0.0, (i as f64 / 10.0).min(1.0), 0.0])
+            .collect();
+        qlv_in_place(&mut f, dt, &[(0.3, 0.3), (0.3, 8.0)]);
+        let at = |t: f64| f[(t / dt) as usize + 10][1];
+        // the ramp's own relaxation shifts the curve by ~half the ramp time
+        let expect = |t: f64| {
+            let t = t + 0.05;
+            0.4 + 0.3 * (-t / 0.3f64).exp() + 0.3 * (-t / 8.0f64).exp()
+        };
+        for t in [0.2, 0.6, 1.5, 5.0, 20.0] {
+            assert!(
+                (at(t) - expect(t)).abs() < 0.01,
+                "t={t}: {} vs {}",
+                at(t),
+                expect(t)
+            );
+        }
+        // the second term alone equals the one-term model; weights above the cap are scaled
+        let ramp: Vec<[f64; 3]> = (0..500).map(|i| [(i as f64 * 0.01).min(1.0); 3]).collect();
+        let (mut a, mut b) = (ramp.clone(), ramp.clone());
+        qlv_in_place(&mut a, dt, &[(0.0, 1.0), (0.4, 0.5)]);
+        qlv_in_place(&mut b, dt, &[(0.4, 0.5)]);
+        assert_eq!(a, b);
+        let mut c = ramp.clone();
+        qlv_in_place(&mut c, dt, &[(0.9, 0.2), (0.9, 0.2)]);
+        let mut d = ramp;
+        qlv_in_place(&mut d, dt, &[(MAX_PRONY_SUM, 0.2)]);
+        for (x, y) in c.iter().zip(&d) {
+            assert!((x[0] - y[0]).abs() < 1e-12);
+        }
     }
 
     #[test]

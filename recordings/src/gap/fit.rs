@@ -220,22 +220,42 @@ pub fn nelder_mead(
     (simplex[best].clone(), fv[best])
 }
 
-/// Least-squares fit of `c` on the masked samples; multi-start Nelder–Mead in unit space.
+/// Which parameters of `c` are fitted by default: all but the optional ones.
+pub fn default_free(c: &Candidate) -> Vec<bool> {
+    c.params().iter().map(|(_, p)| !p.optional).collect()
+}
+
+/// Least-squares fit of `c` on the masked samples; multi-start Nelder–Mead in unit space
+/// over the `free` parameters (the others stay at their neutral value).
 pub fn fit(
     c: &Candidate,
     data: &[TrialData],
     mask: &[Vec<bool>],
     inits: &[Vec<f64>],
+    free: &[bool],
 ) -> (Vec<f64>, f64) {
     let specs: Vec<ParamSpec> = c.params().into_iter().map(|(_, p)| p).collect();
-    let k = specs.len();
-    let obj = |u: &[f64]| sse(c, &to_theta(&specs, u), data, mask).0;
+    let idx: Vec<usize> = (0..specs.len()).filter(|&i| free[i]).collect();
+    let k = idx.len();
+    let neutral = to_unit(&specs, &c.neutral());
+    let full = |u: &[f64]| -> Vec<f64> {
+        let mut x = neutral.clone();
+        for (&i, &v) in idx.iter().zip(u) {
+            x[i] = v;
+        }
+        to_theta(&specs, &x)
+    };
+    let obj = |u: &[f64]| sse(c, &full(u), data, mask).0;
     if k == 0 {
-        return (vec![], obj(&[]));
+        return (full(&[]), obj(&[]));
     }
-    let mut starts: Vec<Vec<f64>> = vec![to_unit(&specs, &c.neutral())];
+    let sub_unit = |th: &[f64]| -> Vec<f64> {
+        let u = to_unit(&specs, th);
+        idx.iter().map(|&i| u[i].clamp(0.0, 1.0)).collect()
+    };
+    let mut starts: Vec<Vec<f64>> = vec![sub_unit(&c.neutral())];
     for th in inits {
-        starts.push(to_unit(&specs, th));
+        starts.push(sub_unit(th));
     }
     // spread starts: hereditary and delay parameters have local minima
     starts.push(vec![0.3; k]);
@@ -252,15 +272,17 @@ pub fn fit(
     if v < best.1 {
         best = (u, v);
     }
-    (to_theta(&specs, &best.0), best.1)
+    (full(&best.0), best.1)
 }
 
-/// Standard errors from the Gauss–Newton covariance s²(JᵀJ)⁻¹ at the optimum.
-pub fn uncertainty(c: &Candidate, theta: &[f64], data: &[TrialData]) -> Vec<f64> {
+/// Standard errors from the Gauss–Newton covariance s²(JᵀJ)⁻¹ at the optimum, for the
+/// `free` parameters (the others are held: 0).
+pub fn uncertainty(c: &Candidate, theta: &[f64], data: &[TrialData], free: &[bool]) -> Vec<f64> {
     let specs: Vec<ParamSpec> = c.params().into_iter().map(|(_, p)| p).collect();
-    let k = specs.len();
+    let idx: Vec<usize> = (0..specs.len()).filter(|&i| free[i]).collect();
+    let k = idx.len();
     if k == 0 {
-        return vec![];
+        return vec![0.0; specs.len()];
     }
     let resid = |th: &[f64]| -> Vec<f64> {
         let (mut grid, mut out) = (Vec::new(), Vec::new());
@@ -276,11 +298,11 @@ pub fn uncertainty(c: &Candidate, theta: &[f64], data: &[TrialData]) -> Vec<f64>
     let r0 = resid(theta);
     let m = r0.len();
     let mut jac = nalgebra::DMatrix::<f64>::zeros(m, k);
-    for j in 0..k {
-        let h = 1e-4 * (specs[j].hi - specs[j].lo).max(1e-9) + 1e-6 * theta[j].abs();
+    for (j, &pi) in idx.iter().enumerate() {
+        let h = 1e-4 * (specs[pi].hi - specs[pi].lo).max(1e-9) + 1e-6 * theta[pi].abs();
         let (mut tp, mut tm) = (theta.to_vec(), theta.to_vec());
-        tp[j] += h;
-        tm[j] -= h;
+        tp[pi] += h;
+        tm[pi] -= h;
         let (rp, rm) = (resid(&tp), resid(&tm));
         for i in 0..m {
             jac[(i, j)] = (rp[i] - rm[i]) / (2.0 * h);
@@ -288,10 +310,15 @@ pub fn uncertainty(c: &Candidate, theta: &[f64], data: &[TrialData]) -> Vec<f64>
     }
     let s2 = r0.iter().map(|v| v * v).sum::<f64>() / (m.saturating_sub(k).max(1)) as f64;
     let jtj = jac.transpose() * &jac;
-    match jtj.try_inverse() {
-        Some(inv) => (0..k).map(|j| (s2 * inv[(j, j)]).max(0.0).sqrt()).collect(),
-        None => vec![f64::NAN; k],
+    let mut out = vec![0.0; specs.len()];
+    let inv = jtj.try_inverse();
+    for (j, &pi) in idx.iter().enumerate() {
+        out[pi] = match &inv {
+            Some(inv) => (s2 * inv[(j, j)]).max(0.0).sqrt(),
+            None => f64::NAN,
+        };
     }
+    out
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -357,11 +384,43 @@ pub fn score_candidate(
     inits: &[Vec<f64>],
 ) -> CandidateScore {
     let all: Vec<Vec<bool>> = data.iter().map(|d| vec![true; d.t.len()]).collect();
-    let (theta, sse_all) = fit(c, data, &all, inits);
     let n_all = data.iter().map(|d| 3 * d.t.len()).sum::<usize>();
-    let k = theta.len();
-    let bic =
-        n_all as f64 * (sse_all / n_all as f64).max(1e-30).ln() + k as f64 * (n_all as f64).ln();
+    let bic_of = |sse: f64, k: usize| {
+        n_all as f64 * (sse / n_all as f64).max(1e-30).ln() + k as f64 * (n_all as f64).ln()
+    };
+    let mut free = default_free(c);
+    let (mut theta, mut sse_all) = fit(c, data, &all, inits, &free);
+    let mut k = free.iter().filter(|&&f| f).count();
+    let mut bic = bic_of(sse_all, k);
+    if free.iter().any(|f| !f) {
+        // the optional parameters (second Prony term) are kept only when they lower the
+        // penalised fit clearly: nested models, so the richer fit starts from the simpler
+        // one's optimum
+        let all_free = vec![true; free.len()];
+        let specs: Vec<ParamSpec> = c.params().into_iter().map(|(_, p)| p).collect();
+        let mut seeded = theta.clone();
+        for (i, p) in specs.iter().enumerate() {
+            if p.optional && !p.log {
+                seeded[i] = p.lo + 0.1 * (p.hi - p.lo);
+            }
+        }
+        let mut fi = inits.to_vec();
+        fi.push(theta.clone());
+        fi.push(seeded);
+        let (theta2, sse2) = fit(c, data, &all, &fi, &all_free);
+        let k2 = all_free.len();
+        let bic2 = bic_of(sse2, k2);
+        // judged like the ranking: samples are correlated in time, so the likelihood counts
+        // effective values only (the plain BIC would let the extra term soak up model error)
+        let ne = effective_n(n_all);
+        let crit =
+            |sse: f64, k: usize| ne * (sse / n_all as f64).max(1e-30).ln() + k as f64 * ne.ln();
+        // and the extra term must remove a quarter of what the simpler fit leaves: a few
+        // percent is what it absorbs of other effects' model error (a tilt, a coarse mesh)
+        if crit(sse2, k2) < crit(sse_all, k) - 10.0 && sse2 < 0.75 * sse_all {
+            (theta, sse_all, k, bic, free) = (theta2, sse2, k2, bic2, all_free);
+        }
+    }
     let mut held_pred: Vec<Vec<[f64; 3]>> =
         data.iter().map(|d| vec![[0.0; 3]; d.t.len()]).collect();
     let (mut hs, mut hn) = (0.0, 0usize);
@@ -369,7 +428,7 @@ pub fn score_candidate(
     for f in folds {
         let mut fi = inits.to_vec();
         fi.push(theta.clone());
-        let (th, _) = fit(c, data, &f.calib, &fi);
+        let (th, _) = fit(c, data, &f.calib, &fi, &free);
         for (i, d) in data.iter().enumerate() {
             if !f.held[i].iter().any(|&b| b) {
                 continue;
@@ -386,12 +445,14 @@ pub fn score_candidate(
         }
     }
     let heldout_rmse = (hs / hn.max(1) as f64).sqrt();
-    let se = uncertainty(c, &theta, data);
+    let se = uncertainty(c, &theta, data, &free);
     let params = c
         .params()
         .into_iter()
         .zip(theta.iter().zip(&se))
-        .map(|((e, p), (&v, &s))| FittedParam {
+        .zip(&free)
+        .filter(|(_, &f)| f)
+        .map(|(((e, p), (&v, &s)), _)| FittedParam {
             effect: e.name().into(),
             name: p.name.into(),
             unit: p.unit.into(),

@@ -320,6 +320,110 @@ fn group_table(title: &str, g: &[super::metrics::GroupResidual]) -> String {
     s
 }
 
+/// The rendering gap: device-rendered vs model force on the session's trajectory.
+fn rendering_section(g: &super::session::RenderingGap) -> String {
+    let pct = |v: f64| format!("{:.1}%", 100.0 * v);
+    let opt = |v: Option<f64>, k: f64, unit: &str| {
+        v.map(|v| format!("{:.1} {unit}", k * v))
+            .unwrap_or_else(|| "n/a".into())
+    };
+    let mut h = String::new();
+    let _ = write!(
+        h,
+        "<h2>Rendering gap (device vs model force)</h2><p>session <code>{}</code> · limits: peak {} N, continuous {} N, force scale {} ({})</p><p>{}</p>",
+        esc(&g.session),
+        fmt(g.limits.peak_force_n),
+        fmt(g.limits.continuous_force_n),
+        fmt(g.limits.force_scale),
+        esc(&g.limits.source),
+        esc(&g.summary)
+    );
+    h.push_str("<table><tr><th>contact ticks</th><th>model mean N</th><th>rendered mean N</th><th>RMSE N</th><th>mean error N</th><th>gain (unclamped)</th><th>coupling N</th><th>limits N</th><th>scaling N</th><th>lag</th><th>at peak</th><th>at continuous limit</th><th>rate-limited</th><th>model above peak</th><th>dominant</th></tr>");
+    let _ = write!(
+        h,
+        "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{} ({})</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr></table>",
+        g.contact_ticks,
+        fmt(g.mean_model_force_n),
+        fmt(g.mean_rendered_force_n),
+        fmt(g.rmse_n),
+        fmt(g.mean_error_n),
+        fmt(g.force_scale_fit),
+        g.force_scale_fit_unclamped.map(fmt).unwrap_or_else(|| "–".into()),
+        fmt(g.coupling_rmse_n),
+        fmt(g.limiter_rmse_n),
+        fmt(g.scaling_rmse_n),
+        opt(g.lag_s, 1e3, "ms"),
+        pct(g.saturated_peak_fraction),
+        pct(g.continuous_limited_fraction),
+        pct(g.rate_limited_fraction),
+        pct(g.model_above_peak_fraction),
+        esc(&g.dominant)
+    );
+    h.push_str("<table><tr><th>region</th><th>contact ticks</th><th>RMSE N</th><th>mean error N</th><th>gain</th><th>at peak</th><th>clamped</th></tr>");
+    for r in &g.by_region {
+        let _ = write!(
+            h,
+            "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+            esc(&r.group),
+            r.ticks,
+            fmt(r.rmse_n),
+            fmt(r.mean_error_n),
+            fmt(r.force_scale_fit),
+            pct(r.saturated_fraction),
+            pct(r.clamped_fraction)
+        );
+    }
+    h.push_str("</table>");
+    let s = &g.series;
+    let peak_x = [
+        s.t.first().copied().unwrap_or(0.0),
+        s.t.last().copied().unwrap_or(1.0),
+    ];
+    let lines = [
+        Line {
+            label: "model |f|",
+            color: "#4a7fb5",
+            x: &s.t,
+            y: s.model.clone(),
+            dashed: false,
+            dots: false,
+        },
+        Line {
+            label: "commanded |f|",
+            color: "#999",
+            x: &s.t,
+            y: s.commanded.clone(),
+            dashed: true,
+            dots: false,
+        },
+        Line {
+            label: "rendered |f|",
+            color: "#d9531e",
+            x: &s.t,
+            y: s.rendered.clone(),
+            dashed: false,
+            dots: false,
+        },
+        Line {
+            label: "peak limit",
+            color: "#b54a4a",
+            x: &peak_x,
+            y: vec![g.limits.peak_force_n; 2],
+            dashed: true,
+            dots: false,
+        },
+    ];
+    h.push_str(&plot(
+        1200.0,
+        260.0,
+        "force magnitude per device tick: physics model vs device",
+        "t (s, from the first tick)",
+        "|f| (N)",
+        &lines,
+    ));
+    h
+}
+
 pub fn render(r: &Report) -> String {
     let mut h = String::new();
     h.push_str("<!DOCTYPE html><html><head><meta charset=\"utf-8\"><title>arthrosim gap diagnosis</title><style>");
@@ -367,6 +471,9 @@ pub fn render(r: &Report) -> String {
             esc(&c.effect), c.n_params, fmt(c.fit_rmse), fmt(c.heldout_rmse), 100.0 * c.heldout_shrink, c.delta_bic, fmt(c.heldout_study_error), esc(&ps.join(", ")));
     }
     h.push_str("</table>");
+    if let Some(g) = &r.rendering_gap {
+        h.push_str(&rendering_section(g));
+    }
     h.push_str("<h2>Trials: measured vs simulated force (held-out prediction after the winning effect)</h2>");
     h.push_str("<table><tr><th>trial</th><th>region</th><th>RMSE before → after N</th><th>NRMSE before → after</th><th>peak error before → after N</th><th>mean normal force meas / sim / after N</th><th>slope meas / sim N/mm</th><th>hysteresis meas / sim N·mm</th><th>lag s</th></tr>");
     for t in &r.trial_reports {

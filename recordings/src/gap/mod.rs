@@ -7,6 +7,11 @@
 //!     let report = gap::diagnose_dir(dir, &gap::Options { progress: true, ..Default::default() })?;
 //!     gap::write_report(&report, out_dir)?;            // report.json + report.html
 //!     println!("{}", report.verdict.effect);
+//! arthrosim gap SESSION.mcap --out REPORT_DIR     (or a folder holding one .mcap, no experiment.toml)
+//!     let report = gap::diagnose_dir(path, &opts)?;     // → diagnose_session: probings as trials,
+//!                                                       //   report.rendering_gap from the device ticks
+//! arthrosim gap EXPERIMENT_DIR --session SESSION.mcap --out REPORT_DIR
+//!     report.rendering_gap = Some(gap::session_rendering_gap(mcap)?);  // checked before the replays
 //! arthrosim gap --force-displacement FILE.csv --out REPORT_DIR
 //!     let report = gap::diagnose_force_displacement(file, &opts)?; gap::write_report(&report, out)?;
 //! arthrosim gap selftest --cases N --seed S [--json]
@@ -34,6 +39,7 @@ pub mod metrics;
 pub mod model;
 pub mod reality;
 pub mod selftest;
+pub mod session;
 pub mod signal;
 
 pub use effects::{Candidate, Effect};
@@ -67,6 +73,9 @@ pub enum GapError {
     Io(PathBuf, std::io::Error),
     #[error("simulation: {0}")]
     Sim(String),
+    /// Reading a session recording (the error names the file).
+    #[error(transparent)]
+    Recording(#[from] crate::error::RecordingError),
     #[error("{0}")]
     Other(String),
 }
@@ -191,10 +200,18 @@ pub struct Report {
     pub verdict: Verdict,
     pub elapsed_s: f64,
     pub trial_reports: Vec<TrialReport>,
+    /// Device-rendered vs model force, when a session recording was given.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rendering_gap: Option<session::RenderingGap>,
 }
 
-/// Load an experiment folder and diagnose it against the physics model.
+/// Load an experiment folder and diagnose it against the physics model. A session
+/// recording (an `.mcap` file, or a folder without `experiment.toml` holding one) is
+/// diagnosed with [`diagnose_session`].
 pub fn diagnose_dir(dir: &Path, opts: &Options) -> Result<Report, GapError> {
+    if let Some(mcap) = session::session_file(dir)? {
+        return diagnose_session(&mcap, opts);
+    }
     let data = data_dir();
     let exp = load_experiment(dir, &data)?;
     let model = sim_model::SimForceModel::for_experiment(&exp, &data)?;
@@ -203,6 +220,39 @@ pub fn diagnose_dir(dir: &Path, opts: &Options) -> Result<Report, GapError> {
 
 pub use sim_model::SimForceModel;
 pub mod sim_model;
+
+/// Diagnose an arthrosim session recording: its probings are the trials, its scene the
+/// model; with device ticks, the report also carries the rendering gap.
+pub fn diagnose_session(mcap: &Path, opts: &Options) -> Result<Report, GapError> {
+    let rec = session::read_session(mcap)?;
+    let exp = session::experiment_from_session(&rec)?;
+    // the rendering gap is cheap: computed first so its input errors come before the replays
+    let rendering = if rec.ticks.is_empty() {
+        None
+    } else {
+        Some(session::rendering_gap(&rec)?)
+    };
+    let model = SimForceModel::for_session(&rec, &data_dir())?;
+    let mut report = diagnose(&exp, &model, opts)?;
+    report.rendering_gap = rendering;
+    Ok(report)
+}
+
+/// The rendering gap of a haptic session recording (`--session FILE.mcap` beside an
+/// experiment).
+pub fn session_rendering_gap(mcap: &Path) -> Result<session::RenderingGap, GapError> {
+    let file = session::session_file(mcap)?.ok_or_else(|| GapError::Input {
+        file: mcap.to_path_buf(),
+        msg: "not an MCAP session recording (expected an .mcap file)".into(),
+    })?;
+    session::rendering_gap(&session::read_session(&file)?)
+}
+
+/// Add the rendering gap of a session recording to a report.
+pub fn attach_session(report: &mut Report, mcap: &Path) -> Result<(), GapError> {
+    report.rendering_gap = Some(session_rendering_gap(mcap)?);
+    Ok(())
+}
 
 /// Diagnose an experiment with a given force model.
 pub fn diagnose(
@@ -425,6 +475,7 @@ pub fn diagnose_data(
         verdict,
         elapsed_s: start.elapsed().as_secs_f64(),
         trial_reports,
+        rendering_gap: None,
     })
 }
 

@@ -73,6 +73,21 @@ impl SimForceModel {
         Ok(SimForceModel::from_scene(scene, data_dir))
     }
 
+    /// Scene of a session recording (its `scene.toml`), checked to build.
+    pub fn for_session(
+        rec: &super::session::SessionRecording,
+        data_dir: &Path,
+    ) -> Result<SimForceModel, GapError> {
+        Simulation::new(&rec.scene, data_dir).map_err(|e| GapError::Input {
+            file: rec.path.clone(),
+            msg: format!(
+                "specimen of the {} attachment: {e}",
+                crate::channels::ATTACHMENT_SCENE
+            ),
+        })?;
+        Ok(SimForceModel::from_scene(rec.scene.clone(), data_dir))
+    }
+
     pub fn scene_for(&self, v: &Variant, dt: f64) -> Result<SceneConfig, GapError> {
         let mut sc = self.scene.clone();
         sc.dt = dt;
@@ -80,8 +95,12 @@ impl SimForceModel {
         if v.neo_hookean {
             sc.material.model = "neo-hookean".into();
         }
-        sc.contact.friction = v.friction;
-        sc.meniscus.support_stiffness = v.support_stiffness;
+        // effects add to the nominal scene (a recorded session may already have friction or
+        // an elastic support; experiment folders start from zero for both)
+        sc.contact.friction += v.friction;
+        if v.support_stiffness > 0.0 {
+            sc.meniscus.support_stiffness = v.support_stiffness;
+        }
         if v.fine_mesh {
             sc.meniscus.mesh = self.fine_mesh.clone().ok_or_else(|| {
                 GapError::Sim(format!("no refined mesh for {}", self.scene.meniscus.mesh))

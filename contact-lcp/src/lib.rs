@@ -278,16 +278,23 @@ pub fn solve(
                     return Err(e);
                 }
             };
-            for c in 0..3 {
-                let change = new[c] - old[c];
-                if change != 0.0 {
-                    axpy(
-                        change,
-                        &w[(r + c) * MAX_ROWS..(r + c) * MAX_ROWS + rows],
-                        delta,
-                    );
+            let change = [new[0] - old[0], new[1] - old[1], new[2] - old[2]];
+            if change[1] == 0.0 && change[2] == 0.0 {
+                // Frictionless or tangentially unchanged: one row.
+                if change[0] != 0.0 {
+                    axpy(change[0], &w[r * MAX_ROWS..r * MAX_ROWS + rows], delta);
                 }
-                max_change = max_change.max(change.abs());
+            } else {
+                axpy3(
+                    change,
+                    &w[r * MAX_ROWS..r * MAX_ROWS + rows],
+                    &w[(r + 1) * MAX_ROWS..(r + 1) * MAX_ROWS + rows],
+                    &w[(r + 2) * MAX_ROWS..(r + 2) * MAX_ROWS + rows],
+                    delta,
+                );
+            }
+            for c in 0..3 {
+                max_change = max_change.max(change[c].abs());
                 max_lambda = max_lambda.max(new[c].abs());
                 lambda[r + c] = new[c];
             }
@@ -327,6 +334,31 @@ fn axpy(a: f64, x: &[f64], y: &mut [f64]) {
     }
     for (yi, xi) in y.iter_mut().zip(x) {
         *yi += a * xi;
+    }
+}
+
+/// y += a[0]·x0 + a[1]·x1 + a[2]·x2 in one pass over y (a contact's three rows).
+#[inline]
+fn axpy3(a: [f64; 3], x0: &[f64], x1: &[f64], x2: &[f64], y: &mut [f64]) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+        {
+            // SAFETY: the features this function is compiled for were just detected.
+            unsafe { axpy3_avx2_fma(a, x0, x1, x2, y) };
+            return;
+        }
+    }
+    for (((yi, u), v), w) in y.iter_mut().zip(x0).zip(x1).zip(x2) {
+        *yi += a[0] * u + a[1] * v + a[2] * w;
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn axpy3_avx2_fma(a: [f64; 3], x0: &[f64], x1: &[f64], x2: &[f64], y: &mut [f64]) {
+    for (((yi, u), v), w) in y.iter_mut().zip(x0).zip(x1).zip(x2) {
+        *yi = a[2].mul_add(*w, a[1].mul_add(*v, a[0].mul_add(*u, *yi)));
     }
 }
 

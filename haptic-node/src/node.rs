@@ -282,9 +282,13 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
     let mut next = loop_start + period;
     let mut next_stats = loop_start + stats_period_ns;
     let mut sequence = 0u64;
+    let spin_ns = (config.servo_spin_s * 1e9) as u64;
+    // Rate over the loop's own ticks (not the shutdown ramp and thread joins after it).
+    let mut last_tick_ns: u64;
     loop {
-        servo::sleep_until(next);
+        servo::wait_until(next, spin_ns);
         let now = msgs::clock::monotonic_ns();
+        last_tick_ns = now;
         if stop.load(Ordering::SeqCst) {
             break;
         }
@@ -420,7 +424,7 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
         &mut stats_msg,
         &stats,
         &transport_final,
-        (end - loop_start) as f64 * 1e-9,
+        (last_tick_ns - loop_start) as f64 * 1e-9,
         [0.0; 3],
     );
     stats_msg.sequence += 1;

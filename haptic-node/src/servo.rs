@@ -28,6 +28,23 @@ pub fn sleep_until(deadline_ns: u64) {
     }
 }
 
+/// Sleeps until `spin_ns` before `deadline_ns`, then waits out the rest reading the clock
+/// (at most `spin_ns` of spinning per call, plus whatever the sleep overshoots into it).
+/// Wake-up latency below `spin_ns` then no longer shows in the tick period.
+pub fn wait_until(deadline_ns: u64, spin_ns: u64) {
+    if spin_ns > 0 {
+        sleep_until(deadline_ns.saturating_sub(spin_ns));
+        while msgs::clock::monotonic_ns() < deadline_ns {
+            if msgs::lifecycle::stop_flag().load(std::sync::atomic::Ordering::Relaxed) {
+                return;
+            }
+            std::hint::spin_loop();
+        }
+    } else {
+        sleep_until(deadline_ns);
+    }
+}
+
 /// What the OS granted.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Realtime {

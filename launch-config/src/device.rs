@@ -44,6 +44,10 @@ pub struct DeviceConfig {
     pub realtime: bool,
     /// SCHED_FIFO priority (1–99).
     pub realtime_priority: i32,
+    /// The servo loop sleeps until this long before each tick's deadline and waits out the
+    /// rest on the clock (a bounded spin), s: the OS's wake-up latency (tens of µs, more on a
+    /// virtual machine) then no longer lands on the tick period. 0 = sleep to the deadline.
+    pub servo_spin_s: f64,
     /// Rate of the HapticStats messages, Hz.
     pub stats_rate_hz: f64,
     /// Maps device coordinates into the scene: scene = offset + scale · device (after the
@@ -74,6 +78,7 @@ impl Default for DeviceConfig {
             displacement_reference: "proxy".into(),
             realtime: true,
             realtime_priority: 80,
+            servo_spin_s: 150e-6,
             stats_rate_hz: 10.0,
             workspace_scale: 1.0,
             workspace_offset_m: [0.0; 3],

@@ -250,6 +250,15 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
         d.rate_hz,
         "Hz (the Touch servo loop runs at 1000)",
     );
+    if !(d.servo_spin_s.is_finite() && (0.0..=0.5 / d.rate_hz.max(1.0)).contains(&d.servo_spin_s)) {
+        v.push(
+            "device.servo_spin_s",
+            format!(
+                "{} s: allowed 0 ≤ servo_spin_s ≤ half the servo period",
+                d.servo_spin_s
+            ),
+        );
+    }
     v.positive("device.force_scale", d.force_scale, "(1 = physical)");
     v.positive("device.peak_force_n", d.peak_force_n, "N (Touch: 3.3)");
     v.positive(

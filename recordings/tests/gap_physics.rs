@@ -25,7 +25,7 @@ fn replayed_force_is_proportional_to_modulus() {
         .into_iter()
         .find(|s| s.region == gap::Region::Mid)
         .unwrap();
-    let path = gap::reality::protocol_path(site.point, site.normal, 1.0e-3, None, 0.02);
+    let path = gap::reality::protocol_path(site.point, site.normal, 1.0e-3, 0.0, None, 0.02);
     let f1 = model.replay_untilted(&Variant::default(), &path).unwrap();
     let f2 = model
         .replay_untilted(

@@ -106,7 +106,7 @@ fn write_session(dir: &Path, render: Render) -> Written {
         for _ in 0..20 {
             plan.push((pose_at(high), 0, 0, 0));
         }
-        let path = gap::reality::protocol_path(p, n, DEPTH, None, DT);
+        let path = gap::reality::protocol_path(p, n, DEPTH, 0.0, None, DT);
         for (k, pose) in path.poses.iter().enumerate() {
             let t = k as f64 * DT;
             let phase = match t {

@@ -63,6 +63,8 @@ fn probe_resting_under_gravity_carries_its_weight() {
     let g = Vector3::new(0.0, 0.0, -9.81);
     let (scene, dir) = block_scene("rest", 0.0, g);
     let mut sim = Simulation::new(&scene, &dir).unwrap();
+    // The mesh is read; the scratch folder can go.
+    let _ = std::fs::remove_dir_all(&dir);
     let r = scene.probe.tip_radius;
     let q = UnitQuaternion::identity();
     sim.teleport_probe(&physics_node::probe::pose(
@@ -115,6 +117,8 @@ fn tilted(deg: f64, mu: f64, settle: usize, steps: usize, x_start: f64) -> (f64,
     let g = Vector3::new(9.81 * th.sin(), 0.0, -9.81 * th.cos());
     let (scene, dir) = block_scene(&format!("tilt{deg}"), mu, g);
     let mut sim = Simulation::new(&scene, &dir).unwrap();
+    // The mesh is read; the scratch folder can go.
+    let _ = std::fs::remove_dir_all(&dir);
     let r = scene.probe.tip_radius;
     let q = UnitQuaternion::identity();
     sim.teleport_probe(&physics_node::probe::pose(

@@ -175,6 +175,7 @@ fn force_depth_curve_on_study_lateral_mesh_and_refined() {
     fine_scene.meniscus.mesh = msh.display().to_string();
     fine_scene.meniscus.fixed = fixed_path.display().to_string();
     let fine = curve(&fine_scene, &data, &site);
+    let _ = std::fs::remove_dir_all(&dir);
 
     // Hertz: rigid sphere on an elastic half-space, F = 4/3 E* √R d^{3/2}.
     let (e, nu) = (3.5e6, 0.29);

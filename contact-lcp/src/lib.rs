@@ -228,6 +228,22 @@ pub fn solve(
         }
     }
 
+    // The sticking trial of every sweep solves with the contact's own 3×3 block: invert each
+    // block once per solve instead of once per sweep (the block solve, not the row updates,
+    // dominated a 32-contact sweep). Frictionless contacts need only W_nn.
+    let mut inverses = [[[0.0f64; 3]; 3]; MAX_CONTACTS];
+    let mut invertible = [false; MAX_CONTACTS];
+    if mu != 0.0 {
+        for k in 0..contacts {
+            let r = 3 * k;
+            let block = block_at(w, r);
+            if let Some(inv) = invert3(&block) {
+                inverses[k] = inv;
+                invertible[k] = true;
+            }
+        }
+    }
+
     let check_every = settings.deadline_check_every.max(1);
     let mut solution = Solution::default();
     for iteration in 1..=settings.max_iterations {
@@ -235,23 +251,7 @@ pub fn solve(
         let mut max_lambda = 0.0f64;
         for k in 0..contacts {
             let r = 3 * k;
-            let block = [
-                [
-                    w[r * MAX_ROWS + r],
-                    w[r * MAX_ROWS + r + 1],
-                    w[r * MAX_ROWS + r + 2],
-                ],
-                [
-                    w[(r + 1) * MAX_ROWS + r],
-                    w[(r + 1) * MAX_ROWS + r + 1],
-                    w[(r + 1) * MAX_ROWS + r + 2],
-                ],
-                [
-                    w[(r + 2) * MAX_ROWS + r],
-                    w[(r + 2) * MAX_ROWS + r + 1],
-                    w[(r + 2) * MAX_ROWS + r + 2],
-                ],
-            ];
+            let block = block_at(w, r);
             let old = [lambda[r], lambda[r + 1], lambda[r + 2]];
             // Violation this contact would have with its own impulse removed.
             let mut others = [0.0; 3];
@@ -269,8 +269,9 @@ pub fn solve(
                     row: r + others.iter().position(|v| !v.is_finite()).unwrap_or(0),
                 });
             }
-            let new =
-                solve_block(&block, &others, mu).ok_or(LcpError::DegenerateBlock { contact: k });
+            let inv = invertible[k].then_some(&inverses[k]);
+            let new = solve_block(&block, inv, &others, mu)
+                .ok_or(LcpError::DegenerateBlock { contact: k });
             let new = match new {
                 Ok(v) => v,
                 Err(e) => {
@@ -391,7 +392,35 @@ fn project_cone(l: &mut [f64], mu: f64) {
 
 /// One contact: the impulse that makes `others + B λ` satisfy the contact law.
 /// `None` when the block cannot be solved (non-positive normal compliance, singular block).
-fn solve_block(b: &[[f64; 3]; 3], others: &[f64; 3], mu: f64) -> Option<[f64; 3]> {
+/// The 3×3 diagonal block of contact rows r..r+3.
+#[inline]
+fn block_at(w: &[f64], r: usize) -> [[f64; 3]; 3] {
+    [
+        [
+            w[r * MAX_ROWS + r],
+            w[r * MAX_ROWS + r + 1],
+            w[r * MAX_ROWS + r + 2],
+        ],
+        [
+            w[(r + 1) * MAX_ROWS + r],
+            w[(r + 1) * MAX_ROWS + r + 1],
+            w[(r + 1) * MAX_ROWS + r + 2],
+        ],
+        [
+            w[(r + 2) * MAX_ROWS + r],
+            w[(r + 2) * MAX_ROWS + r + 1],
+            w[(r + 2) * MAX_ROWS + r + 2],
+        ],
+    ]
+}
+
+/// `inv`: the block's inverse when it has one (None: singular, solved row-wise).
+fn solve_block(
+    b: &[[f64; 3]; 3],
+    inv: Option<&[[f64; 3]; 3]>,
+    others: &[f64; 3],
+    mu: f64,
+) -> Option<[f64; 3]> {
     let wnn = b[0][0];
     if !(wnn > 0.0) {
         return None;
@@ -403,9 +432,13 @@ fn solve_block(b: &[[f64; 3]; 3], others: &[f64; 3], mu: f64) -> Option<[f64; 3]
     // Sticking trial: all three rows satisfied, δ = 0. A block whose tangential part is
     // singular (a contact on a triangle with held nodes, or a kinematic probe) falls back to
     // row-wise projection instead of failing the whole step.
-    let Some(stick) = solve3(b, &[-others[0], -others[1], -others[2]]) else {
+    let Some(inv) = inv else {
         return Some(solve_rows(b, others, mu));
     };
+    let mut stick = [0.0; 3];
+    for (s, row) in stick.iter_mut().zip(inv) {
+        *s = -(row[0] * others[0] + row[1] * others[1] + row[2] * others[2]);
+    }
     if stick[0] <= 0.0 {
         // Would pull: separation. (δn = others_n ≥ 0 then, since B is positive definite.)
         return Some([0.0; 3]);
@@ -473,26 +506,34 @@ fn solve_rows(b: &[[f64; 3]; 3], others: &[f64; 3], mu: f64) -> [f64; 3] {
     l
 }
 
-/// Solves a 3×3 system by Cramer's rule; `None` when singular or not finite.
-fn solve3(a: &[[f64; 3]; 3], rhs: &[f64; 3]) -> Option<[f64; 3]> {
-    let det = a[0][0] * (a[1][1] * a[2][2] - a[1][2] * a[2][1])
-        - a[0][1] * (a[1][0] * a[2][2] - a[1][2] * a[2][0])
-        + a[0][2] * (a[1][0] * a[2][1] - a[1][1] * a[2][0]);
+/// Inverse of a 3×3 matrix (adjugate over determinant); `None` when singular or not finite.
+fn invert3(a: &[[f64; 3]; 3]) -> Option<[[f64; 3]; 3]> {
+    let c00 = a[1][1] * a[2][2] - a[1][2] * a[2][1];
+    let c01 = a[1][2] * a[2][0] - a[1][0] * a[2][2];
+    let c02 = a[1][0] * a[2][1] - a[1][1] * a[2][0];
+    let det = a[0][0] * c00 + a[0][1] * c01 + a[0][2] * c02;
     if !(det.abs() > 0.0) || !det.is_finite() {
         return None;
     }
-    let mut x = [0.0; 3];
-    for (c, xc) in x.iter_mut().enumerate() {
-        let mut m = *a;
-        for r in 0..3 {
-            m[r][c] = rhs[r];
-        }
-        let d = m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
-            - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
-            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]);
-        *xc = d / det;
-    }
-    Some(x)
+    let d = 1.0 / det;
+    let inv = [
+        [
+            c00 * d,
+            (a[0][2] * a[2][1] - a[0][1] * a[2][2]) * d,
+            (a[0][1] * a[1][2] - a[0][2] * a[1][1]) * d,
+        ],
+        [
+            c01 * d,
+            (a[0][0] * a[2][2] - a[0][2] * a[2][0]) * d,
+            (a[0][2] * a[1][0] - a[0][0] * a[1][2]) * d,
+        ],
+        [
+            c02 * d,
+            (a[0][1] * a[2][0] - a[0][0] * a[2][1]) * d,
+            (a[0][0] * a[1][1] - a[0][1] * a[1][0]) * d,
+        ],
+    ];
+    inv.iter().flatten().all(|v| v.is_finite()).then_some(inv)
 }
 
 /// Violation δ = δ_free + W λ for the first `rows` rows, written to `out` (for checks and
@@ -948,6 +989,20 @@ mod tests {
         .unwrap();
         assert!(s.deadline_hit);
         assert_eq!(s.iterations, 1);
+    }
+
+    #[test]
+    fn block_inverse_inverts_and_refuses_singular_blocks() {
+        let a = [[2.0, 0.3, -0.1], [0.3, 1.5, 0.2], [-0.1, 0.2, 1.1]];
+        let inv = invert3(&a).unwrap();
+        for i in 0..3 {
+            for j in 0..3 {
+                let v: f64 = (0..3).map(|k| a[i][k] * inv[k][j]).sum();
+                assert!((v - (i == j) as u8 as f64).abs() < 1e-14, "{i}{j}: {v}");
+            }
+        }
+        assert!(invert3(&[[1.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 1.0]]).is_none());
+        assert!(invert3(&[[f64::NAN, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]).is_none());
     }
 
     #[test]

@@ -2,28 +2,12 @@
 //! `run` on a bad file, recordings commands on bad input, and the hidden `node` command.
 
 use std::path::PathBuf;
-use std::process::{Command, Output};
 
-fn arthrosim(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_arthrosim"))
-        .args(args)
-        .output()
-        .expect("run arthrosim")
-}
+mod common;
+use common::{arthrosim, text};
 
 fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("arthrosim-cli-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
-fn text(out: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    )
+    common::scratch("cli", name)
 }
 
 fn examples() -> PathBuf {

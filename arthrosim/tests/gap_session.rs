@@ -9,31 +9,15 @@ use msgs::Pose;
 use physics_node::sim::Simulation;
 use recordings::{SessionInfo, SessionWriter};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
 const PEAK_N: f64 = 20.0;
 const SCALE: f64 = 0.9;
 
-fn arthrosim(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_arthrosim"))
-        .args(args)
-        .output()
-        .expect("run arthrosim")
-}
+mod common;
+use common::{arthrosim, text};
 
 fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("arthrosim-gap-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
-fn text(out: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    )
+    common::scratch("gap", name)
 }
 
 fn zeroed_device() -> Box<DeviceState> {

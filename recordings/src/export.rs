@@ -3,7 +3,8 @@
 
 use crate::channels::*;
 use crate::error::RecordingError;
-use crate::read::{check_schema, decode, scan, Event};
+use crate::read::{check_schema, decode, scan, ChannelInfo, Event};
+use mcap::records::MessageHeader;
 use serde::Serialize;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -50,11 +51,44 @@ pub struct ExportSummary {
     pub unannotated_steps: usize,
 }
 
+/// The lossless channels of a recording as they are scanned: every ContactStep and DeviceTick
+/// in file order, each channel's schema checked once.
+#[derive(Default)]
+pub(crate) struct LosslessChannels {
+    checked: std::collections::BTreeSet<u16>,
+    pub steps: Vec<ContactStep>,
+    pub ticks: Vec<DeviceTick>,
+}
+
+impl LosslessChannels {
+    /// Takes one scanned message (other topics are ignored).
+    pub fn push(
+        &mut self,
+        path: &Path,
+        channel: &ChannelInfo,
+        header: &MessageHeader,
+        data: &[u8],
+    ) -> Result<(), RecordingError> {
+        if channel.topic == TOPIC_CONTACT_STEP {
+            if self.checked.insert(channel.id) {
+                check_schema::<ContactStep>(path, channel)?;
+            }
+            self.steps
+                .push(decode::<ContactStep>(path, channel, header, data)?);
+        } else if channel.topic == TOPIC_DEVICE_TICK {
+            if self.checked.insert(channel.id) {
+                check_schema::<DeviceTick>(path, channel)?;
+            }
+            self.ticks
+                .push(decode::<DeviceTick>(path, channel, header, data)?);
+        }
+        Ok(())
+    }
+}
+
 /// Reads the lossless channels: every ContactStep and DeviceTick, in file order.
 pub fn read_lossless(path: &Path) -> Result<(Vec<ContactStep>, Vec<DeviceTick>), RecordingError> {
-    let mut steps = Vec::new();
-    let mut ticks = Vec::new();
-    let mut checked = std::collections::BTreeSet::new();
+    let mut lossless = LosslessChannels::default();
     scan(path, &mut |event| {
         if let Event::Message {
             channel,
@@ -62,21 +96,11 @@ pub fn read_lossless(path: &Path) -> Result<(Vec<ContactStep>, Vec<DeviceTick>),
             data,
         } = event
         {
-            if channel.topic == TOPIC_CONTACT_STEP {
-                if checked.insert(channel.id) {
-                    check_schema::<ContactStep>(path, channel)?;
-                }
-                steps.push(decode::<ContactStep>(path, channel, &header, data)?);
-            } else if channel.topic == TOPIC_DEVICE_TICK {
-                if checked.insert(channel.id) {
-                    check_schema::<DeviceTick>(path, channel)?;
-                }
-                ticks.push(decode::<DeviceTick>(path, channel, &header, data)?);
-            }
+            lossless.push(path, channel, &header, data)?;
         }
         Ok(())
     })?;
-    Ok((steps, ticks))
+    Ok((lossless.steps, lossless.ticks))
 }
 
 /// Study rows of a recording: one per physics step, annotated with the protocol state of

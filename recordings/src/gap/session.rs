@@ -13,11 +13,10 @@ use super::experiment::{
 use super::signal::{interp, lag_by_xcorr, norm, sub};
 use super::GapError;
 use crate::channels::*;
-use crate::read::{check_schema, decode, scan, Event};
+use crate::read::{scan, Event};
 use launch_config::{DeviceConfig, LaunchFile, SceneConfig};
 use msgs::Pose;
 use serde::{Deserialize, Serialize};
-use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
 /// Force magnitude above which the probe touches the tissue (contacts within the alarm
@@ -101,30 +100,16 @@ pub fn session_file(path: &Path) -> Result<Option<PathBuf>, GapError> {
 
 /// Reads the lossless channels and the scene/launch attachments of a recording.
 pub fn read_session(path: &Path) -> Result<SessionRecording, GapError> {
-    let mut steps = Vec::new();
-    let mut ticks = Vec::new();
+    let mut lossless = crate::export::LosslessChannels::default();
     let mut scene_text: Option<String> = None;
     let mut launch_text: Option<String> = None;
-    let mut checked = BTreeSet::new();
     let outcome = scan(path, &mut |event| {
         match event {
             Event::Message {
                 channel,
                 header,
                 data,
-            } => {
-                if channel.topic == TOPIC_CONTACT_STEP {
-                    if checked.insert(channel.id) {
-                        check_schema::<ContactStep>(path, channel)?;
-                    }
-                    steps.push(decode::<ContactStep>(path, channel, &header, data)?);
-                } else if channel.topic == TOPIC_DEVICE_TICK {
-                    if checked.insert(channel.id) {
-                        check_schema::<DeviceTick>(path, channel)?;
-                    }
-                    ticks.push(decode::<DeviceTick>(path, channel, &header, data)?);
-                }
-            }
+            } => lossless.push(path, channel, &header, data)?,
             Event::Attachment { name, data, .. } => {
                 let text = String::from_utf8_lossy(data).into_owned();
                 if name == ATTACHMENT_SCENE {
@@ -144,6 +129,7 @@ pub fn read_session(path: &Path) -> Result<SessionRecording, GapError> {
         }
         .into());
     }
+    let crate::export::LosslessChannels { steps, ticks, .. } = lossless;
     if steps.is_empty() {
         return Err(input_err(
             path,

@@ -320,14 +320,20 @@ pub fn solve(
     Ok(solution)
 }
 
+/// The CPU has AVX2 and FMA (std caches the detection).
+#[cfg(target_arch = "x86_64")]
+#[inline]
+fn avx2_fma() -> bool {
+    std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+}
+
 /// y += a·x. The hot kernel of the sweep (≤ 96 entries): with AVX2 and FMA when the CPU has
 /// them (checked once, cached by std), portable otherwise.
 #[inline]
 fn axpy(a: f64, x: &[f64], y: &mut [f64]) {
     #[cfg(target_arch = "x86_64")]
     {
-        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
-        {
+        if avx2_fma() {
             // SAFETY: the features this function is compiled for were just detected.
             unsafe { axpy_avx2_fma(a, x, y) };
             return;
@@ -343,8 +349,7 @@ fn axpy(a: f64, x: &[f64], y: &mut [f64]) {
 fn axpy3(a: [f64; 3], x0: &[f64], x1: &[f64], x2: &[f64], y: &mut [f64]) {
     #[cfg(target_arch = "x86_64")]
     {
-        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
-        {
+        if avx2_fma() {
             // SAFETY: the features this function is compiled for were just detected.
             unsafe { axpy3_avx2_fma(a, x0, x1, x2, y) };
             return;

@@ -81,7 +81,8 @@ impl ContactSample {
     }
 
     fn in_contact(&self) -> bool {
-        self.contact_count > 0 && self.touching && self.normal != [0.0; 3]
+        // `touching` implies a non-zero (impulse-weighted) normal.
+        self.contact_count > 0 && self.touching
     }
 }
 

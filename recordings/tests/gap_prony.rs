@@ -95,13 +95,18 @@ fn trial(i: usize, region: Region, hold: f64, terms: &[(f64, f64)], seed: &mut u
     prepare(&tr, path, base, Default::default())
 }
 
-fn score(terms: &[(f64, f64)]) -> CandidateScore {
+/// Two probings per region from the QLV truth with these Prony terms (same seed every call).
+fn dataset(terms: &[(f64, f64)]) -> Vec<TrialData> {
     let mut seed = 11u64;
-    let data: Vec<TrialData> = Region::ALL
+    Region::ALL
         .into_iter()
         .flat_map(|r| (0..2).map(move |i| (r, i)))
         .map(|(r, i)| trial(i, r, 4.0, terms, &mut seed))
-        .collect();
+        .collect()
+}
+
+fn score(terms: &[(f64, f64)]) -> CandidateScore {
+    let data = dataset(terms);
     let (_, folds) = make_folds(&data);
     let (mut s, mut n) = (0.0, 0usize);
     for d in &data {
@@ -166,12 +171,7 @@ fn two_prony_terms_when_relaxation_has_two_time_scales() {
 /// data: in-sample, so it flatters the one-term model.
 fn score_one_term(terms: &[(f64, f64)]) -> f64 {
     use recordings::gap::fit::{default_free, fit};
-    let mut seed = 11u64;
-    let data: Vec<TrialData> = Region::ALL
-        .into_iter()
-        .flat_map(|r| (0..2).map(move |i| (r, i)))
-        .map(|(r, i)| trial(i, r, 4.0, terms, &mut seed))
-        .collect();
+    let data = dataset(terms);
     let c = Candidate::single(Effect::Viscoelastic);
     let all: Vec<Vec<bool>> = data.iter().map(|d| vec![true; d.t.len()]).collect();
     let (_, sse) = fit(&c, &data, &all, &[], &default_free(&c));

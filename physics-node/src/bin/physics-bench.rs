@@ -55,8 +55,7 @@ fn main() -> anyhow::Result<()> {
         scene.meniscus.fixed = "inferior".into();
     }
     scene.contact.friction = args.friction;
-    let solver = args.solver.clone();
-    scene.solver.kind = solver.clone();
+    scene.solver.kind = args.solver.clone();
     scene.solver.rotation = args.rotation.clone();
     if let Some(n) = args.cg_iterations {
         scene.solver.cg_iterations = n;
@@ -138,7 +137,7 @@ fn main() -> anyhow::Result<()> {
         "contacts_mean": contacts_sum as f64 / steps as f64,
         "contact_fraction": in_contact as f64 / steps as f64,
         "force_mean_n": force_sum / steps as f64,
-        "solver": solver,
+        "solver": args.solver,
         "rotation": args.rotation,
         "cg_iterations": scene.solver.cg_iterations,
         "cg_tolerance": scene.solver.cg_tolerance,

@@ -137,6 +137,10 @@ pub struct SolverConfig {
     pub cg_tolerance: f64,
     /// Element rotation of the corotational FEM: `qr` (SOFA's "large", default) or `polar`.
     pub rotation: String,
+    /// Precision of the matrix the CG products read: `f32` (default; half the memory
+    /// traffic, right for SOFA's truncated CG) or `f64` (for a CG that must converge
+    /// below ~1e-6).
+    pub cg_matrix: String,
 }
 
 impl Default for SolverConfig {
@@ -146,6 +150,7 @@ impl Default for SolverConfig {
             cg_iterations: 25,
             cg_tolerance: 1e-9,
             rotation: "qr".into(),
+            cg_matrix: "f32".into(),
         }
     }
 }

@@ -168,6 +168,7 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
         ],
     );
     v.one_of("scene.solver.rotation", &sol.rotation, &["qr", "polar"]);
+    v.one_of("scene.solver.cg_matrix", &sol.cg_matrix, &["f32", "f64"]);
     if sol.cg_iterations == 0 {
         v.push(
             "scene.solver.cg_iterations",

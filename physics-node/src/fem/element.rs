@@ -173,6 +173,92 @@ pub(crate) fn corotational(
     }
 }
 
+/// The upper block pairs (a ≤ b) of a tet in the order of [`UpperScatter`].
+pub(crate) const UPPER_PAIRS: [(usize, usize); 10] = [
+    (0, 0),
+    (0, 1),
+    (0, 2),
+    (0, 3),
+    (1, 1),
+    (1, 2),
+    (1, 3),
+    (2, 2),
+    (2, 3),
+    (3, 3),
+];
+
+/// Marks a scatter target that holds the pair's block transposed: the pair's first node has
+/// the later free row, so its (a, b) block lands in the upper triangle as K_baᵀ.
+pub(crate) const TRANSPOSED: u32 = 1 << 31;
+
+/// Where each of a tet's [`UPPER_PAIRS`] goes in the packed upper triangle of the system:
+/// block index (with [`TRANSPOSED`] set when stored as K_ba), or `NO_BLOCK` for a pair with a
+/// held node. Built once with the pattern, so the step decides nothing per block.
+pub(crate) type UpperScatter = [u32; 10];
+
+/// Linear corotational element straight into the packed f32 upper triangle the CG solver
+/// reads (`blocks`, 9 column-major entries a block): nodal forces as [`corotational`], and
+/// `k_scale · R K0 Rᵀ` added block by block at `scatter`. The stiffness scale is folded into the two material factors, so a block costs
+/// two scaled outer products (K_ab = cμ ĝ_b ĝ_aᵀ + cλ ĝ_a ĝ_bᵀ + cμ (g_a·g_b) I).
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+pub(crate) fn corotational_upper(
+    rest: &TetRest,
+    f: &Matrix3<f64>,
+    rot: &Matrix3<f64>,
+    mu: f64,
+    lambda: f64,
+    k_scale: f64,
+    scatter: &UpperScatter,
+    blocks: &mut [f32],
+    force: &mut [Vector3<f64>; 4],
+) {
+    let v = rest.volume;
+    let fr = rot.transpose() * f;
+    let mut eps = (fr + fr.transpose()) * 0.5;
+    eps[(0, 0)] -= 1.0;
+    eps[(1, 1)] -= 1.0;
+    eps[(2, 2)] -= 1.0;
+    let tr = eps.trace();
+    let mut sigma = eps * (2.0 * mu);
+    sigma[(0, 0)] += lambda * tr;
+    sigma[(1, 1)] += lambda * tr;
+    sigma[(2, 2)] += lambda * tr;
+    let p = rot * sigma * (-v);
+    let cm = v * mu * k_scale;
+    let cl = v * lambda * k_scale;
+    let mut gh = [[0.0f64; 3]; 4];
+    let mut u = [[0.0f64; 3]; 4];
+    let mut w = [[0.0f64; 3]; 4];
+    for a in 0..4 {
+        force[a] = p * rest.grad[a];
+        let g = rot * rest.grad[a];
+        gh[a] = [g.x, g.y, g.z];
+        u[a] = [g.x * cm, g.y * cm, g.z * cm];
+        w[a] = [g.x * cl, g.y * cl, g.z * cl];
+    }
+    for (&(a0, b0), &target) in UPPER_PAIRS.iter().zip(scatter) {
+        if target == super::sparse::NO_BLOCK {
+            continue;
+        }
+        // A transposed target holds K_ba = the same formula with the roles swapped.
+        let (a, b) = if target & TRANSPOSED != 0 {
+            (b0, a0)
+        } else {
+            (a0, b0)
+        };
+        let d = cm * rest.grad[a].dot(&rest.grad[b]);
+        let k = 9 * (target & !TRANSPOSED) as usize;
+        let m = &mut blocks[k..k + 9];
+        for c in 0..3 {
+            for r in 0..3 {
+                let diag = if r == c { d } else { 0.0 };
+                m[3 * c + r] += (u[b][r] * gh[a][c] + w[a][r] * gh[b][c] + diag) as f32;
+            }
+        }
+    }
+}
+
 /// Skew matrix [v]× (v × w = [v]× w).
 #[inline]
 fn skew(v: &Vector3<f64>) -> Matrix3<f64> {

@@ -141,6 +141,10 @@ pub struct SolverConfig {
     /// traffic, right for SOFA's truncated CG) or `f64` (for a CG that must converge
     /// below ~1e-6).
     pub cg_matrix: String,
+    /// With the f32 CG matrix: re-rotate an element's stiffness blocks only once its rotation
+    /// moved by more than this (≈ rad) since they were built; 0 = every element every step,
+    /// as SOFA. Elastic forces always use the current rotation.
+    pub stiffness_rotation_tolerance: f64,
 }
 
 impl Default for SolverConfig {
@@ -151,6 +155,7 @@ impl Default for SolverConfig {
             cg_tolerance: 1e-9,
             rotation: "qr".into(),
             cg_matrix: "f32".into(),
+            stiffness_rotation_tolerance: 0.0,
         }
     }
 }

@@ -169,6 +169,11 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
     );
     v.one_of("scene.solver.rotation", &sol.rotation, &["qr", "polar"]);
     v.one_of("scene.solver.cg_matrix", &sol.cg_matrix, &["f32", "f64"]);
+    v.non_negative(
+        "scene.solver.stiffness_rotation_tolerance",
+        sol.stiffness_rotation_tolerance,
+        "rad",
+    );
     if sol.cg_iterations == 0 {
         v.push(
             "scene.solver.cg_iterations",

@@ -31,6 +31,17 @@ struct Args {
     /// CG relative residual tolerance (default: the scene's, SOFA's 1e-9).
     #[arg(long)]
     cg_tolerance: Option<f64>,
+    /// Precision of the CG matrix (`f32` or `f64`; default: the scene's).
+    #[arg(long)]
+    cg_matrix: Option<String>,
+    /// Re-rotate an element's stiffness blocks only after its rotation moved by more than
+    /// this, rad (default: the scene's; 0 = every step, as SOFA).
+    #[arg(long)]
+    stiffness_tolerance: Option<f64>,
+    /// Stop after this many timed steps instead of after --seconds (same trajectory for A/B
+    /// comparisons of the force).
+    #[arg(long)]
+    steps: Option<usize>,
     /// Element rotation (`qr` = SOFA's "large", or `polar`).
     #[arg(long, default_value = "qr")]
     rotation: String,
@@ -63,6 +74,12 @@ fn main() -> anyhow::Result<()> {
     if let Some(t) = args.cg_tolerance {
         scene.solver.cg_tolerance = t;
     }
+    if let Some(m) = &args.cg_matrix {
+        scene.solver.cg_matrix = m.clone();
+    }
+    if let Some(t) = args.stiffness_tolerance {
+        scene.solver.stiffness_rotation_tolerance = t;
+    }
     let t_build = Instant::now();
     let mut sim = Simulation::new(&scene, &data_dir)
         .with_context(|| format!("building scene for {}", args.mesh))?;
@@ -93,14 +110,20 @@ fn main() -> anyhow::Result<()> {
     let mut contacts_sum = 0u64;
     let mut in_contact = 0u64;
     let mut force_sum = 0.0;
+    let mut stiffness_updates = 0u64;
     let misses_before = sim.compliance_misses();
     let times_before = sim.phase_times();
     let t0 = Instant::now();
-    while t0.elapsed().as_secs_f64() < args.seconds {
+    let more = |done: usize| match args.steps {
+        Some(n) => done < n,
+        None => t0.elapsed().as_secs_f64() < args.seconds,
+    };
+    while more(durations.len()) {
         sim.set_proxy_pose(&physics_node::probe::pose(path(sim.time()), q));
         let s = Instant::now();
         sim.step()?;
         durations.push(s.elapsed().as_nanos() as u64);
+        stiffness_updates += sim.fem().stiffness_updates() as u64;
         let c = sim.contact_count() as u64;
         contacts_sum += c;
         in_contact += (c > 0) as u64;
@@ -141,6 +164,9 @@ fn main() -> anyhow::Result<()> {
         "rotation": args.rotation,
         "cg_iterations": scene.solver.cg_iterations,
         "cg_tolerance": scene.solver.cg_tolerance,
+        "cg_matrix": scene.solver.cg_matrix,
+        "stiffness_rotation_tolerance": scene.solver.stiffness_rotation_tolerance,
+        "stiffness_updates_mean": stiffness_updates as f64 / steps as f64,
         "friction": args.friction,
         "compliance_slots": slots,
         "compliance_complete": complete,

@@ -98,13 +98,14 @@ pub(crate) fn qr_rotation(a: &Matrix3<f64>) -> Option<Matrix3<f64>> {
     if !(n0 > 1e-12 && n0.is_finite()) {
         return None;
     }
-    let q0 = c0 / n0;
+    // One division per axis, not three (divisions are most of this function's latency).
+    let q0 = c0 * (1.0 / n0);
     let u1 = c1 - q0 * q0.dot(&c1);
     let n1 = u1.norm();
     if !(n1 > 1e-12 * n0.max(1.0) && n1.is_finite()) {
         return None;
     }
-    let q1 = u1 / n1;
+    let q1 = u1 * (1.0 / n1);
     Some(Matrix3::from_columns(&[q0, q1, q0.cross(&q1)]))
 }
 
@@ -196,21 +197,15 @@ pub(crate) const TRANSPOSED: u32 = 1 << 31;
 /// held node. Built once with the pattern, so the step decides nothing per block.
 pub(crate) type UpperScatter = [u32; 10];
 
-/// Linear corotational element straight into the packed f32 upper triangle the CG solver
-/// reads (`blocks`, 9 column-major entries a block): nodal forces as [`corotational`], and
-/// `k_scale · R K0 Rᵀ` added block by block at `scatter`. The stiffness scale is folded into the two material factors, so a block costs
-/// two scaled outer products (K_ab = cμ ĝ_b ĝ_aᵀ + cλ ĝ_a ĝ_bᵀ + cμ (g_a·g_b) I).
-#[allow(clippy::too_many_arguments)]
+/// Nodal forces of the linear corotational element (as [`corotational`], without energy
+/// and stiffness): f = −R σ(sym(RᵀF) − I) V g_a.
 #[inline(always)]
-pub(crate) fn corotational_upper(
+pub(crate) fn corotational_forces(
     rest: &TetRest,
     f: &Matrix3<f64>,
     rot: &Matrix3<f64>,
     mu: f64,
     lambda: f64,
-    k_scale: f64,
-    scatter: &UpperScatter,
-    blocks: &mut [f32],
     force: &mut [Vector3<f64>; 4],
 ) {
     let v = rest.volume;
@@ -225,18 +220,46 @@ pub(crate) fn corotational_upper(
     sigma[(1, 1)] += lambda * tr;
     sigma[(2, 2)] += lambda * tr;
     let p = rot * sigma * (-v);
-    let cm = v * mu * k_scale;
-    let cl = v * lambda * k_scale;
-    let mut gh = [[0.0f64; 3]; 4];
-    let mut u = [[0.0f64; 3]; 4];
-    let mut w = [[0.0f64; 3]; 4];
     for a in 0..4 {
         force[a] = p * rest.grad[a];
-        let g = rot * rest.grad[a];
-        gh[a] = [g.x, g.y, g.z];
-        u[a] = [g.x * cm, g.y * cm, g.z * cm];
-        w[a] = [g.x * cl, g.y * cl, g.z * cl];
     }
+}
+
+/// Adds `k_scale · R K0 Rᵀ` of a linear corotational element to the packed f32 upper
+/// triangle the CG solver reads (`blocks`, 9 column-major entries a block) at `scatter`;
+/// with `replaced` = Some(R_old), adds `k_scale · (R K0 Rᵀ − R_old K0 R_oldᵀ)` instead (the
+/// element's blocks re-rotated in place; the rotation-free μV(g_a·g_b) I part cancels). The
+/// stiffness scale is folded into the two material factors, so a block costs two scaled
+/// outer products (K_ab = cμ ĝ_b ĝ_aᵀ + cλ ĝ_a ĝ_bᵀ + cμ (g_a·g_b) I).
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+pub(crate) fn corotational_stiffness_upper(
+    rest: &TetRest,
+    rot: &Matrix3<f64>,
+    replaced: Option<&Matrix3<f64>>,
+    mu: f64,
+    lambda: f64,
+    k_scale: f64,
+    scatter: &UpperScatter,
+    blocks: &mut [f32],
+) {
+    let v = rest.volume;
+    let cm = v * mu * k_scale;
+    let cl = v * lambda * k_scale;
+    let rotated = |r: &Matrix3<f64>| {
+        let mut gh = [[0.0f64; 3]; 4];
+        let mut u = [[0.0f64; 3]; 4];
+        let mut w = [[0.0f64; 3]; 4];
+        for a in 0..4 {
+            let g = r * rest.grad[a];
+            gh[a] = [g.x, g.y, g.z];
+            u[a] = [g.x * cm, g.y * cm, g.z * cm];
+            w[a] = [g.x * cl, g.y * cl, g.z * cl];
+        }
+        (gh, u, w)
+    };
+    let (gh, u, w) = rotated(rot);
+    let old = replaced.map(rotated);
     for (&(a0, b0), &target) in UPPER_PAIRS.iter().zip(scatter) {
         if target == super::sparse::NO_BLOCK {
             continue;
@@ -247,13 +270,26 @@ pub(crate) fn corotational_upper(
         } else {
             (a0, b0)
         };
-        let d = cm * rest.grad[a].dot(&rest.grad[b]);
         let k = 9 * (target & !TRANSPOSED) as usize;
         let m = &mut blocks[k..k + 9];
-        for c in 0..3 {
-            for r in 0..3 {
-                let diag = if r == c { d } else { 0.0 };
-                m[3 * c + r] += (u[b][r] * gh[a][c] + w[a][r] * gh[b][c] + diag) as f32;
+        match &old {
+            None => {
+                let d = cm * rest.grad[a].dot(&rest.grad[b]);
+                for c in 0..3 {
+                    for r in 0..3 {
+                        let diag = if r == c { d } else { 0.0 };
+                        m[3 * c + r] += (u[b][r] * gh[a][c] + w[a][r] * gh[b][c] + diag) as f32;
+                    }
+                }
+            }
+            Some((gh0, u0, w0)) => {
+                for c in 0..3 {
+                    for r in 0..3 {
+                        let now = u[b][r] * gh[a][c] + w[a][r] * gh[b][c];
+                        let before = u0[b][r] * gh0[a][c] + w0[a][r] * gh0[b][c];
+                        m[3 * c + r] += (now - before) as f32;
+                    }
+                }
             }
         }
     }

@@ -171,6 +171,11 @@ pub struct FemSettings {
     pub rotation: RotationMethod,
     /// Precision of the matrix the CG solver multiplies with (unused by the direct solver).
     pub cg_matrix: CgMatrix,
+    /// With the f32 CG matrix and corotational elements: an element's stiffness blocks are
+    /// re-rotated only once its rotation has moved by more than this (max entry of R − R_K,
+    /// ≈ rad) since they were built; 0 re-rotates every element every step (SOFA). Elastic
+    /// forces always use the current rotation; only the implicit step's Jacobian lags.
+    pub stiffness_rotation_tolerance: f64,
 }
 
 impl Default for FemSettings {
@@ -185,6 +190,7 @@ impl Default for FemSettings {
             project_tangent: true,
             rotation: RotationMethod::Qr,
             cg_matrix: CgMatrix::F32,
+            stiffness_rotation_tolerance: 0.0,
         }
     }
 }
@@ -242,6 +248,7 @@ impl FemSettings {
                     scene.solver.cg_matrix
                 ))
             })?,
+            stiffness_rotation_tolerance: scene.solver.stiffness_rotation_tolerance,
         };
         s.validate()?;
         Ok(s)
@@ -261,6 +268,10 @@ impl FemSettings {
             ("rayleigh_mass", self.rayleigh_mass),
             ("rayleigh_stiffness", self.rayleigh_stiffness),
             ("support_stiffness", self.support_stiffness),
+            (
+                "stiffness_rotation_tolerance",
+                self.stiffness_rotation_tolerance,
+            ),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(FemError::Input(format!("{name} must be ≥ 0, got {v}")));
@@ -324,8 +335,17 @@ pub struct FemModel {
     /// The system for the direct solver (both triangles) and the cold paths (energies,
     /// static solves, rest factor).
     a: Vec<Matrix3<f64>>,
-    /// The system the CG solver reads: its upper triangle packed in f32.
+    /// The system the CG solver reads: its upper triangle packed in f32 (k_scale·K; the
+    /// mass and support diagonal is its per-row shift).
     upper32: UpperF32,
+    /// Rotation each element's blocks in `upper32` were built with.
+    elem_rot_k: Vec<Matrix3<f64>>,
+    /// k_scale the blocks in `upper32` were built for (NaN: not built, rebuild).
+    upper32_k_scale: f64,
+    /// Steps since `upper32` was last rebuilt from zero (bounds f32 drift of the updates).
+    upper32_age: u32,
+    /// Elements whose blocks were re-rotated in the last step (all of them on a rebuild).
+    stiffness_updates: usize,
     jacobi: Vec<Matrix3<f64>>,
     force: Vec<Vector3<f64>>,
     rhs: Vec<f64>,
@@ -358,6 +378,9 @@ impl std::fmt::Debug for FemModel {
 /// typical; 1e-7 rad is a spurious strain far below anything the contact resolves, and the
 /// next step continues from there.
 const ROTATION_ITERATIONS: usize = 4;
+/// With in-place stiffness updates, the packed blocks are rebuilt from zero this often: each
+/// update rounds to f32, and 256 of them stay below 1e-6 of a block.
+const STIFFNESS_REBUILD_STEPS: u32 = 256;
 const ROTATION_TOLERANCE: f64 = 1e-7;
 /// Cold starts outside the step (energies, forces, static solves): converge fully.
 const ROTATION_ITERATIONS_COLD: usize = 100;
@@ -467,6 +490,10 @@ impl FemModel {
             upper_scatter,
             a: vec![Matrix3::zeros(); nnz],
             upper32,
+            elem_rot_k: vec![Matrix3::identity(); mesh.tets.len()],
+            upper32_k_scale: f64::NAN,
+            upper32_age: 0,
+            stiffness_updates: 0,
             jacobi: vec![Matrix3::zeros(); nf],
             force: vec![Vector3::zeros(); n],
             rhs: vec![0.0; 3 * nf],
@@ -563,6 +590,12 @@ impl FemModel {
         self.free_index(node).is_none()
     }
     /// Statistics of the last linear solve.
+    /// Elements whose stiffness blocks the last step wrote (all on a rebuild; see
+    /// [`FemSettings::stiffness_rotation_tolerance`]); 0 outside the packed CG path.
+    pub fn stiffness_updates(&self) -> usize {
+        self.stiffness_updates
+    }
+
     pub fn last_solve(&self) -> SolveStats {
         self.last_stats
     }
@@ -584,6 +617,7 @@ impl FemModel {
         let (mu, lambda) = material.lame();
         self.mu = mu;
         self.lambda = lambda;
+        self.upper32_k_scale = f64::NAN;
         self.prepare_solver()
     }
 
@@ -624,6 +658,7 @@ impl FemModel {
         self.node_rot_q.fill(UnitQuaternion::identity());
         self.node_rot.fill(Matrix3::identity());
         self.dv.fill(0.0);
+        self.upper32_k_scale = f64::NAN;
     }
 
     // ---- assembly --------------------------------------------------------------------
@@ -670,6 +705,10 @@ impl FemModel {
             elem_blocks,
             upper_scatter,
             upper32,
+            elem_rot_k,
+            upper32_k_scale,
+            upper32_age,
+            stiffness_updates,
             pattern,
             free_index,
             material,
@@ -696,8 +735,20 @@ impl FemModel {
         }
         let pos: &[Point3<f64>] = if at_rest { rest } else { x };
         if fused {
-            upper32.clear();
-            CorotationalUpperPass {
+            // Rebuild from zero when the blocks are missing, for another dt, or old enough
+            // that the f32 round-off of their in-place updates could add up; otherwise
+            // re-rotate only the elements that turned.
+            let rebuild = !(*upper32_k_scale == k_scale)
+                || *upper32_age >= STIFFNESS_REBUILD_STEPS
+                || settings.stiffness_rotation_tolerance <= 0.0;
+            if rebuild {
+                upper32.clear();
+                *upper32_k_scale = k_scale;
+                *upper32_age = 0;
+            } else {
+                *upper32_age += 1;
+            }
+            *stiffness_updates = CorotationalUpperPass {
                 tets,
                 rest_elems,
                 pos,
@@ -714,6 +765,9 @@ impl FemModel {
                 upper_scatter,
                 blocks: upper32.blocks_mut(),
                 force,
+                elem_rot_k,
+                rebuild,
+                tolerance: settings.stiffness_rotation_tolerance,
             }
             .run();
             return;
@@ -792,6 +846,8 @@ impl FemModel {
         }
         if want_k && packed {
             upper32.pack(pattern, a);
+            // Packed from a full assembly: not blocks the element pass may update in place.
+            *upper32_k_scale = f64::NAN;
         }
     }
 
@@ -852,7 +908,7 @@ impl FemModel {
         }
         let packed = self.packed_cg_matrix();
         if packed {
-            self.upper32.mul_dot(&self.z, &mut self.q);
+            self.upper32.mul_dot(&self.z, &mut self.q, false);
         } else {
             self.pattern.mul_dot_upper(&self.a, &self.z, &mut self.q);
         }
@@ -863,7 +919,7 @@ impl FemModel {
             let ks = self.support[node];
             let d = (1.0 + dt * alpha) * m + k_scale * ks;
             if packed {
-                self.upper32.add_to_diagonal(row, d);
+                self.upper32.set_shift(row, d);
             } else {
                 let blk = &mut self.a[self.pattern.diag[row]];
                 blk[(0, 0)] += d;
@@ -986,7 +1042,7 @@ impl FemModel {
                         let packed = self.packed_cg_matrix();
                         for (row, inv) in self.jacobi.iter_mut().enumerate() {
                             let d = if packed {
-                                self.upper32.diagonal_block(row)
+                                self.upper32.diagonal_block(row, true)
                             } else {
                                 self.a[self.pattern.diag[row]]
                             };
@@ -1115,7 +1171,7 @@ impl FemModel {
         while iterations < max_iter {
             iterations += 1;
             let pq = if packed {
-                self.upper32.mul_dot(&self.p, &mut self.q)
+                self.upper32.mul_dot(&self.p, &mut self.q, true)
             } else {
                 self.pattern.mul_dot_upper(&self.a, &self.p, &mut self.q)
             };
@@ -1412,34 +1468,41 @@ struct CorotationalUpperPass<'a> {
     /// Packed f32 upper blocks (see [`UpperF32`]).
     blocks: &'a mut [f32],
     force: &'a mut [Vector3<f64>],
+    /// Rotation each element's blocks were built with.
+    elem_rot_k: &'a mut [Matrix3<f64>],
+    /// Add every element's blocks (into cleared `blocks`) instead of updating.
+    rebuild: bool,
+    /// Re-rotate an element's blocks once its rotation moved by more than this.
+    tolerance: f64,
 }
 
 impl CorotationalUpperPass<'_> {
-    fn run(self) {
+    /// Returns the number of elements whose blocks were written.
+    fn run(self) -> usize {
         #[cfg(target_arch = "x86_64")]
         {
             if std::arch::is_x86_feature_detected!("avx2")
                 && std::arch::is_x86_feature_detected!("fma")
             {
                 // SAFETY: the features were just detected.
-                unsafe { self.run_avx2() };
-                return;
+                return unsafe { self.run_avx2() };
             }
         }
-        self.run_portable();
+        self.run_portable()
     }
 
     /// The same loop compiled for AVX2/FMA (the kernels inline into it): the element
     /// arithmetic is ~600 flops a tet, a third of a step on the 2,560-node mesh.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,fma")]
-    unsafe fn run_avx2(self) {
-        self.run_portable();
+    unsafe fn run_avx2(self) -> usize {
+        self.run_portable()
     }
 
     #[inline(always)]
-    fn run_portable(self) {
+    fn run_portable(self) -> usize {
         let mut nodal = [Vector3::zeros(); 4];
+        let mut written = 0;
         for (e, t) in self.tets.iter().enumerate() {
             let re = &self.rest_elems[e];
             let f = re.deformation_gradient([
@@ -1463,21 +1526,32 @@ impl CorotationalUpperPass<'_> {
                     r
                 }
             };
-            element::corotational_upper(
+            element::corotational_forces(re, &f, &rot, self.mu, self.lambda, &mut nodal);
+            for k in 0..4 {
+                self.force[t[k]] += nodal[k];
+            }
+            let built = &mut self.elem_rot_k[e];
+            let replaced = if self.rebuild {
+                None
+            } else if (rot - *built).amax() > self.tolerance {
+                Some(*built)
+            } else {
+                continue;
+            };
+            element::corotational_stiffness_upper(
                 re,
-                &f,
                 &rot,
+                replaced.as_ref(),
                 self.mu,
                 self.lambda,
                 self.k_scale,
                 &self.upper_scatter[e],
                 self.blocks,
-                &mut nodal,
             );
-            for k in 0..4 {
-                self.force[t[k]] += nodal[k];
-            }
+            *built = rot;
+            written += 1;
         }
+        written
     }
 }
 

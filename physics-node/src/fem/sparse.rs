@@ -238,6 +238,9 @@ pub(crate) struct UpperF32 {
     /// The mirrored contributions, 4 lanes per row: 4-lane updates of a 3-strided vector
     /// would overlap the next node's entries and stall store-to-load forwarding.
     mirrored: Vec<f64>,
+    /// A diagonal shift per row (the step's mass and support terms), f64, added by shifted
+    /// products: kept apart so the stiffness blocks can persist across steps.
+    shift: Vec<f64>,
 }
 
 impl UpperF32 {
@@ -256,6 +259,7 @@ impl UpperF32 {
             cols,
             vals,
             mirrored: vec![0.0; 4 * p.n],
+            shift: vec![0.0; p.n],
         }
     }
 
@@ -302,18 +306,20 @@ impl UpperF32 {
         &mut self.vals[..n]
     }
 
-    /// Adds `d` to the diagonal of row `row`'s diagonal block.
-    pub(crate) fn add_to_diagonal(&mut self, row: usize, d: f64) {
-        let k = 9 * self.row_ptr[row];
-        for o in [0, 4, 8] {
-            self.vals[k + o] = (self.vals[k + o] as f64 + d) as f32;
-        }
+    /// Sets row `row`'s diagonal shift (see `shift`).
+    pub(crate) fn set_shift(&mut self, row: usize, d: f64) {
+        self.shift[row] = d;
     }
 
-    /// Row `row`'s diagonal block.
-    pub(crate) fn diagonal_block(&self, row: usize) -> Matrix3<f64> {
+    /// Row `row`'s diagonal block, with its shift when `shifted`.
+    pub(crate) fn diagonal_block(&self, row: usize, shifted: bool) -> Matrix3<f64> {
         let k = 9 * self.row_ptr[row];
-        Matrix3::from_iterator(self.vals[k..k + 9].iter().map(|&v| v as f64))
+        let m = Matrix3::from_iterator(self.vals[k..k + 9].iter().map(|&v| v as f64));
+        if shifted {
+            m + Matrix3::identity() * self.shift[row]
+        } else {
+            m
+        }
     }
 
     /// Packs the diagonal and upper blocks of `a` (on the pattern this was built from).
@@ -329,9 +335,9 @@ impl UpperF32 {
         }
     }
 
-    /// y = A x with A symmetric (the lower triangle read as the transposed upper), returning
-    /// x·y, as [`BlockPattern::mul_dot_upper`].
-    pub(crate) fn mul_dot(&mut self, x: &[f64], y: &mut [f64]) -> f64 {
+    /// y = A x with A symmetric (the lower triangle read as the transposed upper), plus the
+    /// diagonal shift when `shifted`; returns x·y, as [`BlockPattern::mul_dot_upper`].
+    pub(crate) fn mul_dot(&mut self, x: &[f64], y: &mut [f64], shifted: bool) -> f64 {
         let n = self.n;
         assert!(x.len() >= 3 * n && y.len() >= 3 * n);
         assert!(self.vals.len() == 9 * self.cols.len() + 4 && self.row_ptr.len() == n + 1);
@@ -341,20 +347,25 @@ impl UpperF32 {
                 && std::arch::is_x86_feature_detected!("fma")
             {
                 // SAFETY: the features were just detected; the shape was asserted above.
-                return unsafe { self.mul_dot_avx2(x, y) };
+                return unsafe { self.mul_dot_avx2(x, y, shifted) };
             }
         }
-        self.mul_dot_portable(x, y)
+        self.mul_dot_portable(x, y, shifted)
     }
 
     /// [`Self::mul_dot`] without SIMD (CPUs without AVX2/FMA).
-    pub(crate) fn mul_dot_portable(&self, x: &[f64], y: &mut [f64]) -> f64 {
+    pub(crate) fn mul_dot_portable(&self, x: &[f64], y: &mut [f64], shifted: bool) -> f64 {
         let n = self.n;
         y[..3 * n].fill(0.0);
         let mut dot = 0.0;
         for i in 0..n {
             let xi = [x[3 * i], x[3 * i + 1], x[3 * i + 2]];
-            let mut s = [y[3 * i], y[3 * i + 1], y[3 * i + 2]];
+            let d = if shifted { self.shift[i] } else { 0.0 };
+            let mut s = [
+                y[3 * i] + d * xi[0],
+                y[3 * i + 1] + d * xi[1],
+                y[3 * i + 2] + d * xi[2],
+            ];
             for k in self.row_ptr[i]..self.row_ptr[i + 1] {
                 let j = self.cols[k] as usize * 3;
                 let m = &self.vals[9 * k..9 * k + 9];
@@ -383,7 +394,7 @@ impl UpperF32 {
     /// horizontal reduction. Sums in another order than the portable path.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,fma")]
-    unsafe fn mul_dot_avx2(&mut self, x: &[f64], y: &mut [f64]) -> f64 {
+    unsafe fn mul_dot_avx2(&mut self, x: &[f64], y: &mut [f64], shifted: bool) -> f64 {
         use std::arch::x86_64::*;
         let n = self.n;
         self.mirrored.fill(0.0);
@@ -399,8 +410,11 @@ impl UpperF32 {
             );
             let (xi0, xi1, xi2) = (*xp.add(3 * i), *xp.add(3 * i + 1), *xp.add(3 * i + 2));
             let xi = _mm256_set_pd(0.0, xi2, xi1, xi0);
-            // The transposed contributions of the rows above.
+            // The transposed contributions of the rows above, and the shift.
             let mut s = _mm256_loadu_pd(mp.add(4 * i));
+            if shifted {
+                s = _mm256_fmadd_pd(_mm256_set1_pd(*self.shift.get_unchecked(i)), xi, s);
+            }
             let m = vp.add(9 * k0);
             s = _mm256_fmadd_pd(_mm256_cvtps_pd(_mm_loadu_ps(m)), _mm256_set1_pd(xi0), s);
             s = _mm256_fmadd_pd(

@@ -2,7 +2,11 @@
 //! (a dense 0.5 mm grid under a probe tip, μ = 0.2, a cold start every 10 solves from the
 //! frame's λ = 0, ±50 µm hand jitter per solve), without the renderer around it.
 //!
-//! `cargo run --release -p contact-lcp --example patch-timing -- [contacts] [solves]`
+//! `cargo run --release -p contact-lcp --example patch-timing -- [contacts] [solves] [every]`
+//!
+//! With `every` > 0, every `every`-th solve is also compared (outside the timing) with a
+//! reference solution of the same problem converged to 1e-14: the relative error of λ
+//! (max-norm) and of the rendered force Σ h λ.
 use contact_lcp::{solve, Problem, Settings, MAX_ROWS};
 use std::time::Instant;
 
@@ -61,6 +65,9 @@ fn main() {
     let mut args = std::env::args().skip(1);
     let n: usize = args.next().map_or(32, |s| s.parse().unwrap());
     let solves: u64 = args.next().map_or(200_000, |s| s.parse().unwrap());
+    let every: u64 = args.next().map_or(0, |s| s.parse().unwrap());
+    let mut errors_lambda = Vec::new();
+    let mut errors_force = Vec::new();
     let p = patch(n);
     let rows = 3 * n;
     let settings = Settings {
@@ -105,6 +112,31 @@ fn main() {
             cold_iterations += s.iterations as u64;
         }
         checksum += lambda[..rows].iter().sum::<f64>();
+        if every > 0 && i % every == 0 {
+            let mut reference = [0.0f64; MAX_ROWS];
+            let exact = Settings {
+                max_iterations: 1_000_000,
+                tolerance: 1e-14,
+                ..settings
+            };
+            let s = solve(&problem, &mut reference[..rows], &exact).unwrap();
+            assert!(s.converged, "reference: {s:?}");
+            let max_ref = reference[..rows].iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            let max_err = (0..rows).fold(0.0f64, |m, r| m.max((lambda[r] - reference[r]).abs()));
+            errors_lambda.push(max_err / max_ref);
+            let force = |l: &[f64]| {
+                let mut f = [0.0; 3];
+                for (h, l) in p.h.iter().zip(l) {
+                    for c in 0..3 {
+                        f[c] += h[c] * l;
+                    }
+                }
+                f
+            };
+            let (f, g) = (force(&lambda[..rows]), force(&reference[..rows]));
+            let norm = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            errors_force.push(norm([f[0] - g[0], f[1] - g[1], f[2] - g[2]]) / norm(g));
+        }
     }
     let q = |v: &mut Vec<u64>, f: f64| {
         v.sort_unstable();
@@ -120,4 +152,16 @@ fn main() {
         q(&mut cold, 0.5),
         cold_iterations as f64 / cold.len() as f64,
     );
+    if every > 0 {
+        for (what, e) in [("λ", &mut errors_lambda), ("force", &mut errors_force)] {
+            let mean = e.iter().sum::<f64>() / e.len() as f64;
+            e.sort_by(f64::total_cmp);
+            println!(
+                "  relative error of {what} vs converged ({} samples): mean {mean:.3e} p99 {:.3e} max {:.3e}",
+                e.len(),
+                e[(e.len() - 1) * 99 / 100],
+                e[e.len() - 1]
+            );
+        }
+    }
 }

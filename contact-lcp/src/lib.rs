@@ -235,21 +235,28 @@ pub fn solve(
     let mut locals = [Local::EMPTY; MAX_CONTACTS];
     for (k, local) in locals[..contacts].iter_mut().enumerate() {
         let block = block_at(w, 3 * k);
-        local.finite = block.iter().flatten().all(|v| v.is_finite());
-        if mu != 0.0 {
-            if let Some(inv) = invert3(&block) {
-                local.inv = inv;
-                local.invertible = true;
-            }
-        }
-        if local.finite && block[0][0] > 0.0 {
-            if mu == 0.0 {
-                local.lift = [1.0 / block[0][0], 0.0, 0.0];
-            } else if local.invertible {
-                local.lift = local.inv[0];
-            }
-        }
-        local.block = block;
+        let finite = block.iter().flatten().all(|v| v.is_finite());
+        let (inv, invertible) = if mu != 0.0 {
+            inverse3(&block)
+        } else {
+            ([[0.0; 3]; 3], false)
+        };
+        let lift = if !(finite && block[0][0] > 0.0) {
+            [f64::NAN; 3]
+        } else if mu == 0.0 {
+            [1.0 / block[0][0], 0.0, 0.0]
+        } else if invertible {
+            inv[0]
+        } else {
+            [f64::NAN; 3]
+        };
+        *local = Local {
+            block,
+            inv,
+            invertible,
+            finite,
+            lift,
+        };
     }
 
     let check_every = settings.deadline_check_every.max(1);
@@ -429,12 +436,13 @@ struct Local {
 }
 
 impl Local {
+    /// All zero (a plain memset): a placeholder for the contacts beyond the problem's.
     const EMPTY: Local = Local {
         block: [[0.0; 3]; 3],
         inv: [[0.0; 3]; 3],
         invertible: false,
-        finite: true,
-        lift: [f64::NAN; 3],
+        finite: false,
+        lift: [0.0; 3],
     };
 }
 
@@ -556,14 +564,20 @@ fn solve_rows(b: &[[f64; 3]; 3], others: &[f64; 3], mu: f64) -> [f64; 3] {
 }
 
 /// Inverse of a 3×3 matrix (adjugate over determinant); `None` when singular or not finite.
+#[cfg(test)]
 fn invert3(a: &[[f64; 3]; 3]) -> Option<[[f64; 3]; 3]> {
+    let (inv, ok) = inverse3(a);
+    ok.then_some(inv)
+}
+
+/// [`invert3`] without branches: the adjugate over the determinant and whether it is the
+/// inverse (the determinant nonzero and every entry finite).
+#[inline(always)]
+fn inverse3(a: &[[f64; 3]; 3]) -> ([[f64; 3]; 3], bool) {
     let c00 = a[1][1] * a[2][2] - a[1][2] * a[2][1];
     let c01 = a[1][2] * a[2][0] - a[1][0] * a[2][2];
     let c02 = a[1][0] * a[2][1] - a[1][1] * a[2][0];
     let det = a[0][0] * c00 + a[0][1] * c01 + a[0][2] * c02;
-    if !(det.abs() > 0.0) || !det.is_finite() {
-        return None;
-    }
     let d = 1.0 / det;
     let inv = [
         [
@@ -582,7 +596,8 @@ fn invert3(a: &[[f64; 3]; 3]) -> Option<[[f64; 3]; 3]> {
             (a[0][0] * a[1][1] - a[0][1] * a[1][0]) * d,
         ],
     ];
-    inv.iter().flatten().all(|v| v.is_finite()).then_some(inv)
+    let ok = det.abs() > 0.0 && det.is_finite() && inv.iter().flatten().all(|v| v.is_finite());
+    (inv, ok)
 }
 
 /// Violation δ = δ_free + W λ for the first `rows` rows, written to `out` (for checks and

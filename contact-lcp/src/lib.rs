@@ -228,20 +228,35 @@ pub fn solve(
         }
     }
 
-    // The sticking trial of every sweep solves with the contact's own 3×3 block: invert each
-    // block once per solve instead of once per sweep (the block solve, not the row updates,
-    // dominated a 32-contact sweep). Frictionless contacts need only W_nn.
-    let mut inverses = [[[0.0f64; 3]; 3]; MAX_CONTACTS];
-    let mut invertible = [false; MAX_CONTACTS];
-    if mu != 0.0 {
-        for k in 0..contacts {
-            let r = 3 * k;
-            let block = block_at(w, r);
-            if let Some(inv) = invert3(&block) {
-                inverses[k] = inv;
-                invertible[k] = true;
-            }
-        }
+    // Every sweep reads each contact's own 3×3 block of W and, for the sticking trial, its
+    // inverse. Both are constant during the solve: gather them once into contiguous memory
+    // (W's rows are MAX_ROWS apart, three cache lines per block, and larger than L1 at 32
+    // contacts), invert once and test finiteness once. Frictionless contacts need only W_nn.
+    let mut locals = [Local::EMPTY; MAX_CONTACTS];
+    for (k, local) in locals[..contacts].iter_mut().enumerate() {
+        let block = block_at(w, 3 * k);
+        let finite = block.iter().flatten().all(|v| v.is_finite());
+        let (inv, invertible) = if mu != 0.0 {
+            inverse3(&block)
+        } else {
+            ([[0.0; 3]; 3], false)
+        };
+        let lift = if !(finite && block[0][0] > 0.0) {
+            [f64::NAN; 3]
+        } else if mu == 0.0 {
+            [1.0 / block[0][0], 0.0, 0.0]
+        } else if invertible {
+            inv[0]
+        } else {
+            [f64::NAN; 3]
+        };
+        *local = Local {
+            block,
+            inv,
+            invertible,
+            finite,
+            lift,
+        };
     }
 
     let check_every = settings.deadline_check_every.max(1);
@@ -249,10 +264,21 @@ pub fn solve(
     for iteration in 1..=settings.max_iterations {
         let mut max_change = 0.0f64;
         let mut max_lambda = 0.0f64;
-        for k in 0..contacts {
+        for (k, local) in locals[..contacts].iter().enumerate() {
             let r = 3 * k;
-            let block = block_at(w, r);
+            let block = &local.block;
             let old = [lambda[r], lambda[r + 1], lambda[r + 2]];
+            if old == [0.0; 3] {
+                // A contact without impulse that stays separated changes nothing: most of a
+                // sweep over a patch whose probe lifts most points off. Decided by the same
+                // normal trial as the block solve below (there `others` is δ); anything else
+                // (an impulse, a non-finite trial, which the full path rejects) goes there.
+                let l = &local.lift;
+                let trial = -(l[0] * delta[r] + l[1] * delta[r + 1] + l[2] * delta[r + 2]);
+                if (f64::MIN..=0.0).contains(&trial) {
+                    continue;
+                }
+            }
             // Violation this contact would have with its own impulse removed.
             let mut others = [0.0; 3];
             for c in 0..3 {
@@ -261,16 +287,15 @@ pub fn solve(
             }
             // Non-finite input reaches the solver through the violation or this block (a
             // non-finite W entry of an impulse that changes poisons δ on the next block).
-            let finite = others.iter().all(|v| v.is_finite())
-                && block.iter().flatten().all(|v| v.is_finite());
+            let finite = others.iter().all(|v| v.is_finite()) && local.finite;
             if !finite {
                 zero(lambda, rows);
                 return Err(LcpError::NonFinite {
                     row: r + others.iter().position(|v| !v.is_finite()).unwrap_or(0),
                 });
             }
-            let inv = invertible[k].then_some(&inverses[k]);
-            let new = solve_block(&block, inv, &others, mu)
+            let inv = local.invertible.then_some(&local.inv);
+            let new = solve_block(block, inv, &others, mu)
                 .ok_or(LcpError::DegenerateBlock { contact: k });
             let new = match new {
                 Ok(v) => v,
@@ -395,8 +420,32 @@ fn project_cone(l: &mut [f64], mu: f64) {
     }
 }
 
-/// One contact: the impulse that makes `others + B λ` satisfy the contact law.
-/// `None` when the block cannot be solved (non-positive normal compliance, singular block).
+/// What a sweep needs of one contact besides δ and λ, constant during a solve.
+#[derive(Clone, Copy)]
+struct Local {
+    /// The contact's 3×3 diagonal block of W.
+    block: [[f64; 3]; 3],
+    /// Its inverse, valid when `invertible` (only computed with friction).
+    inv: [[f64; 3]; 3],
+    invertible: bool,
+    /// Every entry of `block` is finite.
+    finite: bool,
+    /// The normal impulse this contact takes when it has none is −lift·δ (`inv[0]`, or
+    /// 1/W_nn without friction); NaN where the block solve does not decide it that way.
+    lift: [f64; 3],
+}
+
+impl Local {
+    /// All zero (a plain memset): a placeholder for the contacts beyond the problem's.
+    const EMPTY: Local = Local {
+        block: [[0.0; 3]; 3],
+        inv: [[0.0; 3]; 3],
+        invertible: false,
+        finite: false,
+        lift: [0.0; 3],
+    };
+}
+
 /// The 3×3 diagonal block of contact rows r..r+3.
 #[inline]
 fn block_at(w: &[f64], r: usize) -> [[f64; 3]; 3] {
@@ -419,7 +468,10 @@ fn block_at(w: &[f64], r: usize) -> [[f64; 3]; 3] {
     ]
 }
 
+/// One contact: the impulse that makes `others + B λ` satisfy the contact law.
+/// `None` when the block cannot be solved (non-positive normal compliance, singular block).
 /// `inv`: the block's inverse when it has one (None: singular, solved row-wise).
+#[inline]
 fn solve_block(
     b: &[[f64; 3]; 3],
     inv: Option<&[[f64; 3]; 3]>,
@@ -512,14 +564,20 @@ fn solve_rows(b: &[[f64; 3]; 3], others: &[f64; 3], mu: f64) -> [f64; 3] {
 }
 
 /// Inverse of a 3×3 matrix (adjugate over determinant); `None` when singular or not finite.
+#[cfg(test)]
 fn invert3(a: &[[f64; 3]; 3]) -> Option<[[f64; 3]; 3]> {
+    let (inv, ok) = inverse3(a);
+    ok.then_some(inv)
+}
+
+/// [`invert3`] without branches: the adjugate over the determinant and whether it is the
+/// inverse (the determinant nonzero and every entry finite).
+#[inline(always)]
+fn inverse3(a: &[[f64; 3]; 3]) -> ([[f64; 3]; 3], bool) {
     let c00 = a[1][1] * a[2][2] - a[1][2] * a[2][1];
     let c01 = a[1][2] * a[2][0] - a[1][0] * a[2][2];
     let c02 = a[1][0] * a[2][1] - a[1][1] * a[2][0];
     let det = a[0][0] * c00 + a[0][1] * c01 + a[0][2] * c02;
-    if !(det.abs() > 0.0) || !det.is_finite() {
-        return None;
-    }
     let d = 1.0 / det;
     let inv = [
         [
@@ -538,7 +596,8 @@ fn invert3(a: &[[f64; 3]; 3]) -> Option<[[f64; 3]; 3]> {
             (a[0][0] * a[1][1] - a[0][1] * a[1][0]) * d,
         ],
     ];
-    inv.iter().flatten().all(|v| v.is_finite()).then_some(inv)
+    let ok = det.abs() > 0.0 && det.is_finite() && inv.iter().flatten().all(|v| v.is_finite());
+    (inv, ok)
 }
 
 /// Violation δ = δ_free + W λ for the first `rows` rows, written to `out` (for checks and
@@ -1008,6 +1067,389 @@ mod tests {
         }
         assert!(invert3(&[[1.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 1.0]]).is_none());
         assert!(invert3(&[[f64::NAN, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]).is_none());
+    }
+
+    /// The sweep as it was before the per-solve gathering and the separation shortcut (one
+    /// block read from W, one full block solve per contact and sweep): optimisations of
+    /// [`solve`] must reproduce it.
+    #[allow(clippy::manual_is_multiple_of, clippy::neg_cmp_op_on_partial_ord)]
+    mod reference {
+        use super::super::*;
+
+        pub fn reference_solve(
+            problem: &Problem<'_>,
+            lambda: &mut [f64],
+            settings: &Settings,
+        ) -> Result<Solution, LcpError> {
+            let rows = problem.row_count;
+            if rows > MAX_ROWS || rows % ROWS_PER_CONTACT != 0 {
+                return Err(LcpError::RowCount { rows });
+            }
+            if !(settings.tolerance.is_finite() && settings.tolerance >= 0.0) {
+                return Err(LcpError::Settings {
+                    detail: "tolerance must be finite and ≥ 0",
+                });
+            }
+            if rows == 0 {
+                return Ok(Solution {
+                    converged: true,
+                    ..Solution::default()
+                });
+            }
+            let w_needed = (rows - 1) * MAX_ROWS + rows;
+            for (what, len, needed) in [
+                ("compliance", problem.compliance.len(), w_needed),
+                ("free violation", problem.free_violation.len(), rows),
+                ("lambda", lambda.len(), rows),
+            ] {
+                if len < needed {
+                    zero(lambda, rows);
+                    return Err(LcpError::SliceTooShort { what, len, needed });
+                }
+            }
+            let mu = problem.friction_mu;
+            if !(mu.is_finite() && mu >= 0.0) {
+                zero(lambda, rows);
+                return Err(LcpError::Friction { mu });
+            }
+            let w = problem.compliance;
+            let dfree = problem.free_violation;
+            let contacts = rows / ROWS_PER_CONTACT;
+
+            // Warm start: must be finite and feasible, otherwise the first sweep's "others'
+            // contribution" would carry garbage.
+            for k in 0..contacts {
+                let l = &mut lambda[3 * k..3 * k + 3];
+                if !l.iter().all(|v| v.is_finite()) || l[0] <= 0.0 {
+                    l.fill(0.0);
+                    continue;
+                }
+                project_cone(l, mu);
+            }
+
+            // Current violation δ = δ_free + W λ, kept up to date as impulses change: a block whose
+            // impulse does not change (a contact that stays separated) costs nothing, and a change
+            // of one impulse is one row update. W is symmetric (H A⁻¹ Hᵀ), so the column of an
+            // impulse is read as its (contiguous) row.
+            let mut delta = [0.0f64; MAX_ROWS];
+            let delta = &mut delta[..rows];
+            delta.copy_from_slice(&dfree[..rows]);
+            for (j, &l) in lambda[..rows].iter().enumerate() {
+                if l != 0.0 {
+                    axpy(l, &w[j * MAX_ROWS..j * MAX_ROWS + rows], delta);
+                }
+            }
+
+            // The sticking trial of every sweep solves with the contact's own 3×3 block: invert each
+            // block once per solve instead of once per sweep (the block solve, not the row updates,
+            // dominated a 32-contact sweep). Frictionless contacts need only W_nn.
+            let mut inverses = [[[0.0f64; 3]; 3]; MAX_CONTACTS];
+            let mut invertible = [false; MAX_CONTACTS];
+            if mu != 0.0 {
+                for k in 0..contacts {
+                    let r = 3 * k;
+                    let block = block_at(w, r);
+                    if let Some(inv) = invert3(&block) {
+                        inverses[k] = inv;
+                        invertible[k] = true;
+                    }
+                }
+            }
+
+            let check_every = settings.deadline_check_every.max(1);
+            let mut solution = Solution::default();
+            for iteration in 1..=settings.max_iterations {
+                let mut max_change = 0.0f64;
+                let mut max_lambda = 0.0f64;
+                for k in 0..contacts {
+                    let r = 3 * k;
+                    let block = block_at(w, r);
+                    let old = [lambda[r], lambda[r + 1], lambda[r + 2]];
+                    // Violation this contact would have with its own impulse removed.
+                    let mut others = [0.0; 3];
+                    for c in 0..3 {
+                        others[c] = delta[r + c]
+                            - (block[c][0] * old[0] + block[c][1] * old[1] + block[c][2] * old[2]);
+                    }
+                    // Non-finite input reaches the solver through the violation or this block (a
+                    // non-finite W entry of an impulse that changes poisons δ on the next block).
+                    let finite = others.iter().all(|v| v.is_finite())
+                        && block.iter().flatten().all(|v| v.is_finite());
+                    if !finite {
+                        zero(lambda, rows);
+                        return Err(LcpError::NonFinite {
+                            row: r + others.iter().position(|v| !v.is_finite()).unwrap_or(0),
+                        });
+                    }
+                    let inv = invertible[k].then_some(&inverses[k]);
+                    let new = reference_block(&block, inv, &others, mu)
+                        .ok_or(LcpError::DegenerateBlock { contact: k });
+                    let new = match new {
+                        Ok(v) => v,
+                        Err(e) => {
+                            zero(lambda, rows);
+                            return Err(e);
+                        }
+                    };
+                    let change = [new[0] - old[0], new[1] - old[1], new[2] - old[2]];
+                    if change[1] == 0.0 && change[2] == 0.0 {
+                        // Frictionless or tangentially unchanged: one row.
+                        if change[0] != 0.0 {
+                            axpy(change[0], &w[r * MAX_ROWS..r * MAX_ROWS + rows], delta);
+                        }
+                    } else {
+                        axpy3(
+                            change,
+                            &w[r * MAX_ROWS..r * MAX_ROWS + rows],
+                            &w[(r + 1) * MAX_ROWS..(r + 1) * MAX_ROWS + rows],
+                            &w[(r + 2) * MAX_ROWS..(r + 2) * MAX_ROWS + rows],
+                            delta,
+                        );
+                    }
+                    for c in 0..3 {
+                        max_change = max_change.max(change[c].abs());
+                        max_lambda = max_lambda.max(new[c].abs());
+                        lambda[r + c] = new[c];
+                    }
+                }
+                solution.iterations = iteration;
+                solution.residual = if max_change == 0.0 {
+                    0.0
+                } else {
+                    max_change / max_lambda.max(LAMBDA_FLOOR)
+                };
+                if solution.residual <= settings.tolerance {
+                    solution.converged = true;
+                    return Ok(solution);
+                }
+                if let Some(deadline) = settings.deadline {
+                    if iteration % check_every == 0 && Instant::now() >= deadline {
+                        solution.deadline_hit = true;
+                        return Ok(solution);
+                    }
+                }
+            }
+            Ok(solution)
+        }
+
+        fn reference_block(
+            b: &[[f64; 3]; 3],
+            inv: Option<&[[f64; 3]; 3]>,
+            others: &[f64; 3],
+            mu: f64,
+        ) -> Option<[f64; 3]> {
+            let wnn = b[0][0];
+            if !(wnn > 0.0) {
+                return None;
+            }
+            if mu == 0.0 {
+                // Frictionless: tangential impulses are zero, the normal is a scalar projection.
+                return Some([(-others[0] / wnn).max(0.0), 0.0, 0.0]);
+            }
+            // Sticking trial: all three rows satisfied, δ = 0. A block whose tangential part is
+            // singular (a contact on a triangle with held nodes, or a kinematic probe) falls back to
+            // row-wise projection instead of failing the whole step.
+            let Some(inv) = inv else {
+                return Some(solve_rows(b, others, mu));
+            };
+            let mut stick = [0.0; 3];
+            for (s, row) in stick.iter_mut().zip(inv) {
+                *s = -(row[0] * others[0] + row[1] * others[1] + row[2] * others[2]);
+            }
+            if stick[0] <= 0.0 {
+                // Would pull: separation. (δn = others_n ≥ 0 then, since B is positive definite.)
+                return Some([0.0; 3]);
+            }
+            if (stick[1] * stick[1] + stick[2] * stick[2]).sqrt() <= mu * stick[0] {
+                return Some(stick);
+            }
+            // Sliding: alternate normal row (with tangential fixed) and tangential 2×2 trial
+            // (with normal fixed) projected onto the disc of radius μ λn.
+            let det_t = b[1][1] * b[2][2] - b[1][2] * b[2][1];
+            if !(det_t > 0.0) {
+                return Some(solve_rows(b, others, mu));
+            }
+            let mut l = stick;
+            project_cone(&mut l, mu);
+            for _ in 0..SLIDING_PASSES {
+                let prev = l;
+                l[0] = (-(others[0] + b[0][1] * l[1] + b[0][2] * l[2]) / wnn).max(0.0);
+                if l[0] == 0.0 {
+                    return Some([0.0; 3]);
+                }
+                let r1 = -(others[1] + b[1][0] * l[0]);
+                let r2 = -(others[2] + b[2][0] * l[0]);
+                l[1] = (b[2][2] * r1 - b[1][2] * r2) / det_t;
+                l[2] = (b[1][1] * r2 - b[2][1] * r1) / det_t;
+                project_cone(&mut l, mu);
+                // The normal–tangent coupling is weak (|W_nt| μ / W_nn ≪ 1): a few passes suffice.
+                let change = (l[0] - prev[0])
+                    .abs()
+                    .max((l[1] - prev[1]).abs())
+                    .max((l[2] - prev[2]).abs());
+                if change <= 1e-14 * l[0] {
+                    break;
+                }
+            }
+            Some(l)
+        }
+    }
+
+    /// A small deterministic generator (xorshift64*), uniform in [0, 1).
+    struct Rng(u64);
+
+    impl Rng {
+        fn next(&mut self) -> f64 {
+            self.0 ^= self.0 >> 12;
+            self.0 ^= self.0 << 25;
+            self.0 ^= self.0 >> 27;
+            (self.0.wrapping_mul(0x2545_f491_4f6c_dd1d) >> 11) as f64 / (1u64 << 53) as f64
+        }
+
+        fn range(&mut self, lo: f64, hi: f64) -> f64 {
+            lo + (hi - lo) * self.next()
+        }
+    }
+
+    /// A random contact patch like the haptic node sees: `n` points under a probe, tissue
+    /// compliance coupled over a random length, the probe's rigid compliance through the
+    /// contact directions, optionally a local anisotropic / normal–tangent coupled term per
+    /// contact, and now and then a contact with no tangential compliance (a held node).
+    fn random_patch(rng: &mut Rng, n: usize) -> (Vec<f64>, Vec<f64>) {
+        let rows = 3 * n;
+        let side = rng.range(2e-4, 3e-3);
+        let mut dirs = vec![[0.0f64; 3]; rows];
+        let mut points = vec![[0.0f64; 2]; n];
+        for k in 0..n {
+            points[k] = [rng.range(0.0, side), rng.range(0.0, side)];
+            let tilt = [rng.range(-0.3, 0.3), rng.range(-0.3, 0.3)];
+            let l = (1.0 + tilt[0] * tilt[0] + tilt[1] * tilt[1]).sqrt();
+            let nz = [tilt[0] / l, tilt[1] / l, 1.0 / l];
+            // t1 ⟂ n in the x–z plane direction, t2 = n × t1.
+            let a = [nz[2], 0.0, -nz[0]];
+            let la = (a[0] * a[0] + a[2] * a[2]).sqrt();
+            let t1 = [a[0] / la, 0.0, a[2] / la];
+            let t2 = [
+                nz[1] * t1[2] - nz[2] * t1[1],
+                nz[2] * t1[0] - nz[0] * t1[2],
+                nz[0] * t1[1] - nz[1] * t1[0],
+            ];
+            dirs[3 * k] = nz;
+            dirs[3 * k + 1] = t1;
+            dirs[3 * k + 2] = t2;
+        }
+        let c0 = rng.range(5e-3, 0.2);
+        let length = rng.range(2e-4, 2e-3);
+        let probe = rng.range(0.0, 0.05);
+        let mut w = empty_w();
+        for i in 0..rows {
+            for j in 0..rows {
+                let (pi, pj) = (points[i / 3], points[j / 3]);
+                let r = ((pi[0] - pj[0]).powi(2) + (pi[1] - pj[1]).powi(2)).sqrt();
+                let (di, dj) = (dirs[i], dirs[j]);
+                let dot = di[0] * dj[0] + di[1] * dj[1] + di[2] * dj[2];
+                let tissue = if i % 3 == j % 3 {
+                    c0 * (-r / length).exp()
+                } else {
+                    0.0
+                };
+                w[i * MAX_ROWS + j] = tissue + probe * dot;
+            }
+        }
+        for k in 0..n {
+            if rng.next() < 0.4 {
+                // + L Lᵀ with a random lower-triangular L: anisotropic, coupled, still PSD.
+                let s = c0 * rng.range(0.0, 0.5);
+                let l = [
+                    [rng.range(0.0, 1.0), 0.0, 0.0],
+                    [rng.range(-0.5, 0.5), rng.range(0.0, 1.0), 0.0],
+                    [
+                        rng.range(-0.5, 0.5),
+                        rng.range(-0.5, 0.5),
+                        rng.range(0.0, 1.0),
+                    ],
+                ];
+                for a in 0..3 {
+                    for b in 0..3 {
+                        let v: f64 = (0..3).map(|c| l[a][c] * l[b][c]).sum();
+                        w[(3 * k + a) * MAX_ROWS + 3 * k + b] += s * v;
+                    }
+                }
+            }
+            if rng.next() < 0.1 {
+                for t in 1..3 {
+                    let row = 3 * k + t;
+                    for j in 0..rows {
+                        w[row * MAX_ROWS + j] = 0.0;
+                        w[j * MAX_ROWS + row] = 0.0;
+                    }
+                }
+            }
+        }
+        let depth = rng.range(0.0, 4e-4);
+        let mut dfree = vec![0.0; rows];
+        for k in 0..n {
+            dfree[3 * k] = rng.range(-depth, 2e-4);
+            dfree[3 * k + 1] = rng.range(-1e-4, 1e-4);
+            dfree[3 * k + 2] = rng.range(-1e-4, 1e-4);
+        }
+        (w, dfree)
+    }
+
+    #[test]
+    fn sweeps_reproduce_the_reference_sweep_on_random_patches() {
+        let mut rng = Rng(0x9e37_79b9_7f4a_7c15);
+        let mut separated = 0;
+        let mut sliding = 0;
+        for case in 0..3000 {
+            let n = 1 + (rng.next() * MAX_CONTACTS as f64) as usize;
+            let rows = 3 * n;
+            let (w, dfree) = random_patch(&mut rng, n);
+            let mu = [0.0, 0.05, 0.2, 0.2, 0.5, 1.0][(rng.next() * 6.0) as usize];
+            let p = Problem {
+                compliance: &w,
+                free_violation: &dfree,
+                friction_mu: mu,
+                row_count: rows,
+            };
+            let settings = Settings {
+                max_iterations: [3, 50, 500][(rng.next() * 3.0) as usize],
+                tolerance: [1e-3, 1e-3, 1e-6][(rng.next() * 3.0) as usize],
+                ..Settings::default()
+            };
+            // Cold, warm from a random guess, or warm from a nearby solution.
+            let mut warm = [0.0; MAX_ROWS];
+            match case % 3 {
+                0 => {}
+                1 => {
+                    for v in warm[..rows].iter_mut() {
+                        *v = rng.range(-0.2, 1.0) * 1e-2 / w[0].max(1e-3);
+                    }
+                }
+                _ => {
+                    reference::reference_solve(&p, &mut warm[..rows], &settings).unwrap();
+                    for v in warm[..rows].iter_mut() {
+                        *v *= rng.range(0.9, 1.1);
+                    }
+                }
+            }
+            let mut expected = warm;
+            let mut got = warm;
+            let a = reference::reference_solve(&p, &mut expected[..rows], &settings).unwrap();
+            let b = solve(&p, &mut got[..rows], &settings).unwrap();
+            assert_eq!(a, b, "case {case}: n {n} μ {mu}");
+            assert_eq!(expected[..rows], got[..rows], "case {case}: n {n} μ {mu}");
+            for k in 0..n {
+                let l = &got[3 * k..3 * k + 3];
+                if l[0] == 0.0 {
+                    separated += 1;
+                } else if mu > 0.0 && (l[1] * l[1] + l[2] * l[2]).sqrt() >= mu * l[0] * 0.999 {
+                    sliding += 1;
+                }
+            }
+        }
+        // The cases exercise all three outcomes.
+        assert!(separated > 1000 && sliding > 1000, "{separated} {sliding}");
     }
 
     #[test]

@@ -94,18 +94,20 @@ pub(crate) fn extract_rotation(
 pub(crate) fn qr_rotation(a: &Matrix3<f64>) -> Option<Matrix3<f64>> {
     let c0 = a.column(0).into_owned();
     let c1 = a.column(1).into_owned();
-    let n0 = c0.norm();
-    if !(n0 > 1e-12 && n0.is_finite()) {
+    // u1 = c1 − c0 (c0·c1)/(c0·c0) needs no normalised c0, so the two square roots and
+    // divisions below are independent instead of one chain (their latency was most of the
+    // element pass once the stiffness blocks stopped being rebuilt every step).
+    let n0_sq = c0.norm_squared();
+    if !(n0_sq > 1e-24 && n0_sq.is_finite()) {
         return None;
     }
-    // One division per axis, not three (divisions are most of this function's latency).
-    let q0 = c0 * (1.0 / n0);
-    let u1 = c1 - q0 * q0.dot(&c1);
-    let n1 = u1.norm();
-    if !(n1 > 1e-12 * n0.max(1.0) && n1.is_finite()) {
+    let u1 = c1 - c0 * (c0.dot(&c1) / n0_sq);
+    let n1_sq = u1.norm_squared();
+    if !(n1_sq > 1e-24 * n0_sq.max(1.0) && n1_sq.is_finite()) {
         return None;
     }
-    let q1 = u1 * (1.0 / n1);
+    let q0 = c0 * (1.0 / n0_sq.sqrt());
+    let q1 = u1 * (1.0 / n1_sq.sqrt());
     Some(Matrix3::from_columns(&[q0, q1, q0.cross(&q1)]))
 }
 

@@ -643,7 +643,9 @@ fn packed_f32_system_matches_f64_assembly_and_product() {
     reference.pack(&f64_model.pattern, &f64_model.a);
     let scale = f64_model.a.iter().map(|b| b.amax()).fold(0.0, f64::max);
     for row in 0..f64_model.free_nodes.len() {
-        let d = (f32_model.upper32.diagonal_block(row, false) - reference.diagonal_block(row, false)).amax();
+        let d = (f32_model.upper32.diagonal_block(row, false)
+            - reference.diagonal_block(row, false))
+        .amax();
         assert!(
             d <= 1e-6 * scale,
             "diagonal block {row} differs by {d} (scale {scale})"
@@ -670,7 +672,11 @@ fn packed_f32_system_matches_f64_assembly_and_product() {
     let dot_shifted = packed.mul_dot(&x, &mut y_shifted, true);
     let mut y_shifted_portable = vec![0.0; n];
     let dot_shifted_portable = packed.mul_dot_portable(&x, &mut y_shifted_portable, true);
-    for (i, (ys, ysp)) in y_shifted.iter_mut().zip(&mut y_shifted_portable).enumerate() {
+    for (i, (ys, ysp)) in y_shifted
+        .iter_mut()
+        .zip(&mut y_shifted_portable)
+        .enumerate()
+    {
         *ys -= shift(i / 3) * x[i];
         *ysp -= shift(i / 3) * x[i];
     }
@@ -679,7 +685,11 @@ fn packed_f32_system_matches_f64_assembly_and_product() {
         (&y_simd, dot_simd, "simd"),
         (&y_portable, dot_portable, "portable"),
         (&y_shifted, dot_shifted - x_shift_x, "simd shifted"),
-        (&y_shifted_portable, dot_shifted_portable - x_shift_x, "portable shifted"),
+        (
+            &y_shifted_portable,
+            dot_shifted_portable - x_shift_x,
+            "portable shifted",
+        ),
     ] {
         let err = y
             .iter()
@@ -698,25 +708,35 @@ fn packed_f32_system_matches_f64_assembly_and_product() {
     }
 }
 
-/// Stiffness blocks re-rotated only past a tolerance: the elements that turned are
-/// updated in place, the motion stays that of the every-step assembly, and a material
-/// change rebuilds the blocks.
+/// Stiffness blocks re-rotated in place only past a tolerance: with a vanishing tolerance
+/// the in-place updates reproduce the every-step assembly (to f32 round-off); with 1e-3 rad
+/// only the elements that turned are updated and the motion stays close; a material change
+/// rebuilds the blocks.
 #[test]
 fn lazy_stiffness_rotation_follows_every_step_assembly() {
     let mesh = box_mesh(0.02, 0.004, 0.004, 10, 2, 2);
     let fixed = nodes_where(&mesh, |p| p.x < 1e-9);
     let model = |tolerance: f64| {
+        // A converged CG: SOFA's 25 iterations leave this beam's residual near 1, and
+        // that truncation amplifies any perturbation (even f32 vs f64) to ~1e-2.
         let s = FemSettings {
             stiffness_rotation_tolerance: tolerance,
             rayleigh_mass: 30.0,
+            solver: LinearSolver::Cg {
+                max_iterations: 1000,
+                tolerance: 1e-10,
+                preconditioner: Preconditioner::None,
+            },
             ..FemSettings::default()
         };
         FemModel::new(&mesh, Material::lateral(), &fixed, s).unwrap()
     };
-    let (mut every, mut lazy) = (model(0.0), model(1e-3));
+    let (mut every, mut updated, mut lazy) = (model(0.0), model(1e-12), model(1e-3));
     let tip: Vec<usize> = nodes_where(&mesh, |p| p.x > 0.02 - 1e-9);
     let mut f = zero_forces(&every);
     let mut updates = Vec::new();
+    // Largest position difference to the every-step assembly over the whole run.
+    let (mut worst_updated, mut worst_lazy) = (0.0f64, 0.0f64);
     for step in 0..160 {
         // Bend the free end sideways (large rotations near the tip), hold, let it settle.
         let load = 0.05 * (step as f64 / 60.0).min(1.0);
@@ -724,9 +744,15 @@ fn lazy_stiffness_rotation_follows_every_step_assembly() {
             f[i] = Vector3::new(0.0, load, 0.3 * load);
         }
         every.step(0.01, &f).unwrap();
+        updated.step(0.01, &f).unwrap();
         lazy.step(0.01, &f).unwrap();
         assert_eq!(every.stiffness_updates(), every.tet_count());
         updates.push(lazy.stiffness_updates());
+        for (m, worst) in [(&updated, &mut worst_updated), (&lazy, &mut worst_lazy)] {
+            for (a, b) in every.positions().iter().zip(m.positions()) {
+                *worst = worst.max((a - b).norm());
+            }
+        }
     }
     let tets = lazy.tet_count();
     assert_eq!(updates[0], tets, "the first step builds every element");
@@ -734,7 +760,10 @@ fn lazy_stiffness_rotation_follows_every_step_assembly() {
         updates[1..].iter().any(|&u| u < tets / 2),
         "few elements turn by more than 1e-3 per step: {updates:?}"
     );
-    assert!(updates[1..].iter().any(|&u| u > 0), "the swinging beam re-rotates some");
+    assert!(
+        updates[1..].iter().any(|&u| u > 0),
+        "the bending beam re-rotates some"
+    );
     let span = every
         .positions()
         .iter()
@@ -742,13 +771,18 @@ fn lazy_stiffness_rotation_follows_every_step_assembly() {
         .map(|(p, r)| (p - r).norm())
         .fold(0.0, f64::max);
     assert!(span > 1e-3, "the tip moved {span} m");
-    for (a, b) in every.positions().iter().zip(lazy.positions()) {
-        // The lagged Jacobian perturbs each implicit step by about the tolerance; in this
-        // swinging beam the differences add up to a few 1e-3 of its motion.
-        assert!((a - b).norm() < 5e-3 * span, "{} vs span {span}", (a - b).norm());
-    }
+    // In-place updates of every element: the same matrix up to f32 round-off (2e-5 of the
+    // motion when measured: the beam's conditioning amplifies 1e-7).
+    assert!(
+        worst_updated < 1e-4 * span,
+        "{worst_updated} vs span {span}"
+    );
+    // The lagged Jacobian perturbs each implicit step by about the tolerance (2e-5 of the
+    // motion when measured).
+    assert!(worst_lazy < 1e-3 * span, "{worst_lazy} vs span {span}");
     // A new modulus must not keep the old blocks.
-    lazy.set_material(Material::lateral().degenerated(2.0).unwrap()).unwrap();
+    lazy.set_material(Material::lateral().degenerated(2.0).unwrap())
+        .unwrap();
     lazy.step(0.01, &f).unwrap();
     assert_eq!(lazy.stiffness_updates(), tets);
 }

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 mod common;
 use common::{arthrosim, text};
 
-fn scratch(name: &str) -> PathBuf {
+fn scratch(name: &str) -> common::Scratch {
     common::scratch("cli", name)
 }
 

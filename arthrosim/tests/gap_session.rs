@@ -8,7 +8,7 @@ use msgs::haptic_to_physics::{fault, DeviceState};
 use msgs::Pose;
 use physics_node::sim::Simulation;
 use recordings::{SessionInfo, SessionWriter};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 const PEAK_N: f64 = 20.0;
 const SCALE: f64 = 0.9;
@@ -16,7 +16,7 @@ const SCALE: f64 = 0.9;
 mod common;
 use common::{arthrosim, text};
 
-fn scratch(name: &str) -> PathBuf {
+fn scratch(name: &str) -> common::Scratch {
     common::scratch("gap", name)
 }
 

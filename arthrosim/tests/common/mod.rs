@@ -11,12 +11,31 @@ pub fn arthrosim(args: &[&str]) -> Output {
         .expect("run arthrosim")
 }
 
-/// A fresh folder `arthrosim-<suite>-<pid>-<name>` under the temp dir.
-pub fn scratch(suite: &str, name: &str) -> PathBuf {
+/// A fresh folder `arthrosim-<suite>-<pid>-<name>` under the temp dir, removed when the
+/// test is done with it (kept when the test panics, for a look at what it wrote).
+pub fn scratch(suite: &str, name: &str) -> Scratch {
     let dir = std::env::temp_dir().join(format!("arthrosim-{suite}-{}-{name}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
-    dir
+    Scratch(dir)
+}
+
+/// A test's scratch folder (see [`scratch`]).
+pub struct Scratch(PathBuf);
+
+impl std::ops::Deref for Scratch {
+    type Target = PathBuf;
+    fn deref(&self) -> &PathBuf {
+        &self.0
+    }
+}
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        if !std::thread::panicking() {
+            let _ = std::fs::remove_dir_all(&self.0);
+        }
+    }
 }
 
 /// stdout then stderr.

@@ -143,7 +143,8 @@ pub struct SolverConfig {
     pub cg_matrix: String,
     /// With the f32 CG matrix: re-rotate an element's stiffness blocks only once its rotation
     /// moved by more than this (≈ rad) since they were built; 0 = every element every step,
-    /// as SOFA. Elastic forces always use the current rotation.
+    /// as SOFA. Elastic forces always use the current rotation. At most
+    /// [`crate::validate::MAX_STIFFNESS_ROTATION_TOLERANCE`].
     pub stiffness_rotation_tolerance: f64,
 }
 

@@ -160,6 +160,31 @@ fn bad_specs_and_ranges_are_all_reported_with_lines() {
 }
 
 #[test]
+fn solver_matrix_precision_and_stiffness_tolerance_are_checked() {
+    let text = "[scene.solver]\ncg_matrix = \"f16\"\nstiffness_rotation_tolerance = 1.0\n";
+    let err = load_str(text, Path::new("solver.toml")).unwrap_err();
+    let keys: Vec<(&str, Option<usize>)> = err
+        .issues()
+        .iter()
+        .map(|i| (i.key.as_str(), i.line))
+        .collect();
+    assert!(
+        keys.contains(&("scene.solver.cg_matrix", Some(2))),
+        "{keys:?}"
+    );
+    assert!(
+        keys.contains(&("scene.solver.stiffness_rotation_tolerance", Some(3))),
+        "{keys:?}"
+    );
+    let rendered = err.to_string();
+    assert!(rendered.contains("`f32`, `f64`"), "{rendered}");
+    assert!(rendered.contains("too lax"), "{rendered}");
+    let ok = "[scene.solver]\ncg_matrix = \"f64\"\nstiffness_rotation_tolerance = 0.0\n";
+    let file = load_str(ok, Path::new("solver.toml")).unwrap();
+    assert_eq!(file.scene.solver.cg_matrix, "f64");
+}
+
+#[test]
 fn unknown_restart_policy_lists_the_variants() {
     let (issue, text) = only_issue(
         load_str("[launcher]\nrestart = \"always\"\n", Path::new("r.toml")).unwrap_err(),

@@ -277,6 +277,16 @@ impl FemSettings {
                 return Err(FemError::Input(format!("{name} must be ≥ 0, got {v}")));
             }
         }
+        if self.stiffness_rotation_tolerance
+            > launch_config::validate::MAX_STIFFNESS_ROTATION_TOLERANCE
+        {
+            return Err(FemError::Input(format!(
+                "stiffness_rotation_tolerance {} rad is above {} rad (a stiffness matrix that \
+                 never follows the rotations makes the implicit step diverge)",
+                self.stiffness_rotation_tolerance,
+                launch_config::validate::MAX_STIFFNESS_ROTATION_TOLERANCE
+            )));
+        }
         if let LinearSolver::Cg {
             max_iterations,
             tolerance,

@@ -141,17 +141,7 @@ pub(crate) fn corotational(
     out: &mut ElementOutput,
 ) {
     let v = rest.volume;
-    // Small strain in the rotated frame.
-    let fr = rot.transpose() * f;
-    let mut eps = (fr + fr.transpose()) * 0.5;
-    eps[(0, 0)] -= 1.0;
-    eps[(1, 1)] -= 1.0;
-    eps[(2, 2)] -= 1.0;
-    let tr = eps.trace();
-    let mut sigma = eps * (2.0 * mu);
-    sigma[(0, 0)] += lambda * tr;
-    sigma[(1, 1)] += lambda * tr;
-    sigma[(2, 2)] += lambda * tr;
+    let (eps, tr, sigma) = rotated_small_strain(f, rot, mu, lambda);
     out.energy = v * (mu * eps.norm_squared() + 0.5 * lambda * tr * tr);
     let p = rot * sigma * (-v);
     // Rotated gradients: R K0_ab Rᵀ = V[μ (g_a·g_b) I + μ ĝ_b ĝ_aᵀ + λ ĝ_a ĝ_bᵀ], ĝ = R g.
@@ -210,7 +200,22 @@ pub(crate) fn corotational_forces(
     lambda: f64,
     force: &mut [Vector3<f64>; 4],
 ) {
-    let v = rest.volume;
+    let (_, _, sigma) = rotated_small_strain(f, rot, mu, lambda);
+    let p = rot * sigma * (-rest.volume);
+    for a in 0..4 {
+        force[a] = p * rest.grad[a];
+    }
+}
+
+/// Small strain in the element frame, eps = sym(RᵀF) − I, its trace, and the linear stress
+/// σ = 2μ eps + λ tr(eps) I.
+#[inline(always)]
+fn rotated_small_strain(
+    f: &Matrix3<f64>,
+    rot: &Matrix3<f64>,
+    mu: f64,
+    lambda: f64,
+) -> (Matrix3<f64>, f64, Matrix3<f64>) {
     let fr = rot.transpose() * f;
     let mut eps = (fr + fr.transpose()) * 0.5;
     eps[(0, 0)] -= 1.0;
@@ -221,10 +226,7 @@ pub(crate) fn corotational_forces(
     sigma[(0, 0)] += lambda * tr;
     sigma[(1, 1)] += lambda * tr;
     sigma[(2, 2)] += lambda * tr;
-    let p = rot * sigma * (-v);
-    for a in 0..4 {
-        force[a] = p * rest.grad[a];
-    }
+    (eps, tr, sigma)
 }
 
 /// Adds `k_scale · R K0 Rᵀ` of a linear corotational element to the packed f32 upper

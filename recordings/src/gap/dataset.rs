@@ -23,8 +23,11 @@ pub struct TrialData {
     pub depth_grid: Vec<f64>,
     /// Baseline replay on the grid.
     pub base: Vec<[f64; 3]>,
-    /// Re-simulations per effect, in the order of `Effect::resims`.
+    /// Re-simulations per effect, in the order of `Effect::resims`. A diverged one (see
+    /// [`diverged`]) is replaced by the baseline and flagged in `resim_ok`.
     pub resims: HashMap<Effect, Vec<Vec<[f64; 3]>>>,
+    /// Per effect and knot: the re-simulation is usable (absent: all usable).
+    pub resim_ok: HashMap<Effect, Vec<bool>>,
     /// Contact normal (outward), depth (mm) and phase at the measurement times.
     pub normal: [f64; 3],
     pub depth: Vec<f64>,
@@ -40,6 +43,49 @@ impl TrialData {
     pub fn has_resims(&self, e: Effect) -> bool {
         e.resims().is_empty() || self.resims.contains_key(&e)
     }
+    /// Whether knot `k` of effect `e`'s re-simulations is usable.
+    pub fn resim_valid(&self, e: Effect, k: usize) -> bool {
+        self.resim_ok
+            .get(&e)
+            .and_then(|v| v.get(k).copied())
+            .unwrap_or(true)
+    }
+    /// Labels (`trial: variant`) of the re-simulations found diverged.
+    pub fn diverged_labels(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        let mut effects: Vec<&Effect> = self.resim_ok.keys().collect();
+        effects.sort();
+        for e in effects {
+            let vs = e.resims();
+            for (k, ok) in self.resim_ok[e].iter().enumerate() {
+                if !ok {
+                    let label = vs.get(k).map(|v| v.label()).unwrap_or_default();
+                    out.push(format!("{}: {label}", self.name));
+                }
+            }
+        }
+        out
+    }
+}
+
+/// Largest peak force of a re-simulation, in multiples of the larger of the baseline's and the
+/// measured peak (and 1 N), still taken as a solution. The contact solver can blow up under a
+/// deep indentation (a tilted specimen pressed 2 mm further: 10⁵–10⁶ N at the hold); one such
+/// replay outweighed every other trial and hid the tilt it was meant to measure.
+pub const DIVERGED_PEAK_FACTOR: f64 = 20.0;
+
+fn peak(f: &[[f64; 3]]) -> f64 {
+    f.iter().map(|v| norm(*v)).fold(0.0, f64::max)
+}
+
+/// A replay that did not converge to a physical solution: non-finite values, or a peak
+/// force far above both the baseline's and the measurement's (see [`DIVERGED_PEAK_FACTOR`]).
+pub fn diverged(replay: &[[f64; 3]], base: &[[f64; 3]], measured: &[[f64; 3]]) -> bool {
+    if replay.iter().flatten().any(|v| !v.is_finite()) {
+        return true;
+    }
+    let scale = peak(base).max(peak(measured)).max(1.0);
+    peak(replay) > DIVERGED_PEAK_FACTOR * scale
 }
 
 /// The probe path of a trial on a uniform grid starting at its first sample.
@@ -133,9 +179,30 @@ pub fn build(
                 .or_default()
                 .push(forces[vi][ti].take().unwrap());
         }
-        out.push(prepare(trial, path, base, resims));
+        let mut td = prepare(trial, path, base, resims);
+        flag_diverged(&mut td);
+        out.push(td);
     }
     Ok(out)
+}
+
+/// Replace diverged re-simulations by the baseline and flag them in `resim_ok` (the effects'
+/// interpolation then uses the remaining knots).
+pub fn flag_diverged(td: &mut TrialData) {
+    let mut flags: HashMap<Effect, Vec<bool>> = HashMap::new();
+    for (e, rs) in td.resims.iter_mut() {
+        let ok: Vec<bool> = rs.iter().map(|r| !diverged(r, &td.base, &td.f)).collect();
+        if ok.iter().all(|&b| b) {
+            continue;
+        }
+        for (r, &good) in rs.iter_mut().zip(&ok) {
+            if !good {
+                r.clone_from(&td.base);
+            }
+        }
+        flags.insert(*e, ok);
+    }
+    td.resim_ok = flags;
 }
 
 pub fn progress_bar(show: bool, len: u64, msg: &'static str) -> Option<indicatif::ProgressBar> {
@@ -209,6 +276,7 @@ pub fn prepare(
         depth_grid,
         base,
         resims,
+        resim_ok: HashMap::new(),
         normal,
         depth,
         phase,

@@ -200,6 +200,10 @@ pub struct Report {
     pub verdict: Verdict,
     pub elapsed_s: f64,
     pub trial_reports: Vec<TrialReport>,
+    /// Re-simulations left out as diverged (`trial: variant`); the effects needing them
+    /// interpolate through their other knots.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub diverged_replays: Vec<String>,
     /// Device-rendered vs model force, when a session recording was given.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rendering_gap: Option<session::RenderingGap>,
@@ -475,6 +479,7 @@ pub fn diagnose_data(
         verdict,
         elapsed_s: start.elapsed().as_secs_f64(),
         trial_reports,
+        diverged_replays: data.iter().flat_map(|d| d.diverged_labels()).collect(),
         rendering_gap: None,
     })
 }

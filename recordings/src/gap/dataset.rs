@@ -32,6 +32,8 @@ pub struct TrialData {
     pub normal: [f64; 3],
     pub depth: Vec<f64>,
     pub phase: Vec<Phase>,
+    /// Residual-variance group of each measurement ([`VarGroup`]).
+    pub var_group: Vec<VarGroup>,
     /// Baseline at measurement times.
     pub base_at_t: Vec<[f64; 3]>,
 }
@@ -116,6 +118,37 @@ pub fn grid_path(trial: &Trial, dt: f64) -> ProbePath {
         })
         .collect();
     ProbePath { t0, dt, poses }
+}
+
+/// Samples out of contact this close (s) to a simulated contact count as near contact: the
+/// contact's timing error and a sensor's delay and low-pass show there.
+pub const CONTACT_MARGIN_S: f64 = 0.15;
+
+/// Groups of measurements that get one residual variance each in the fits and scores: out of
+/// contact, the residual is the sensor noise alone (plus a bias); near a contact, the contact's
+/// timing; in contact, the model's error, which differs by phase.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum VarGroup {
+    Free = 0,
+    NearContact = 1,
+    Loading = 2,
+    Hold = 3,
+    Unloading = 4,
+    Sliding = 5,
+}
+
+impl VarGroup {
+    pub const COUNT: usize = 6;
+    fn of(phase: Phase, near_contact: bool) -> VarGroup {
+        match phase {
+            Phase::Approach if near_contact => VarGroup::NearContact,
+            Phase::Approach => VarGroup::Free,
+            Phase::Loading => VarGroup::Loading,
+            Phase::Hold => VarGroup::Hold,
+            Phase::Unloading => VarGroup::Unloading,
+            Phase::Sliding => VarGroup::Sliding,
+        }
+    }
 }
 
 /// Options for building the dataset.
@@ -261,6 +294,36 @@ pub fn prepare(
         .iter()
         .map(|&t| ph_grid[(((t - path.t0) / dt).round() as usize).min(n - 1)])
         .collect();
+    // grid steps to the nearest simulated contact (forward and backward passes)
+    let mut dist = vec![usize::MAX; n];
+    let mut last = None;
+    for i in 0..n {
+        if contact[i] {
+            last = Some(i);
+        }
+        if let Some(l) = last {
+            dist[i] = i - l;
+        }
+    }
+    last = None;
+    for i in (0..n).rev() {
+        if contact[i] {
+            last = Some(i);
+        }
+        if let Some(l) = last {
+            dist[i] = dist[i].min(l - i);
+        }
+    }
+    let margin = (CONTACT_MARGIN_S / dt).ceil() as usize;
+    let var_group: Vec<VarGroup> = trial
+        .t
+        .iter()
+        .zip(&phase)
+        .map(|(&t, &ph)| {
+            let k = (((t - path.t0) / dt).round().max(0.0) as usize).min(n - 1);
+            VarGroup::of(ph, dist[k] <= margin)
+        })
+        .collect();
     let base_at_t = trial
         .t
         .iter()
@@ -280,6 +343,7 @@ pub fn prepare(
         normal,
         depth,
         phase,
+        var_group,
         base_at_t,
     }
 }

@@ -365,13 +365,10 @@ pub fn diagnose_data(
     singles.sort_by(|a, b| a.score.total_cmp(&b.score));
     let mut ranking = singles.clone();
     if opts.pairs {
-        // forward selection: each of the three best singles paired with every other effect
-        // (a second effect can be invisible alone while the first dominates the residual)
-        let top: Vec<&CandidateScore> = singles
-            .iter()
-            .filter(|s| s.heldout_weighted_shrink > 0.0)
-            .take(3)
-            .collect();
+        // every pair: a second effect can be invisible alone while the first dominates the
+        // residual, and two can hide each other (a tilt's extra force under a relaxation's
+        // loss: neither alone beat the baseline)
+        let top: Vec<&CandidateScore> = singles.iter().collect();
         let mut pairs: Vec<(Candidate, Vec<f64>)> = Vec::new();
         for t in &top {
             let a = Effect::parse(&t.effect).unwrap();
@@ -506,6 +503,40 @@ fn decide(
     // identified: a clear held-out shrink, phase-weighted or plain, with positive evidence
     let shrink = best.heldout_weighted_shrink.max(best.heldout_shrink);
     if !(shrink >= min_shrink && best.delta_bic <= -10.0) {
+        // two effects that hide each other: the best pair, identified on its own and well
+        // ahead of every single
+        let pair = ranking
+            .iter()
+            .filter(|c| c.effect.contains('+'))
+            .min_by(|a, b| a.score.total_cmp(&b.score));
+        if let Some(pair) = pair.filter(|_| pairs_allowed) {
+            let pair_shrink = pair.heldout_weighted_shrink.max(pair.heldout_shrink);
+            let gain = (1.0 - pair.heldout_weighted_rmse / best.heldout_weighted_rmse)
+                .max(1.0 - pair.heldout_rmse / best.heldout_rmse);
+            if pair_shrink >= min_shrink
+                && pair.delta_bic <= -10.0
+                && gain > 0.2
+                && pair.score < best.score
+            {
+                return Verdict {
+                    effect: pair.effect.clone(),
+                    heldout_shrink: pair.heldout_shrink,
+                    params: pair.params.clone(),
+                    reason: format!(
+                        "no single effect shrinks the held-out RMSE clearly (best {} {:.1}%); \
+                         the pair {} does: {:.4} → {:.4} N ({:.1}%; {:.1}% phase-weighted), ΔBIC {:.1}",
+                        best.effect,
+                        100.0 * best.heldout_shrink,
+                        pair.effect,
+                        r0,
+                        pair.heldout_rmse,
+                        100.0 * pair.heldout_shrink,
+                        100.0 * pair.heldout_weighted_shrink,
+                        pair.delta_bic
+                    ),
+                };
+            }
+        }
         return none(format!(
             "best candidate {} shrinks held-out RMSE by only {:.1}% ({:.1}% phase-weighted, ΔBIC {:.1})",
             best.effect,

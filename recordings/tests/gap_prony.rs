@@ -4,7 +4,7 @@
 use msgs::Pose;
 use recordings::gap::dataset::{prepare, TrialData};
 use recordings::gap::effects::qlv_in_place;
-use recordings::gap::fit::{make_folds, score_candidate, CandidateScore};
+use recordings::gap::fit::{make_folds, score_candidate, Baseline, CandidateScore};
 use recordings::gap::model::ProbePath;
 use recordings::gap::{Candidate, Effect, Region, Trial};
 
@@ -108,21 +108,11 @@ fn dataset(terms: &[(f64, f64)]) -> Vec<TrialData> {
 fn score(terms: &[(f64, f64)]) -> CandidateScore {
     let data = dataset(terms);
     let (_, folds) = make_folds(&data);
-    let (mut s, mut n) = (0.0, 0usize);
-    for d in &data {
-        for (p, f) in d.base_at_t.iter().zip(&d.f) {
-            s += (0..3).map(|q| (p[q] - f[q]).powi(2)).sum::<f64>();
-            n += 3;
-        }
-    }
-    let r0 = (s / n as f64).sqrt();
-    let bic0 = n as f64 * (s / n as f64).ln();
     score_candidate(
         &Candidate::single(Effect::Viscoelastic),
         &data,
         &folds,
-        r0,
-        bic0,
+        &Baseline::of(&data),
         &[],
     )
 }

@@ -138,9 +138,12 @@ fn statistics_identify_effects_on_analytic_stand_in() {
     let r = run(14, 3, true);
     eprintln!("{}", r.table());
     let s = r.summary();
+    // reached: 12/14 (viscoelastic+tilt and hardening+friction are taken for tilt and
+    // modulus+friction: the stand-in's tilt interpolation error hides the relaxation, its
+    // weak hardening is a modulus), mean held-out shrink 75%
     assert!(s.accuracy >= 0.85, "accuracy {}", s.accuracy);
     assert!(
-        s.heldout_shrink_mean >= 0.6,
+        s.heldout_shrink_mean >= 0.7,
         "shrink {}",
         s.heldout_shrink_mean
     );

@@ -23,12 +23,17 @@ pub struct TrialData {
     pub depth_grid: Vec<f64>,
     /// Baseline replay on the grid.
     pub base: Vec<[f64; 3]>,
-    /// Re-simulations per effect, in the order of `Effect::resims`.
+    /// Re-simulations per effect, in the order of `Effect::resims`. A diverged one (see
+    /// [`diverged`]) is replaced by the baseline and flagged in `resim_ok`.
     pub resims: HashMap<Effect, Vec<Vec<[f64; 3]>>>,
+    /// Per effect and knot: the re-simulation is usable (absent: all usable).
+    pub resim_ok: HashMap<Effect, Vec<bool>>,
     /// Contact normal (outward), depth (mm) and phase at the measurement times.
     pub normal: [f64; 3],
     pub depth: Vec<f64>,
     pub phase: Vec<Phase>,
+    /// Residual-variance group of each measurement ([`VarGroup`]).
+    pub var_group: Vec<VarGroup>,
     /// Baseline at measurement times.
     pub base_at_t: Vec<[f64; 3]>,
 }
@@ -40,6 +45,49 @@ impl TrialData {
     pub fn has_resims(&self, e: Effect) -> bool {
         e.resims().is_empty() || self.resims.contains_key(&e)
     }
+    /// Whether knot `k` of effect `e`'s re-simulations is usable.
+    pub fn resim_valid(&self, e: Effect, k: usize) -> bool {
+        self.resim_ok
+            .get(&e)
+            .and_then(|v| v.get(k).copied())
+            .unwrap_or(true)
+    }
+    /// Labels (`trial: variant`) of the re-simulations found diverged.
+    pub fn diverged_labels(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        let mut effects: Vec<&Effect> = self.resim_ok.keys().collect();
+        effects.sort();
+        for e in effects {
+            let vs = e.resims();
+            for (k, ok) in self.resim_ok[e].iter().enumerate() {
+                if !ok {
+                    let label = vs.get(k).map(|v| v.label()).unwrap_or_default();
+                    out.push(format!("{}: {label}", self.name));
+                }
+            }
+        }
+        out
+    }
+}
+
+/// Largest peak force of a re-simulation, in multiples of the larger of the baseline's and the
+/// measured peak (and 1 N), still taken as a solution. The contact solver can blow up under a
+/// deep indentation (a tilted specimen pressed 2 mm further: 10⁵–10⁶ N at the hold); one such
+/// replay outweighed every other trial and hid the tilt it was meant to measure.
+pub const DIVERGED_PEAK_FACTOR: f64 = 20.0;
+
+fn peak(f: &[[f64; 3]]) -> f64 {
+    f.iter().map(|v| norm(*v)).fold(0.0, f64::max)
+}
+
+/// A replay that did not converge to a physical solution: non-finite values, or a peak
+/// force far above both the baseline's and the measurement's (see [`DIVERGED_PEAK_FACTOR`]).
+pub fn diverged(replay: &[[f64; 3]], base: &[[f64; 3]], measured: &[[f64; 3]]) -> bool {
+    if replay.iter().flatten().any(|v| !v.is_finite()) {
+        return true;
+    }
+    let scale = peak(base).max(peak(measured)).max(1.0);
+    peak(replay) > DIVERGED_PEAK_FACTOR * scale
 }
 
 /// The probe path of a trial on a uniform grid starting at its first sample.
@@ -70,6 +118,37 @@ pub fn grid_path(trial: &Trial, dt: f64) -> ProbePath {
         })
         .collect();
     ProbePath { t0, dt, poses }
+}
+
+/// Samples out of contact this close (s) to a simulated contact count as near contact: the
+/// contact's timing error and a sensor's delay and low-pass show there.
+pub const CONTACT_MARGIN_S: f64 = 0.15;
+
+/// Groups of measurements that get one residual variance each in the fits and scores: out of
+/// contact, the residual is the sensor noise alone (plus a bias); near a contact, the contact's
+/// timing; in contact, the model's error, which differs by phase.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum VarGroup {
+    Free = 0,
+    NearContact = 1,
+    Loading = 2,
+    Hold = 3,
+    Unloading = 4,
+    Sliding = 5,
+}
+
+impl VarGroup {
+    pub const COUNT: usize = 6;
+    fn of(phase: Phase, near_contact: bool) -> VarGroup {
+        match phase {
+            Phase::Approach if near_contact => VarGroup::NearContact,
+            Phase::Approach => VarGroup::Free,
+            Phase::Loading => VarGroup::Loading,
+            Phase::Hold => VarGroup::Hold,
+            Phase::Unloading => VarGroup::Unloading,
+            Phase::Sliding => VarGroup::Sliding,
+        }
+    }
 }
 
 /// Options for building the dataset.
@@ -133,9 +212,30 @@ pub fn build(
                 .or_default()
                 .push(forces[vi][ti].take().unwrap());
         }
-        out.push(prepare(trial, path, base, resims));
+        let mut td = prepare(trial, path, base, resims);
+        flag_diverged(&mut td);
+        out.push(td);
     }
     Ok(out)
+}
+
+/// Replace diverged re-simulations by the baseline and flag them in `resim_ok` (the effects'
+/// interpolation then uses the remaining knots).
+pub fn flag_diverged(td: &mut TrialData) {
+    let mut flags: HashMap<Effect, Vec<bool>> = HashMap::new();
+    for (e, rs) in td.resims.iter_mut() {
+        let ok: Vec<bool> = rs.iter().map(|r| !diverged(r, &td.base, &td.f)).collect();
+        if ok.iter().all(|&b| b) {
+            continue;
+        }
+        for (r, &good) in rs.iter_mut().zip(&ok) {
+            if !good {
+                r.clone_from(&td.base);
+            }
+        }
+        flags.insert(*e, ok);
+    }
+    td.resim_ok = flags;
 }
 
 pub fn progress_bar(show: bool, len: u64, msg: &'static str) -> Option<indicatif::ProgressBar> {
@@ -194,6 +294,36 @@ pub fn prepare(
         .iter()
         .map(|&t| ph_grid[(((t - path.t0) / dt).round() as usize).min(n - 1)])
         .collect();
+    // grid steps to the nearest simulated contact (forward and backward passes)
+    let mut dist = vec![usize::MAX; n];
+    let mut last = None;
+    for i in 0..n {
+        if contact[i] {
+            last = Some(i);
+        }
+        if let Some(l) = last {
+            dist[i] = i - l;
+        }
+    }
+    last = None;
+    for i in (0..n).rev() {
+        if contact[i] {
+            last = Some(i);
+        }
+        if let Some(l) = last {
+            dist[i] = dist[i].min(l - i);
+        }
+    }
+    let margin = (CONTACT_MARGIN_S / dt).ceil() as usize;
+    let var_group: Vec<VarGroup> = trial
+        .t
+        .iter()
+        .zip(&phase)
+        .map(|(&t, &ph)| {
+            let k = (((t - path.t0) / dt).round().max(0.0) as usize).min(n - 1);
+            VarGroup::of(ph, dist[k] <= margin)
+        })
+        .collect();
     let base_at_t = trial
         .t
         .iter()
@@ -209,9 +339,11 @@ pub fn prepare(
         depth_grid,
         base,
         resims,
+        resim_ok: HashMap::new(),
         normal,
         depth,
         phase,
+        var_group,
         base_at_t,
     }
 }

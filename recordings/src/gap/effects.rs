@@ -233,6 +233,32 @@ fn axpy(dst: &mut [[f64; 3]], a: f64, x: &[[f64; 3]], y: Option<&[[f64; 3]]>) {
     }
 }
 
+/// Piecewise-linear interpolation in a parameter with re-simulations at two knots (the
+/// baseline at 0); beyond the last knot, the last segment extended. A diverged knot is left
+/// out: the secant through the other one.
+fn piecewise_two_knots(
+    grid: &mut [[f64; 3]],
+    td: &TrialData,
+    e: Effect,
+    x: f64,
+    [x1, x2]: [f64; 2],
+) {
+    let r = td.resim(e);
+    match (td.resim_valid(e, 0), td.resim_valid(e, 1)) {
+        (true, true) => {
+            if x <= x1 {
+                axpy(grid, x / x1, &r[0], Some(&td.base));
+            } else {
+                axpy(grid, 1.0, &r[0], Some(&td.base));
+                axpy(grid, (x - x1) / (x2 - x1), &r[1], Some(&r[0]));
+            }
+        }
+        (true, false) => axpy(grid, x / x1, &r[0], Some(&td.base)),
+        (false, true) => axpy(grid, x / x2, &r[1], Some(&td.base)),
+        (false, false) => {}
+    }
+}
+
 /// Model force on the trial's grid and at its measurement times for candidate `c` at `theta`.
 /// `grid` and `out` are scratch buffers (resized here).
 pub fn predict(
@@ -252,45 +278,39 @@ pub fn predict(
         k += np;
         match e {
             Effect::Friction => {
-                let r = td.resim(Effect::Friction);
-                let mu = th[0];
-                let [m1, m2] = FRICTION_KNOTS;
-                if mu <= m1 {
-                    axpy(grid, mu / m1, &r[0], Some(&td.base));
-                } else {
-                    axpy(grid, 1.0, &r[0], Some(&td.base));
-                    axpy(grid, (mu - m1) / (m2 - m1), &r[1], Some(&r[0]));
-                }
+                piecewise_two_knots(grid, td, Effect::Friction, th[0], FRICTION_KNOTS)
             }
-            Effect::Support => {
-                let r = td.resim(Effect::Support);
-                let cpl = th[0];
-                let [c1, c2] = SUPPORT_KNOTS;
-                if cpl <= c1 {
-                    axpy(grid, cpl / c1, &r[0], Some(&td.base));
-                } else {
-                    axpy(grid, 1.0, &r[0], Some(&td.base));
-                    axpy(grid, (cpl - c1) / (c2 - c1), &r[1], Some(&r[0]));
-                }
-            }
+            Effect::Support => piecewise_two_knots(grid, td, Effect::Support, th[0], SUPPORT_KNOTS),
             Effect::Tilt => {
                 let r = td.resim(Effect::Tilt);
                 let h = TILT_STEP;
                 for (axis, ang) in [(0usize, th[0].to_radians()), (1, th[1].to_radians())] {
                     let (rp, rm) = (&r[2 * axis], &r[2 * axis + 1]);
-                    let a1 = ang / (2.0 * h);
-                    let a2 = ang * ang / (2.0 * h * h);
-                    for (i, g) in grid.iter_mut().enumerate() {
-                        for q in 0..3 {
-                            g[q] += a1 * (rp[i][q] - rm[i][q])
-                                + a2 * (rp[i][q] + rm[i][q] - 2.0 * td.base[i][q]);
+                    let ok_p = td.resim_valid(Effect::Tilt, 2 * axis);
+                    let ok_m = td.resim_valid(Effect::Tilt, 2 * axis + 1);
+                    match (ok_p, ok_m) {
+                        (true, true) => {
+                            let a1 = ang / (2.0 * h);
+                            let a2 = ang * ang / (2.0 * h * h);
+                            for (i, g) in grid.iter_mut().enumerate() {
+                                for q in 0..3 {
+                                    g[q] += a1 * (rp[i][q] - rm[i][q])
+                                        + a2 * (rp[i][q] + rm[i][q] - 2.0 * td.base[i][q]);
+                                }
+                            }
                         }
+                        // one side diverged: the secant through the other
+                        (true, false) => axpy(grid, ang / h, rp, Some(&td.base)),
+                        (false, true) => axpy(grid, -ang / h, rm, Some(&td.base)),
+                        (false, false) => {}
                     }
                 }
             }
             Effect::Mesh => {
-                let r = td.resim(Effect::Mesh);
-                axpy(grid, 1.0, &r[0], Some(&td.base));
+                if td.resim_valid(Effect::Mesh, 0) {
+                    let r = td.resim(Effect::Mesh);
+                    axpy(grid, 1.0, &r[0], Some(&td.base));
+                }
             }
             Effect::Modulus => grid.iter_mut().for_each(|g| *g = g.map(|v| v * th[0])),
             Effect::Hardening => {

@@ -1,5 +1,5 @@
 //! Fitting candidates on calibration trials, scoring them on held-out trials, ranking.
-use super::dataset::TrialData;
+use super::dataset::{TrialData, VarGroup};
 use super::effects::{predict, Candidate, Effect, ParamSpec};
 use super::experiment::Region;
 use super::signal::{dot, sub};
@@ -104,6 +104,124 @@ fn to_unit(specs: &[ParamSpec], th: &[f64]) -> Vec<f64> {
             }
         })
         .collect()
+}
+
+/// Fewest residual values a phase needs to get its own variance; smaller phases share one.
+const MIN_GROUP_VALUES: usize = 30;
+/// Smallest mean square a phase is credited with, N² (noise-free synthetic data).
+const MSE_FLOOR: f64 = 1e-10;
+
+/// Squared residuals summed per variance group ([`VarGroup`]: out of contact, near a
+/// contact, and the four contact phases).
+///
+/// The residual variance is far from uniform: out of contact it is the sensor noise alone
+/// (hundredths of a newton), in contact the model's own error (tenths to newtons, growing with
+/// the force). A single variance lets the contact phases decide everything, so an effect that
+/// shows where the model is exact (a sensor bias before the tip touches) is fitted to, and
+/// judged by, the contact error instead. Every fit and score here is the Gaussian likelihood
+/// with one variance per phase, profiled out: Σ_g n_g ln(SSE_g / n_g).
+#[derive(Debug, Clone, Copy, Default)]
+pub struct PhaseSse {
+    pub sse: [f64; VarGroup::COUNT],
+    pub n: [usize; VarGroup::COUNT],
+}
+
+impl PhaseSse {
+    pub fn push(&mut self, group: VarGroup, r: [f64; 3]) {
+        let g = group as usize;
+        self.sse[g] += dot(r, r);
+        self.n[g] += 3;
+    }
+    pub fn total(&self) -> (f64, usize) {
+        (self.sse.iter().sum(), self.n.iter().sum())
+    }
+    pub fn rmse(&self) -> f64 {
+        let (s, n) = self.total();
+        (s / n.max(1) as f64).sqrt()
+    }
+    /// (SSE, values) per variance group: each phase with enough values, the rest pooled.
+    fn groups(&self) -> Vec<(f64, usize)> {
+        let mut out = Vec::with_capacity(VarGroup::COUNT);
+        let (mut rs, mut rn) = (0.0, 0usize);
+        for g in 0..VarGroup::COUNT {
+            if self.n[g] >= MIN_GROUP_VALUES {
+                out.push((self.sse[g], self.n[g]));
+            } else {
+                rs += self.sse[g];
+                rn += self.n[g];
+            }
+        }
+        if rn > 0 {
+            out.push((rs, rn));
+        }
+        out
+    }
+    /// Σ_g w_g ln(MSE_g) with w_g = n_g · (`effective` / n): −2 log-likelihood up to a
+    /// constant when `effective` = n.
+    pub fn log_mse_sum(&self, effective: f64) -> f64 {
+        let (_, n) = self.total();
+        if n == 0 {
+            return 0.0;
+        }
+        self.groups()
+            .iter()
+            .map(|&(s, m)| m as f64 * effective / n as f64 * (s / m as f64).max(MSE_FLOOR).ln())
+            .sum()
+    }
+    /// The phase-weighted RMSE: exp of the value-weighted mean of ln RMSE_g (what the plain
+    /// RMSE is for one variance).
+    pub fn weighted_rmse(&self) -> f64 {
+        let (_, n) = self.total();
+        if n == 0 {
+            return 0.0;
+        }
+        (0.5 * self.log_mse_sum(n as f64) / n as f64).exp()
+    }
+}
+
+/// Residual sums of `c` at `theta` over the masked samples, per phase.
+pub fn phase_sse(c: &Candidate, theta: &[f64], data: &[TrialData], mask: &[Vec<bool>]) -> PhaseSse {
+    let (mut grid, mut out) = (Vec::new(), Vec::new());
+    let mut acc = PhaseSse::default();
+    for (d, m) in data.iter().zip(mask) {
+        if !m.iter().any(|&b| b) {
+            continue;
+        }
+        predict(c, theta, d, &mut grid, &mut out);
+        for (j, (p, f)) in out.iter().zip(&d.f).enumerate() {
+            if m[j] {
+                acc.push(d.var_group[j], sub(*p, *f));
+            }
+        }
+    }
+    acc
+}
+
+/// The baseline's residual: what every candidate is compared with.
+#[derive(Debug, Clone, Copy)]
+pub struct Baseline {
+    pub rmse: f64,
+    /// Phase-weighted RMSE ([`PhaseSse::weighted_rmse`]).
+    pub weighted_rmse: f64,
+    /// Σ_g n_g ln(MSE_g) (the BIC of a model without parameters).
+    pub bic: f64,
+}
+
+impl Baseline {
+    pub fn of(data: &[TrialData]) -> Baseline {
+        let mut acc = PhaseSse::default();
+        for d in data {
+            for (j, (p, f)) in d.base_at_t.iter().zip(&d.f).enumerate() {
+                acc.push(d.var_group[j], sub(*p, *f));
+            }
+        }
+        let n = acc.total().1 as f64;
+        Baseline {
+            rmse: acc.rmse(),
+            weighted_rmse: acc.weighted_rmse(),
+            bic: acc.log_mse_sum(n),
+        }
+    }
 }
 
 /// Sum of squared residuals over the masked samples.
@@ -228,8 +346,10 @@ pub fn default_free(c: &Candidate) -> Vec<bool> {
 /// Grid intervals per parameter of the hardening start search.
 const HARDENING_GRID: usize = 24;
 
-/// Least-squares fit of `c` on the masked samples; multi-start Nelder–Mead in unit space
-/// over the `free` parameters (the others stay at their neutral value).
+/// Maximum-likelihood fit of `c` on the masked samples (one residual variance per phase,
+/// see [`PhaseSse`]); multi-start Nelder–Mead in unit space over the `free` parameters (the
+/// others stay at their neutral value). Returns the parameters and their plain sum of
+/// squared residuals.
 pub fn fit(
     c: &Candidate,
     data: &[TrialData],
@@ -248,9 +368,15 @@ pub fn fit(
         }
         to_theta(&specs, &x)
     };
-    let obj = |u: &[f64]| sse(c, &full(u), data, mask).0;
+    // the phase-variance likelihood (see `PhaseSse`)
+    let obj = |u: &[f64]| {
+        let acc = phase_sse(c, &full(u), data, mask);
+        acc.log_mse_sum(acc.total().1 as f64)
+    };
     if k == 0 {
-        return (full(&[]), obj(&[]));
+        let theta = full(&[]);
+        let plain = sse(c, &theta, data, mask).0;
+        return (theta, plain);
     }
     let sub_unit = |th: &[f64]| -> Vec<f64> {
         let u = to_unit(&specs, th);
@@ -295,7 +421,9 @@ pub fn fit(
     if v < best.1 {
         best = (u, v);
     }
-    (full(&best.0), best.1)
+    let theta = full(&best.0);
+    let plain = sse(c, &theta, data, mask).0;
+    (theta, plain)
 }
 
 /// Standard errors from the Gauss–Newton covariance s²(JᵀJ)⁻¹ at the optimum, for the
@@ -368,10 +496,18 @@ pub struct CandidateScore {
     /// Pooled over held-out folds.
     pub heldout_rmse: f64,
     pub heldout_shrink: f64,
+    /// Held-out phase-weighted RMSE ([`PhaseSse::weighted_rmse`]) and its shrink against
+    /// the baseline's: what the verdict weighs (a sensor bias out of contact counts against
+    /// the noise there, not against the model error in contact).
+    #[serde(default)]
+    pub heldout_weighted_rmse: f64,
+    #[serde(default)]
+    pub heldout_weighted_shrink: f64,
     /// Study metric (mean normal force in contact): mean |simulated − measured| over trials,
     /// held-out, N.
     pub heldout_study_error: f64,
-    /// Ranking score: held-out log-likelihood with a BIC-style parameter penalty.
+    /// Ranking score: held-out phase-variance log-likelihood (effective values) with a
+    /// BIC-style parameter penalty.
     pub score: f64,
     #[serde(skip)]
     pub theta: Vec<f64>,
@@ -402,19 +538,22 @@ pub fn score_candidate(
     c: &Candidate,
     data: &[TrialData],
     folds: &[Fold],
-    baseline_rmse: f64,
-    baseline_bic: f64,
+    baseline: &Baseline,
     inits: &[Vec<f64>],
 ) -> CandidateScore {
     let all: Vec<Vec<bool>> = data.iter().map(|d| vec![true; d.t.len()]).collect();
     let n_all = data.iter().map(|d| 3 * d.t.len()).sum::<usize>();
-    let bic_of = |sse: f64, k: usize| {
-        n_all as f64 * (sse / n_all as f64).max(1e-30).ln() + k as f64 * (n_all as f64).ln()
-    };
+    let ne_all = effective_n(n_all);
+    // BIC of the phase-variance likelihood; the same judged on effective values only
+    // (samples are correlated in time: the plain BIC lets extra terms soak up model error)
+    let bic_of =
+        |acc: &PhaseSse, k: usize| acc.log_mse_sum(n_all as f64) + k as f64 * (n_all as f64).ln();
+    let crit = |acc: &PhaseSse, k: usize| acc.log_mse_sum(ne_all) + k as f64 * ne_all.ln();
     let mut free = default_free(c);
     let (mut theta, mut sse_all) = fit(c, data, &all, inits, &free);
     let mut k = free.iter().filter(|&&f| f).count();
-    let mut bic = bic_of(sse_all, k);
+    let mut acc_all = phase_sse(c, &theta, data, &all);
+    let mut bic = bic_of(&acc_all, k);
     if free.iter().any(|f| !f) {
         // the optional parameters (second Prony term) are kept only when they lower the
         // penalised fit clearly: nested models, so the richer fit starts from the simpler
@@ -432,21 +571,20 @@ pub fn score_candidate(
         fi.push(seeded);
         let (theta2, sse2) = fit(c, data, &all, &fi, &all_free);
         let k2 = all_free.len();
-        let bic2 = bic_of(sse2, k2);
-        // judged like the ranking: samples are correlated in time, so the likelihood counts
-        // effective values only (the plain BIC would let the extra term soak up model error)
-        let ne = effective_n(n_all);
-        let crit =
-            |sse: f64, k: usize| ne * (sse / n_all as f64).max(1e-30).ln() + k as f64 * ne.ln();
+        let acc2 = phase_sse(c, &theta2, data, &all);
         // and the extra term must remove a quarter of what the simpler fit leaves: a few
         // percent is what it absorbs of other effects' model error (a tilt, a coarse mesh)
-        if crit(sse2, k2) < crit(sse_all, k) - 10.0 && sse2 < 0.75 * sse_all {
-            (theta, sse_all, k, bic, free) = (theta2, sse2, k2, bic2, all_free);
+        if crit(&acc2, k2) < crit(&acc_all, k) - 10.0
+            && acc2.weighted_rmse().powi(2) < 0.75 * acc_all.weighted_rmse().powi(2)
+        {
+            bic = bic_of(&acc2, k2);
+            (theta, sse_all, k, acc_all, free) = (theta2, sse2, k2, acc2, all_free);
         }
     }
+    let _ = acc_all;
     let mut held_pred: Vec<Vec<[f64; 3]>> =
         data.iter().map(|d| vec![[0.0; 3]; d.t.len()]).collect();
-    let (mut hs, mut hn) = (0.0, 0usize);
+    let mut held = PhaseSse::default();
     let (mut grid, mut out) = (Vec::new(), Vec::new());
     for f in folds {
         let mut fi = inits.to_vec();
@@ -460,14 +598,13 @@ pub fn score_candidate(
             for j in 0..d.t.len() {
                 if f.held[i][j] {
                     held_pred[i][j] = out[j];
-                    let r = sub(out[j], d.f[j]);
-                    hs += dot(r, r);
-                    hn += 3;
+                    held.push(d.var_group[j], sub(out[j], d.f[j]));
                 }
             }
         }
     }
-    let heldout_rmse = (hs / hn.max(1) as f64).sqrt();
+    let heldout_rmse = held.rmse();
+    let heldout_weighted_rmse = held.weighted_rmse();
     let se = uncertainty(c, &theta, data, &free);
     let params = c
         .params()
@@ -492,21 +629,20 @@ pub fn score_candidate(
         })
         .sum::<f64>()
         / data.len().max(1) as f64;
-    let ne = effective_n(hn);
-    let score = ne * (heldout_rmse * heldout_rmse).max(1e-30).ln() + k as f64 * ne.ln();
+    let ne = effective_n(held.total().1);
+    let score = held.log_mse_sum(ne) + k as f64 * ne.ln();
+    let shrink = |x: f64, x0: f64| if x0 > 0.0 { 1.0 - x / x0 } else { 0.0 };
     CandidateScore {
         effect: c.name(),
         n_params: k,
         params,
         fit_rmse: (sse_all / n_all.max(1) as f64).sqrt(),
         bic,
-        delta_bic: bic - baseline_bic,
+        delta_bic: bic - baseline.bic,
         heldout_rmse,
-        heldout_shrink: if baseline_rmse > 0.0 {
-            1.0 - heldout_rmse / baseline_rmse
-        } else {
-            0.0
-        },
+        heldout_shrink: shrink(heldout_rmse, baseline.rmse),
+        heldout_weighted_rmse,
+        heldout_weighted_shrink: shrink(heldout_weighted_rmse, baseline.weighted_rmse),
         heldout_study_error: study,
         score,
         theta,

@@ -50,7 +50,7 @@ pub use fd::diagnose_force_displacement;
 pub use model::{ForceModel, ProbePath, Variant};
 
 use dataset::{BuildOptions, TrialData};
-use fit::{make_folds, score_candidate, CandidateScore};
+use fit::{make_folds, score_candidate, Baseline, CandidateScore};
 use metrics::{
     band_label, band_of, region_label, trial_metrics, Acc, GroupResidual, Phase, TrialMetrics,
 };
@@ -200,6 +200,10 @@ pub struct Report {
     pub verdict: Verdict,
     pub elapsed_s: f64,
     pub trial_reports: Vec<TrialReport>,
+    /// Re-simulations left out as diverged (`trial: variant`); the effects needing them
+    /// interpolate through their other knots.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub diverged_replays: Vec<String>,
     /// Device-rendered vs model force, when a session recording was given.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rendering_gap: Option<session::RenderingGap>,
@@ -288,26 +292,14 @@ pub fn diagnose(
     )
 }
 
-fn baseline_score(data: &[TrialData]) -> (f64, f64, f64) {
-    let (mut s, mut n) = (0.0, 0usize);
-    for d in data {
-        for (p, f) in d.base_at_t.iter().zip(&d.f) {
-            let r = sub(*p, *f);
-            s += dot(r, r);
-            n += 3;
-        }
-    }
-    let rmse = (s / n.max(1) as f64).sqrt();
-    let bic = n as f64 * (s / n.max(1) as f64).max(1e-30).ln();
-    let study = data
-        .iter()
+fn baseline_study_error(data: &[TrialData]) -> f64 {
+    data.iter()
         .map(|d| {
             let (m, p) = fit::study_metric(d, &d.base_at_t);
             (p - m).abs()
         })
         .sum::<f64>()
-        / data.len().max(1) as f64;
-    (rmse, bic, study)
+        / data.len().max(1) as f64
 }
 
 /// Diagnosis on prepared trials (replays done).
@@ -348,7 +340,8 @@ pub fn diagnose_data(
     let lag_median = (!lv.is_empty()).then(|| signal::median(&mut lv));
     let localisation = localise(data);
     let (scheme, folds) = make_folds(data);
-    let (r0, bic0, study0) = baseline_score(data);
+    let base = Baseline::of(data);
+    let (r0, study0) = (base.rmse, baseline_study_error(data));
 
     let usable: Vec<Effect> = effects
         .iter()
@@ -359,7 +352,7 @@ pub fn diagnose_data(
     let mut singles: Vec<CandidateScore> = usable
         .par_iter()
         .map(|&e| {
-            let s = score_candidate(&Candidate::single(e), data, &folds, r0, bic0, &[]);
+            let s = score_candidate(&Candidate::single(e), data, &folds, &base, &[]);
             if let Some(b) = &bar {
                 b.inc(1);
             }
@@ -372,13 +365,10 @@ pub fn diagnose_data(
     singles.sort_by(|a, b| a.score.total_cmp(&b.score));
     let mut ranking = singles.clone();
     if opts.pairs {
-        // forward selection: each of the three best singles paired with every other effect
-        // (a second effect can be invisible alone while the first dominates the residual)
-        let top: Vec<&CandidateScore> = singles
-            .iter()
-            .filter(|s| s.heldout_shrink > 0.0)
-            .take(3)
-            .collect();
+        // every pair: a second effect can be invisible alone while the first dominates the
+        // residual, and two can hide each other (a tilt's extra force under a relaxation's
+        // loss: neither alone beat the baseline)
+        let top: Vec<&CandidateScore> = singles.iter().collect();
         let mut pairs: Vec<(Candidate, Vec<f64>)> = Vec::new();
         for t in &top {
             let a = Effect::parse(&t.effect).unwrap();
@@ -406,7 +396,7 @@ pub fn diagnose_data(
         let scored: Vec<CandidateScore> = pairs
             .par_iter()
             .map(|(c, init)| {
-                let s = score_candidate(c, data, &folds, r0, bic0, std::slice::from_ref(init));
+                let s = score_candidate(c, data, &folds, &base, std::slice::from_ref(init));
                 if let Some(b) = &bar {
                     b.inc(1);
                 }
@@ -475,17 +465,18 @@ pub fn diagnose_data(
         verdict,
         elapsed_s: start.elapsed().as_secs_f64(),
         trial_reports,
+        diverged_replays: data.iter().flat_map(|d| d.diverged_labels()).collect(),
         rendering_gap: None,
     })
 }
 
 /// The verdict: the best-ranked candidate if it beats the baseline beyond noise; a pair only
 /// when the best single leaves a residual well above noise and the pair removes much of it.
-/// Smallest held-out shrink accepted with overwhelming evidence (see `decide`).
-const STRONG_EVIDENCE_MIN_SHRINK: f64 = 0.03;
-/// ΔBIC counted as overwhelming evidence.
-const STRONG_EVIDENCE_BIC: f64 = -300.0;
-
+///
+/// Shrinks and gains are weighed on the phase-weighted RMSE (one residual variance per phase,
+/// see [`fit::PhaseSse`]): a sensor bias of tenths of a newton is invisible in the plain RMSE
+/// under tens of newtons of contact force and a coarse mesh's model error, but is the whole
+/// residual before the tip touches, where the model is exact.
 fn decide(
     singles: &[CandidateScore],
     ranking: &[CandidateScore],
@@ -509,28 +500,59 @@ fn decide(
         Some(b) => b,
         None => return none("no candidate could be assessed".into()),
     };
-    // Identified: a clear held-out shrink with positive evidence, or a small shrink with
-    // overwhelming evidence (a sensor bias of ~1.5 N under tens of newtons of contact force
-    // shrinks the RMSE by a few percent only, at ΔBIC in the hundreds; an effect-free case
-    // stays well short of that).
-    let clear = best.heldout_shrink >= min_shrink && best.delta_bic <= -10.0;
-    let small_but_certain =
-        best.heldout_shrink >= STRONG_EVIDENCE_MIN_SHRINK && best.delta_bic <= STRONG_EVIDENCE_BIC;
-    if !(clear || small_but_certain) {
+    // identified: a clear held-out shrink, phase-weighted or plain, with positive evidence
+    let shrink = best.heldout_weighted_shrink.max(best.heldout_shrink);
+    if !(shrink >= min_shrink && best.delta_bic <= -10.0) {
+        // two effects that hide each other: the best pair, identified on its own and well
+        // ahead of every single
+        let pair = ranking
+            .iter()
+            .filter(|c| c.effect.contains('+'))
+            .min_by(|a, b| a.score.total_cmp(&b.score));
+        if let Some(pair) = pair.filter(|_| pairs_allowed) {
+            let pair_shrink = pair.heldout_weighted_shrink.max(pair.heldout_shrink);
+            let gain = (1.0 - pair.heldout_weighted_rmse / best.heldout_weighted_rmse)
+                .max(1.0 - pair.heldout_rmse / best.heldout_rmse);
+            if pair_shrink >= min_shrink
+                && pair.delta_bic <= -10.0
+                && gain > 0.2
+                && pair.score < best.score
+            {
+                return Verdict {
+                    effect: pair.effect.clone(),
+                    heldout_shrink: pair.heldout_shrink,
+                    params: pair.params.clone(),
+                    reason: format!(
+                        "no single effect shrinks the held-out RMSE clearly (best {} {:.1}%); \
+                         the pair {} does: {:.4} → {:.4} N ({:.1}%; {:.1}% phase-weighted), ΔBIC {:.1}",
+                        best.effect,
+                        100.0 * best.heldout_shrink,
+                        pair.effect,
+                        r0,
+                        pair.heldout_rmse,
+                        100.0 * pair.heldout_shrink,
+                        100.0 * pair.heldout_weighted_shrink,
+                        pair.delta_bic
+                    ),
+                };
+            }
+        }
         return none(format!(
-            "best candidate {} shrinks held-out RMSE by only {:.1}% (ΔBIC {:.1})",
+            "best candidate {} shrinks held-out RMSE by only {:.1}% ({:.1}% phase-weighted, ΔBIC {:.1})",
             best.effect,
             100.0 * best.heldout_shrink,
+            100.0 * best.heldout_weighted_shrink,
             best.delta_bic
         ));
     }
     let mut win = best;
     let mut reason = format!(
-        "{} shrinks held-out RMSE {:.4} → {:.4} N ({:.1}%), ΔBIC {:.1}",
+        "{} shrinks held-out RMSE {:.4} → {:.4} N ({:.1}%; {:.1}% phase-weighted), ΔBIC {:.1}",
         best.effect,
         r0,
         best.heldout_rmse,
         100.0 * best.heldout_shrink,
+        100.0 * best.heldout_weighted_shrink,
         best.delta_bic
     );
     if pairs_allowed && best.heldout_rmse > 1.3 * noise {
@@ -539,15 +561,20 @@ fn decide(
             .filter(|c| c.effect.contains('+'))
             .min_by(|a, b| a.score.total_cmp(&b.score))
         {
-            let gain = 1.0 - pair.heldout_rmse / best.heldout_rmse;
+            // what the pair removes of the single's residual, phase-weighted or plain
+            let gain = (1.0 - pair.heldout_weighted_rmse / best.heldout_weighted_rmse)
+                .max(1.0 - pair.heldout_rmse / best.heldout_rmse);
             if gain > 0.2 && pair.score < best.score {
                 reason = format!(
-                    "{} leaves {:.4} N (noise {:.4} N); the pair {} removes {:.0}% more ({:.4} N)",
+                    "{} leaves {:.4} N phase-weighted ({:.4} N plain, noise {:.4} N); the pair {} \
+                     removes {:.0}% more ({:.4} N phase-weighted, {:.4} N plain)",
                     best.effect,
+                    best.heldout_weighted_rmse,
                     best.heldout_rmse,
                     noise,
                     pair.effect,
                     100.0 * gain,
+                    pair.heldout_weighted_rmse,
                     pair.heldout_rmse
                 );
                 win = pair;

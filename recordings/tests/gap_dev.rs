@@ -57,6 +57,18 @@ fn load_cache(p: &Path) -> HashMap<u64, Vec<[f64; 3]>> {
         .unwrap_or_default()
 }
 
+/// The kept case folders under `root`, sorted.
+fn case_dirs(root: &std::path::Path) -> Vec<PathBuf> {
+    let mut dirs: Vec<PathBuf> = std::fs::read_dir(root)
+        .unwrap()
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| p.is_dir())
+        .collect();
+    dirs.sort();
+    dirs
+}
+
 #[test]
 #[ignore]
 fn rediagnose_kept_cases() {
@@ -64,13 +76,7 @@ fn rediagnose_kept_cases() {
     let only: Option<Vec<String>> = std::env::var("GAP_DEV_CASES")
         .ok()
         .map(|s| s.split(',').map(|x| x.to_string()).collect());
-    let mut dirs: Vec<PathBuf> = std::fs::read_dir(&root)
-        .unwrap()
-        .flatten()
-        .map(|e| e.path())
-        .filter(|p| p.is_dir())
-        .collect();
-    dirs.sort();
+    let dirs = case_dirs(&root);
     let data = gap::data_dir();
     let (mut ok, mut n, mut shrink, mut neff) = (0, 0, 0.0, 0);
     let t_all = std::time::Instant::now();
@@ -158,13 +164,7 @@ fn phase_table() {
     use recordings::gap::effects::Effect;
     use recordings::gap::metrics::Phase;
     let root = PathBuf::from(std::env::var("GAP_DEV_DIR").expect("GAP_DEV_DIR"));
-    let mut dirs: Vec<PathBuf> = std::fs::read_dir(&root)
-        .unwrap()
-        .flatten()
-        .map(|e| e.path())
-        .filter(|p| p.is_dir())
-        .collect();
-    dirs.sort();
+    let dirs = case_dirs(&root);
     let data = gap::data_dir();
     for dir in dirs {
         let name = dir.file_name().unwrap().to_string_lossy().to_string();

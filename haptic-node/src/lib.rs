@@ -12,6 +12,7 @@ pub mod node;
 pub mod render;
 pub mod servo;
 pub mod stats;
+pub mod transport;
 
 use std::path::PathBuf;
 
@@ -39,8 +40,8 @@ pub struct NodeArgs {
     /// Do not ask for SCHED_FIFO / mlockall.
     #[arg(long)]
     pub no_realtime: bool,
-    /// Measure physics publish → receivable latency with a polling thread (keeps a core busy;
-    /// for the benchmark).
+    /// Measure physics publish → receivable latency with a watching thread (spins at
+    /// SCHED_FIFO for about one physics step per period; for the benchmark).
     #[arg(long)]
     pub transport_probe: bool,
 }

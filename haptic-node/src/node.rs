@@ -5,6 +5,7 @@ use crate::device::{self, operator, DeviceSample};
 use crate::render::{boxed_frame, norm, Renderer, TickOutput};
 use crate::servo;
 use crate::stats::{Histogram, LoopStats};
+use crate::transport;
 use crate::NodeArgs;
 use anyhow::Context;
 use msgs::haptic_to_monitor::HapticStats;
@@ -52,6 +53,9 @@ pub fn resolve_sites(
     }
 }
 
+/// SCHED_FIFO priority of the transport probe relative to the servo thread's.
+const PROBE_PRIORITY_BELOW_SERVO: i32 = 10;
+
 /// Summary written to `--out DIR/haptic-stats.json` and used by the bench.
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct Summary {
@@ -67,6 +71,12 @@ pub struct Summary {
     pub frame_age_p99_us: f64,
     pub transport_p50_us: f64,
     pub transport_p99_us: f64,
+    /// Frames the transport probe recorded (0: no probe).
+    pub transport_frames: u64,
+    /// Of those, frames already there when the probe's window opened (latency an upper bound).
+    pub transport_unwatched: u64,
+    /// Whether the probe ran at SCHED_FIFO.
+    pub transport_probe_fifo: bool,
     pub overruns: u64,
     pub contact_ticks: u64,
     pub max_rendered_n: f64,
@@ -116,49 +126,6 @@ fn fill_stats(
     s.rendered_force_norm_n = norm(last_force);
     s.fault_count = st.fault_ticks;
     s.faults = st.faults_seen;
-}
-
-/// Transport probe: a thread with its own iceoryx2 node that polls the contact-frame service
-/// (yielding the CPU between polls) and records publish → receivable latency. Used by the
-/// bench; off by default since it keeps a core busy.
-fn spawn_transport_probe(
-    session: String,
-    stop: Arc<AtomicBool>,
-    hist: Arc<Mutex<Histogram>>,
-) -> std::thread::JoinHandle<()> {
-    std::thread::spawn(move || {
-        let run = || -> anyhow::Result<()> {
-            let node = ipc::create_node("haptic-transport")?;
-            let sub = ipc::subscriber::<ContactFrame>(&node, &session, Queue::Newest)?;
-            let mut local = Histogram::new(50_000, 100);
-            let mut last_push = msgs::clock::monotonic_ns();
-            while !stop.load(Ordering::Relaxed)
-                && !msgs::lifecycle::stop_flag().load(Ordering::Relaxed)
-            {
-                while let Some(sample) = sub.receive().map_err(|e| anyhow::anyhow!("{e:?}"))? {
-                    let now = msgs::clock::monotonic_ns();
-                    local.record(now.saturating_sub(sample.payload().publish_ns));
-                }
-                let now = msgs::clock::monotonic_ns();
-                if now - last_push > 50_000_000 {
-                    if let Ok(mut h) = hist.lock() {
-                        h.merge(&local);
-                    }
-                    local.clear();
-                    last_push = now;
-                }
-                // SAFETY: plain syscall.
-                unsafe { libc::sched_yield() };
-            }
-            if let Ok(mut h) = hist.lock() {
-                h.merge(&local);
-            }
-            Ok(())
-        };
-        if let Err(e) = run() {
-            tracing::warn!("transport probe stopped: {e:#}");
-        }
-    })
 }
 
 fn publish_state(
@@ -227,10 +194,21 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
     let instance = msgs::clock::new_instance_id();
 
     let transport = Arc::new(Mutex::new(Histogram::new(50_000, 100)));
+    let probe_counters = Arc::new(transport::ProbeCounters::default());
     let probe_stop = Arc::new(AtomicBool::new(false));
-    let probe = args
-        .transport_probe
-        .then(|| spawn_transport_probe(session.clone(), probe_stop.clone(), transport.clone()));
+    // Below the servo thread, so the probe never delays a tick.
+    let probe_priority = config
+        .realtime
+        .then_some((config.realtime_priority - PROBE_PRIORITY_BELOW_SERVO).max(1));
+    let probe = args.transport_probe.then(|| {
+        transport::spawn(
+            session.clone(),
+            probe_priority,
+            probe_stop.clone(),
+            transport.clone(),
+            probe_counters.clone(),
+        )
+    });
 
     let realtime = if config.realtime {
         servo::request_realtime(config.realtime_priority)
@@ -443,6 +421,9 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
         frame_age_p99_us: stats_msg.frame_age_p99_us,
         transport_p50_us: stats_msg.transport_p50_us,
         transport_p99_us: stats_msg.transport_p99_us,
+        transport_frames: probe_counters.frames.load(Ordering::Relaxed),
+        transport_unwatched: probe_counters.unwatched.load(Ordering::Relaxed),
+        transport_probe_fifo: probe_counters.fifo.load(Ordering::Relaxed),
         overruns: stats.overruns,
         contact_ticks: stats.contact_ticks,
         max_rendered_n: stats.max_rendered_n,

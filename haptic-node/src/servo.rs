@@ -52,18 +52,27 @@ pub struct Realtime {
     pub locked: bool,
 }
 
-/// Asks for SCHED_FIFO at `priority` for the calling thread and locks current and future
-/// memory (no page faults in the loop). Logs what was not granted.
-pub fn request_realtime(priority: i32) -> Realtime {
-    // Timer slack (50 µs by default for normal threads) would delay every wake-up.
+/// Asks for SCHED_FIFO at `priority` (clamped to 1–99) for the calling thread, with a 1 ns
+/// timer slack (50 µs by default for normal threads would delay every wake-up). Returns
+/// whether the OS granted the policy.
+pub fn request_fifo(priority: i32) -> bool {
     // SAFETY: plain prctl on the calling thread.
     unsafe { libc::prctl(libc::PR_SET_TIMERSLACK, 1 as libc::c_ulong, 0, 0, 0) };
     let param = libc::sched_param {
         sched_priority: priority.clamp(1, 99),
     };
-    // SAFETY: plain syscalls on the calling thread/process.
-    let fifo =
-        unsafe { libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &param) } == 0;
+    // SAFETY: plain syscall on the calling thread.
+    unsafe { libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &param) == 0 }
+}
+
+/// Asks for SCHED_FIFO at `priority` for the calling thread and locks current and future
+/// memory (no page faults in the loop). Logs what was not granted.
+pub fn request_realtime(priority: i32) -> Realtime {
+    let param = libc::sched_param {
+        sched_priority: priority.clamp(1, 99),
+    };
+    let fifo = request_fifo(priority);
+    // SAFETY: plain syscall on the calling process.
     let locked = unsafe { libc::mlockall(libc::MCL_CURRENT | libc::MCL_FUTURE) } == 0;
     if !fifo {
         tracing::warn!(

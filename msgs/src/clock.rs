@@ -36,3 +36,15 @@ pub fn new_instance_id() -> u64 {
     z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
     (z ^ (z >> 31)).max(1)
 }
+
+/// The CPU the calling thread runs on, plus one (0: not known). For
+/// [`ContactFrame::publisher_cpu_plus_one`](crate::physics_to_haptic::ContactFrame).
+pub fn current_cpu_plus_one() -> u32 {
+    // SAFETY: plain call (vDSO on Linux).
+    let cpu = unsafe { libc::sched_getcpu() };
+    if cpu >= 0 {
+        cpu as u32 + 1
+    } else {
+        0
+    }
+}

@@ -107,6 +107,10 @@ pub mod physics_to_haptic {
         pub dt_s: f64,
         /// Wall time the step took, ns.
         pub step_duration_ns: u64,
+        /// Monotonic clock (ns) at which the publisher starts its next step on its schedule of
+        /// absolute deadlines: no frame can come before it. Equals `publish_ns` when the
+        /// publisher runs behind real time; 0 when it keeps no schedule (replays).
+        pub next_step_ns: u64,
         /// Number of active contacts (≤ MAX_CONTACTS).
         pub contact_count: u32,
         /// Number of active constraint rows (= 3 × contact_count).
@@ -115,7 +119,9 @@ pub mod physics_to_haptic {
         pub friction_mu: f64,
         /// Iterations and final residual of the physics-side LCP.
         pub lcp_iterations: u32,
-        pub _pad0: u32,
+        /// CPU the publisher sent this frame from, plus one (0: not known). A consumer that
+        /// busy-waits for the next frame keeps off it: that is where the publisher wakes.
+        pub publisher_cpu_plus_one: u32,
         pub lcp_residual: f64,
         /// Sequence of the device state this step consumed (0: none yet).
         pub device_sequence_used: u64,

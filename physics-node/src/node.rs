@@ -121,10 +121,15 @@ pub fn run_node(args: NodeArgs) -> anyhow::Result<()> {
         let t0 = Instant::now();
         sim.step().context("physics step")?;
         let step_ns = t0.elapsed().as_nanos() as u64;
+        // Absolute deadlines: step k ends at anchor + k·dt.
+        let deadline = anchor + Duration::from_secs_f64(dt * (steps_since_anchor + 1) as f64);
         ipc::send_with(&frame_pub, |f| {
             *f = *sim.contact_frame();
             f.step_duration_ns = step_ns;
-            f.publish_ns = msgs::clock::monotonic_ns();
+            let (now, now_ns) = (Instant::now(), msgs::clock::monotonic_ns());
+            f.publish_ns = now_ns;
+            f.next_step_ns = now_ns + deadline.saturating_duration_since(now).as_nanos() as u64;
+            f.publisher_cpu_plus_one = msgs::clock::current_cpu_plus_one();
         })?;
         if sim.time() + 1e-9 >= next_surface_time {
             next_surface_time = sim.time() + SURFACE_PERIOD_S;
@@ -137,9 +142,7 @@ pub fn run_node(args: NodeArgs) -> anyhow::Result<()> {
             csv.write(&sim)?;
         }
 
-        // Absolute deadlines: step k ends at anchor + k·dt.
         steps_since_anchor += 1;
-        let deadline = anchor + Duration::from_secs_f64(dt * steps_since_anchor as f64);
         let now = Instant::now();
         if deadline > now {
             std::thread::sleep(deadline - now);

@@ -68,6 +68,9 @@ fn node_follows_device_into_contact_and_stops_on_sigterm() {
     let mut first: Option<(Instant, f64)> = None;
     let mut in_contact = None;
     let mut seq = 0u64;
+    // Each frame names its next step start; no later frame may be published before it.
+    let mut promised_next_step = 0u64;
+    let mut schedule_broken = Vec::new();
     while start.elapsed() < Duration::from_secs(20) {
         seq += 1;
         ipc::send_with(&device_pub, |d| {
@@ -77,6 +80,19 @@ fn node_follows_device_into_contact_and_stops_on_sigterm() {
         .unwrap();
         if ipc::take_newest(&frame_sub, &mut frame).unwrap() > 0 {
             first.get_or_insert((Instant::now(), frame.sim_time_s));
+            let period_ns = (frame.dt_s * 1e9) as u64;
+            if frame.publish_ns < promised_next_step
+                || frame.next_step_ns < frame.publish_ns
+                || frame.next_step_ns > frame.publish_ns + period_ns
+            {
+                schedule_broken.push((
+                    frame.sequence,
+                    promised_next_step,
+                    frame.publish_ns,
+                    frame.next_step_ns,
+                ));
+            }
+            promised_next_step = frame.next_step_ns;
             if frame.contact_count > 0 && frame.device_sequence_used > 0 && frame.is_valid() {
                 in_contact = Some(frame.contact_force);
                 if first.unwrap().0.elapsed() > Duration::from_secs(1) {
@@ -107,6 +123,10 @@ fn node_follows_device_into_contact_and_stops_on_sigterm() {
     };
     println!("contact force {in_contact:?}, wall {wall:.2} s, simulated {simulated:.2} s, surface {got_surface}");
     assert!(status.success(), "exit status {status:?}");
+    assert!(
+        schedule_broken.is_empty(),
+        "frames outside their announced schedule (sequence, promised, publish, next): {schedule_broken:?}"
+    );
     let force = in_contact.expect("the device never drove the probe into contact");
     assert!(Vector3::from(force).dot(&n) > 0.0);
     assert!(got_surface && surface.vertex_count > 0 && surface.triangle_count > 0);

@@ -108,6 +108,8 @@ fn main() -> anyhow::Result<()> {
             }
             // Stamped last, right before the send.
             f.publish_ns = msgs::clock::monotonic_ns();
+            f.next_step_ns = next.max(f.publish_ns);
+            f.publisher_cpu_plus_one = msgs::clock::current_cpu_plus_one();
         })?;
     }
     Ok(())

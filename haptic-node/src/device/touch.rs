@@ -43,10 +43,11 @@ const HD_CALIBRATION_AUTO: c_int = 1 << 1;
 const HD_CALIBRATION_INKWELL: c_int = 1 << 2;
 const HD_CALLBACK_DONE: HdCallbackCode = 0;
 const HD_CALLBACK_CONTINUE: HdCallbackCode = 1;
-const HD_DEFAULT_SCHEDULER_PRIORITY: c_ushort = 500;
+// The servo callback runs first in each scheduler tick, as in the OpenHaptics examples.
+const HD_MAX_SCHEDULER_PRIORITY: c_ushort = 0xffff;
 
 #[repr(C)]
-#[derive(Clone, Copy)]
+#[derive(Debug, Clone, Copy)]
 struct HdErrorInfo {
     error_code: c_uint,
     internal_error_code: c_int,
@@ -138,25 +139,33 @@ impl HdApi {
         })
     }
 
-    /// The pending HD error, if any, as text.
-    fn error(&self) -> Option<String> {
-        // SAFETY: plain HD API calls on a loaded library.
-        unsafe {
-            let e = (self.get_error)();
-            if e.error_code == HD_SUCCESS {
-                return None;
-            }
+    /// Pops the pending HD error, if any (no allocation: used in the servo callback).
+    fn pending_error(&self) -> Option<HdErrorInfo> {
+        // SAFETY: plain HD API call on a loaded library.
+        let e = unsafe { (self.get_error)() };
+        (e.error_code != HD_SUCCESS).then_some(e)
+    }
+
+    /// An HD error as text.
+    fn describe(&self, e: HdErrorInfo) -> String {
+        // SAFETY: plain HD API call; the string is static in the library, or null.
+        let text = unsafe {
             let s = (self.get_error_string)(e.error_code);
-            let text = if s.is_null() {
+            if s.is_null() {
                 String::new()
             } else {
                 CStr::from_ptr(s).to_string_lossy().into_owned()
-            };
-            Some(format!(
-                "HD error 0x{:04x} ({text}), internal {}",
-                e.error_code, e.internal_error_code
-            ))
-        }
+            }
+        };
+        format!(
+            "HD error 0x{:04x} ({text}), internal {}",
+            e.error_code, e.internal_error_code
+        )
+    }
+
+    /// The pending HD error, if any, as text.
+    fn error(&self) -> Option<String> {
+        self.pending_error().map(|e| self.describe(e))
     }
 }
 
@@ -166,6 +175,11 @@ impl Drop for HdApi {
         unsafe { libc::dlclose(self.handle) };
     }
 }
+
+/// How long the servo callback holds zero force after an HD error (lost communication, a
+/// force or velocity limit, overheating). The node loop sees a device error meanwhile and
+/// afterwards ramps the force back in under its rate limit.
+pub const HD_FAULT_HOLD_NS: u64 = 500_000_000;
 
 /// Exchanged between the node loop and the servo callback.
 #[derive(Debug, Clone, Copy, Default)]
@@ -182,7 +196,10 @@ struct ServoState {
     /// Force actually written on the last servo tick.
     applied: [f64; 3],
     servo_ticks: u64,
-    error: bool,
+    /// Zero force until this time after an HD error; the newest error and how many there were.
+    fault_until_ns: u64,
+    last_error: Option<HdErrorInfo>,
+    errors: u64,
 }
 
 struct Servo {
@@ -191,6 +208,8 @@ struct Servo {
     state: Mutex<ServoState>,
     stopping: AtomicBool,
     watchdog_ns: u64,
+    /// Written only by the servo thread: the fault hold survives a missed try-lock.
+    fault: Mutex<(u64, Option<HdErrorInfo>, u64)>,
 }
 
 unsafe extern "C" fn servo_callback(user: *mut c_void) -> HdCallbackCode {
@@ -204,6 +223,15 @@ unsafe extern "C" fn servo_callback(user: *mut c_void) -> HdCallbackCode {
 }
 
 impl Servo {
+    /// Latches an HD error: zero force for [`HD_FAULT_HOLD_NS`] from `now`.
+    fn latch(&self, now: u64, e: HdErrorInfo) {
+        if let Ok(mut f) = self.fault.try_lock() {
+            f.0 = now + HD_FAULT_HOLD_NS;
+            f.1 = Some(e);
+            f.2 += 1;
+        }
+    }
+
     fn tick(&self) -> HdCallbackCode {
         let api = &self.api;
         let mut s = ServoState::default();
@@ -218,11 +246,21 @@ impl Servo {
             (api.get_integerv)(HD_CURRENT_BUTTONS, &mut s.buttons);
         }
         let now = msgs::clock::monotonic_ns();
+        // An error raised since the last tick (its force write, or this frame's reads).
+        if let Some(e) = api.pending_error() {
+            self.latch(now, e);
+        }
+        let (fault_until_ns, last_error, errors) =
+            self.fault
+                .try_lock()
+                .map(|f| *f)
+                .unwrap_or((u64::MAX, None, 0));
+        let faulted = now < fault_until_ns;
         let stopping = self.stopping.load(Ordering::SeqCst);
         let mut force = [0.0; 3];
         if let Ok(mut shared) = self.state.try_lock() {
             let age = now.saturating_sub(shared.force_set_ns);
-            if !stopping && shared.force.iter().all(|v| v.is_finite()) {
+            if !stopping && !faulted && shared.force.iter().all(|v| v.is_finite()) {
                 // Watchdog: a stalled node loop fades the force out over one more watchdog time.
                 let fade = if age <= self.watchdog_ns {
                     1.0
@@ -235,6 +273,9 @@ impl Servo {
             s.force_set_ns = shared.force_set_ns;
             s.servo_ticks = shared.servo_ticks + 1;
             s.applied = force;
+            s.fault_until_ns = fault_until_ns;
+            s.last_error = last_error;
+            s.errors = errors;
             *shared = s;
         }
         // SAFETY: as above.
@@ -242,11 +283,8 @@ impl Servo {
             (api.set_doublev)(HD_CURRENT_FORCE, force.as_ptr());
             (api.end_frame)(self.hhd);
         }
-        if let Some(e) = api.error() {
-            if let Ok(mut shared) = self.state.try_lock() {
-                shared.error = true;
-            }
-            let _ = e;
+        if let Some(e) = api.pending_error() {
+            self.latch(now, e);
         }
         if stopping {
             HD_CALLBACK_DONE
@@ -372,16 +410,14 @@ impl Touch {
             hhd,
             state: Mutex::new(ServoState::default()),
             stopping: AtomicBool::new(false),
+            fault: Mutex::new((0, None, 0)),
             watchdog_ns: (c.servo_watchdog_s.max(0.001) * 1e9) as u64,
         });
         let user = &*servo as *const Servo as *mut c_void;
         // SAFETY: the Servo box outlives the scheduled callback (unscheduled in Drop).
         let scheduler = unsafe {
-            let h = (servo.api.schedule_asynchronous)(
-                servo_callback,
-                user,
-                HD_DEFAULT_SCHEDULER_PRIORITY,
-            );
+            let h =
+                (servo.api.schedule_asynchronous)(servo_callback, user, HD_MAX_SCHEDULER_PRIORITY);
             (servo.api.start_scheduler)();
             h
         };
@@ -411,12 +447,20 @@ impl Device for Touch {
         DeviceKind::Touch
     }
 
-    fn sample(&mut self, _now_ns: u64, out: &mut DeviceSample) -> Result<(), DeviceError> {
+    fn sample(&mut self, now_ns: u64, out: &mut DeviceSample) -> Result<(), DeviceError> {
         let s = *self.servo.state.lock().unwrap_or_else(|p| p.into_inner());
-        if s.error {
+        if now_ns < s.fault_until_ns {
+            let what = s
+                .last_error
+                .map(|e| self.servo.api.describe(e))
+                .unwrap_or_else(|| "HD error".into());
             return Err(DeviceError::Touch {
                 device: self.device_name.clone(),
-                detail: "the servo loop reported an HD error (force error, overheating or lost communication)".into(),
+                detail: format!(
+                    "the servo loop reported {what} ({} so far); zero force for {} ms",
+                    s.errors,
+                    HD_FAULT_HOLD_NS / 1_000_000
+                ),
             });
         }
         let p = device_to_scene(s.position_mm);

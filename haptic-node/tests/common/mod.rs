@@ -22,8 +22,20 @@ pub struct Proc {
 impl Proc {
     /// Starts `exe args…` and waits (bounded) for its `READY` line on stdout.
     pub fn start(name: &str, exe: &Path, args: &[&str], ready_timeout: Duration) -> Proc {
+        Self::start_with_env(name, exe, args, &[], ready_timeout)
+    }
+
+    /// As [`Proc::start`], with extra environment variables.
+    pub fn start_with_env(
+        name: &str,
+        exe: &Path,
+        args: &[&str],
+        env: &[(&str, String)],
+        ready_timeout: Duration,
+    ) -> Proc {
         let mut child = Command::new(exe)
             .args(args)
+            .envs(env.iter().map(|(k, v)| (*k, v.as_str())))
             .stdout(Stdio::piped())
             .stderr(Stdio::inherit())
             .spawn()

@@ -53,45 +53,41 @@ pub struct Realtime {
 }
 
 /// Asks for SCHED_FIFO at `priority` (clamped to 1–99) for the calling thread, with a 1 ns
-/// timer slack (50 µs by default for normal threads would delay every wake-up). Returns
-/// whether the OS granted the policy.
-pub fn request_fifo(priority: i32) -> bool {
+/// timer slack (50 µs by default for normal threads would delay every wake-up).
+pub fn request_fifo(priority: i32) -> Result<(), std::io::Error> {
     // SAFETY: plain prctl on the calling thread.
     unsafe { libc::prctl(libc::PR_SET_TIMERSLACK, 1 as libc::c_ulong, 0, 0, 0) };
     let param = libc::sched_param {
         sched_priority: priority.clamp(1, 99),
     };
-    // SAFETY: plain syscall on the calling thread.
-    unsafe { libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &param) == 0 }
+    // SAFETY: plain call on the calling thread; it returns the error (errno is not set).
+    match unsafe { libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &param) } {
+        0 => Ok(()),
+        rc => Err(std::io::Error::from_raw_os_error(rc)),
+    }
 }
 
 /// Asks for SCHED_FIFO at `priority` for the calling thread and locks current and future
 /// memory (no page faults in the loop). Logs what was not granted.
 pub fn request_realtime(priority: i32) -> Realtime {
-    let param = libc::sched_param {
-        sched_priority: priority.clamp(1, 99),
-    };
+    let priority = priority.clamp(1, 99);
     let fifo = request_fifo(priority);
     // SAFETY: plain syscall on the calling process.
-    let locked = unsafe { libc::mlockall(libc::MCL_CURRENT | libc::MCL_FUTURE) } == 0;
-    if !fifo {
+    let locked = match unsafe { libc::mlockall(libc::MCL_CURRENT | libc::MCL_FUTURE) } {
+        0 => Ok(()),
+        _ => Err(std::io::Error::last_os_error()),
+    };
+    if let Err(e) = &fifo {
         tracing::warn!(
-            "SCHED_FIFO priority {} not granted ({}): the servo loop runs with normal scheduling",
-            param.sched_priority,
-            std::io::Error::last_os_error()
+            "SCHED_FIFO priority {priority} not granted ({e}): the servo loop runs with normal scheduling"
         );
     }
-    if !locked {
-        tracing::warn!(
-            "mlockall not granted ({}): page faults may delay ticks",
-            std::io::Error::last_os_error()
-        );
+    if let Err(e) = &locked {
+        tracing::warn!("mlockall not granted ({e}): page faults may delay ticks");
     }
+    let (fifo, locked) = (fifo.is_ok(), locked.is_ok());
     if fifo && locked {
-        tracing::info!(
-            priority = param.sched_priority,
-            "real-time scheduling and locked memory granted"
-        );
+        tracing::info!(priority, "real-time scheduling and locked memory granted");
     }
     Realtime { fifo, locked }
 }

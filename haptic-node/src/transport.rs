@@ -104,12 +104,11 @@ pub fn spawn(
             // One CPU: a real-time spin would hold off the physics process it waits for.
             tracing::info!("transport probe: one CPU allowed, polling at normal priority");
         } else if let Some(p) = fifo_priority {
-            let fifo = crate::servo::request_fifo(p);
-            counters.fifo.store(fifo, Ordering::Relaxed);
-            if !fifo {
-                tracing::warn!(
-                    "transport probe: SCHED_FIFO {p} not granted; its latencies include CFS scheduling"
-                );
+            match crate::servo::request_fifo(p) {
+                Ok(()) => counters.fifo.store(true, Ordering::Relaxed),
+                Err(e) => tracing::warn!(
+                    "transport probe: SCHED_FIFO {p} not granted ({e}); its latencies include normal scheduling"
+                ),
             }
         }
         if let Err(e) = watch(&session, &stop, &hist, &counters, cpus) {

@@ -7,59 +7,9 @@
 //! With `every` > 0, every `every`-th solve is also compared (outside the timing) with a
 //! reference solution of the same problem converged to 1e-14: the relative error of λ
 //! (max-norm) and of the rendered force Σ h λ.
+use contact_lcp::synthetic::synthetic_patch;
 use contact_lcp::{solve, Problem, Settings, MAX_ROWS};
 use std::time::Instant;
-
-struct Patch {
-    w: Vec<f64>,
-    dfree: Vec<f64>,
-    h: Vec<[f64; 6]>,
-}
-
-/// Same construction as `haptic-node/src/bin/haptic-bench.rs::synthetic_frame`.
-fn patch(n: usize) -> Patch {
-    let dt = 0.01;
-    let side = (n as f64).sqrt().ceil() as usize;
-    let mut points = vec![[0.0f64; 3]; n];
-    let mut h = vec![[0.0f64; 6]; 3 * n];
-    let mut dfree = vec![0.0; 3 * n];
-    for (k, p) in points.iter_mut().enumerate() {
-        *p = [(k % side) as f64 * 5e-4, (k / side) as f64 * 5e-4, 0.0];
-        let tilt = 0.05 * ((k % 3) as f64 - 1.0);
-        let l = (1.0 + tilt * tilt).sqrt();
-        let nz = [tilt / l, 0.0, 1.0 / l];
-        let t1 = [nz[2], 0.0, -nz[0]];
-        let t2 = [0.0, 1.0, 0.0];
-        for (r, d) in [nz, t1, t2].iter().enumerate() {
-            let a = [
-                p[1] * d[2] - p[2] * d[1],
-                p[2] * d[0] - p[0] * d[2],
-                p[0] * d[1] - p[1] * d[0],
-            ];
-            h[3 * k + r] = [d[0], d[1], d[2], a[0], a[1], a[2]];
-        }
-        dfree[3 * k] = -2e-4 * (1.0 + 0.3 * ((k % 4) as f64));
-    }
-    let c0 = 1.0 / (2000.0 * dt);
-    let probe = dt / (0.035 + dt * dt * 1e4);
-    let rows = 3 * n;
-    let mut w = vec![0.0; MAX_ROWS * MAX_ROWS];
-    for i in 0..rows {
-        for j in 0..rows {
-            let (pi, pj) = (points[i / 3], points[j / 3]);
-            let r = ((pi[0] - pj[0]).powi(2) + (pi[1] - pj[1]).powi(2)).sqrt();
-            let (hi, hj) = (h[i], h[j]);
-            let dir = hi[0] * hj[0] + hi[1] * hj[1] + hi[2] * hj[2];
-            let tissue = if i % 3 == j % 3 {
-                c0 * (-r / 1e-3).exp()
-            } else {
-                0.0
-            };
-            w[i * MAX_ROWS + j] = tissue + probe * dir;
-        }
-    }
-    Patch { w, dfree, h }
-}
 
 fn main() {
     let mut args = std::env::args().skip(1);
@@ -68,7 +18,7 @@ fn main() {
     let every: u64 = args.next().map_or(0, |s| s.parse().unwrap());
     let mut errors_lambda = Vec::new();
     let mut errors_force = Vec::new();
-    let p = patch(n);
+    let p = synthetic_patch(n, 0.01);
     let rows = 3 * n;
     let settings = Settings {
         max_iterations: 50,
@@ -93,11 +43,15 @@ fn main() {
         seed ^= seed << 17;
         let jitter = (seed % 1000) as f64 / 1000.0 - 0.5;
         let dx = [jitter * 1e-4, -jitter * 5e-5, jitter * 1e-4];
-        for ((d, h), f) in delta[..rows].iter_mut().zip(&p.h).zip(&p.dfree) {
+        for ((d, h), f) in delta[..rows]
+            .iter_mut()
+            .zip(&p.directions)
+            .zip(&p.free_violation)
+        {
             *d = f + h[0] * dx[0] + h[1] * dx[1] + h[2] * dx[2];
         }
         let problem = Problem {
-            compliance: &p.w,
+            compliance: &p.compliance,
             free_violation: &delta[..rows],
             friction_mu: 0.2,
             row_count: rows,
@@ -126,7 +80,7 @@ fn main() {
             errors_lambda.push(max_err / max_ref);
             let force = |l: &[f64]| {
                 let mut f = [0.0; 3];
-                for (h, l) in p.h.iter().zip(l) {
+                for (h, l) in p.directions.iter().zip(l) {
                     for c in 0..3 {
                         f[c] += h[c] * l;
                     }

@@ -33,6 +33,8 @@ pub const ROWS_PER_CONTACT: usize = 3;
 /// Row stride of W (mirrors `msgs::MAX_ROWS`).
 pub const MAX_ROWS: usize = MAX_CONTACTS * ROWS_PER_CONTACT;
 
+pub mod synthetic;
+
 /// Smallest |λ| used to normalise the residual, N·s (avoids dividing by zero near separation).
 const LAMBDA_FLOOR: f64 = 1e-12;
 /// Inner passes of the sliding projection within one block.

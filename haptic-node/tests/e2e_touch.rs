@@ -307,42 +307,38 @@ fn run_to_failure(launch: &Path, env: &[(&str, String)]) -> (Option<i32>, String
     }
 }
 
-#[test]
-fn touch_calibration_needing_the_inkwell_is_a_clear_error_and_no_force() {
-    let dir = temp_dir("touch-inkwell");
+/// Starts the node on a device whose calibration check answers `calibration`; it must refuse
+/// to start. Returns its stderr and the stand-in's report.
+fn refused_calibration(test: &str, auto_calibrate: bool, calibration: &str) -> (String, Report) {
+    let dir = temp_dir(test);
     let report = dir.join("libhd-report.txt");
     let (code, err) = run_to_failure(
-        &launch_file(&dir, true),
+        &launch_file(&dir, auto_calibrate),
         &[
-            ("FAKE_HD_CALIBRATION", "manual".into()),
+            ("FAKE_HD_CALIBRATION", calibration.into()),
             ("FAKE_HD_REPORT", report.display().to_string()),
         ],
     );
     assert_ne!(code, Some(0));
-    assert!(err.contains("inkwell"), "{err}");
     let r = Report::read(&report);
+    std::fs::remove_dir_all(dir).ok();
+    (err, r)
+}
+
+#[test]
+fn touch_calibration_needing_the_inkwell_is_a_clear_error_and_no_force() {
+    let (err, r) = refused_calibration("touch-inkwell", true, "manual");
+    assert!(err.contains("inkwell"), "{err}");
     r.assert_discipline();
     assert_eq!(r.get("force_writes"), 0.0);
-    std::fs::remove_dir_all(dir).ok();
 }
 
 #[test]
 fn touch_calibration_update_with_auto_calibrate_off_is_refused() {
-    let dir = temp_dir("touch-nocal");
-    let report = dir.join("libhd-report.txt");
-    let (code, err) = run_to_failure(
-        &launch_file(&dir, false),
-        &[
-            ("FAKE_HD_CALIBRATION", "update".into()),
-            ("FAKE_HD_REPORT", report.display().to_string()),
-        ],
-    );
-    assert_ne!(code, Some(0));
+    let (err, r) = refused_calibration("touch-nocal", false, "update");
     assert!(err.contains("auto_calibrate"), "{err}");
-    let r = Report::read(&report);
     assert_eq!(r.get("calibration_updated_style"), 0.0);
     assert_eq!(r.get("force_writes"), 0.0);
-    std::fs::remove_dir_all(dir).ok();
 }
 
 #[test]

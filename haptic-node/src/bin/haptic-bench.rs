@@ -13,7 +13,7 @@ use clap::Parser;
 use haptic_node::config::Limits;
 use haptic_node::render::{boxed_frame, Renderer};
 use haptic_node::stats::Histogram;
-use msgs::{Pose, MAX_ROWS};
+use msgs::Pose;
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -74,9 +74,8 @@ fn loadavg() -> f64 {
         .unwrap_or(-1.0)
 }
 
-/// A synthetic contact patch of `n` contacts under a probe tip: contact points on a grid of
-/// 0.5 mm pitch, W = tissue (exponential kernel between points, PD) + probe (rigid body
-/// compliance through H), a shallow indentation.
+/// A frame holding the synthetic patch of `n` contacts (`contact_lcp::synthetic`, the
+/// problem the `patch-timing` example times too).
 fn synthetic_frame(n: usize, frame: &mut msgs::physics_to_haptic::ContactFrame) {
     let dt = 0.01;
     frame.instance_id = 1;
@@ -87,51 +86,11 @@ fn synthetic_frame(n: usize, frame: &mut msgs::physics_to_haptic::ContactFrame) 
     frame.friction_mu = 0.2;
     frame.proxy_pose = Pose::IDENTITY;
     frame.probe_free_pose = Pose::IDENTITY;
-    let side = (n as f64).sqrt().ceil() as usize;
-    let mut points = vec![[0.0f64; 3]; n];
-    for (k, p) in points.iter_mut().enumerate() {
-        *p = [(k % side) as f64 * 5e-4, (k / side) as f64 * 5e-4, 0.0];
-        frame.contact_points[k] = *p;
-        let tilt = 0.05 * ((k % 3) as f64 - 1.0);
-        let nrm = [tilt, 0.0, 1.0];
-        let l = (1.0 + tilt * tilt).sqrt();
-        let nz = [nrm[0] / l, 0.0, nrm[2] / l];
-        let t1 = [nz[2], 0.0, -nz[0]];
-        let t2 = [0.0, 1.0, 0.0];
-        for (r, d) in [nz, t1, t2].iter().enumerate() {
-            // Angular part about the probe position: p × d.
-            let a = [
-                p[1] * d[2] - p[2] * d[1],
-                p[2] * d[0] - p[0] * d[2],
-                p[0] * d[1] - p[1] * d[0],
-            ];
-            frame.constraint_directions[3 * k + r] = [d[0], d[1], d[2], a[0], a[1], a[2]];
-        }
-        frame.free_violation[3 * k] = -2e-4 * (1.0 + 0.3 * ((k % 4) as f64));
-    }
-    // Tissue: 1/(k dt) with k ≈ 2000 N/m per contact, coupling decaying over 1 mm. Probe:
-    // the 35 g probe on its stiff coupling spring (1e4 N/m) under implicit Euler,
-    // dt / (m + dt² k) (translation only; rotation much stiffer).
-    let c0 = 1.0 / (2000.0 * dt);
-    let probe = dt / (0.035 + dt * dt * 1e4);
-    let rows = 3 * n;
-    for i in 0..rows {
-        for j in 0..rows {
-            let (ki, kj) = (i / 3, j / 3);
-            let pi = points[ki];
-            let pj = points[kj];
-            let r = ((pi[0] - pj[0]).powi(2) + (pi[1] - pj[1]).powi(2)).sqrt();
-            let hi = frame.constraint_directions[i];
-            let hj = frame.constraint_directions[j];
-            let dir = hi[0] * hj[0] + hi[1] * hj[1] + hi[2] * hj[2];
-            let tissue = if i % 3 == j % 3 {
-                c0 * (-r / 1e-3).exp()
-            } else {
-                0.0
-            };
-            frame.compliance[i * MAX_ROWS + j] = tissue + probe * dir;
-        }
-    }
+    let patch = contact_lcp::synthetic::synthetic_patch(n, dt);
+    frame.contact_points[..n].copy_from_slice(&patch.points);
+    frame.constraint_directions[..3 * n].copy_from_slice(&patch.directions);
+    frame.free_violation[..3 * n].copy_from_slice(&patch.free_violation);
+    frame.compliance.copy_from_slice(&patch.compliance);
 }
 
 fn lcp_p99_us(contacts: usize, solves: u32) -> anyhow::Result<(f64, f64)> {

@@ -98,8 +98,15 @@ pub enum RecordingsCommand {
         #[arg(long)]
         json: bool,
     },
-    /// Export the study's CSV (time, contact force, contact flag, probe pose; per region and
-    /// per probing).
+    /// The study's per-region summary of a recording (mean normal force in contact, probe
+    /// displacement, probings): the same numbers the live session summary computes.
+    Summary {
+        file: PathBuf,
+        #[arg(long)]
+        json: bool,
+    },
+    /// Export the study's CSV (time, contact force, contact flag, normal force, probe pose;
+    /// per region and per probing).
     Export {
         file: PathBuf,
         /// Folder for the CSV files.

@@ -5,8 +5,8 @@ use crate::cli::{
     RunArgs, ValidateArgs,
 };
 use anyhow::{bail, Context, Result};
-use launch_config::launcher::{self, EndReason, LiveMode, RunOptions};
-use recordings::gap;
+use gap_diagnosis as gap;
+use launcher::{self, EndReason, LiveMode, RunOptions};
 use std::path::{Path, PathBuf};
 
 pub fn dispatch(cli: Cli) -> Result<i32> {
@@ -173,7 +173,7 @@ fn node_name(n: &launcher::NodeKind) -> &'static str {
 
 /// `arthrosim replay FILE`.
 fn replay(args: ReplayArgs) -> Result<i32> {
-    let options = recordings::replay::ReplayOptions {
+    let options = gap_diagnosis::replay::ReplayOptions {
         out: args.out.clone(),
         realtime: args.realtime,
         data_dir: None,
@@ -182,7 +182,7 @@ fn replay(args: ReplayArgs) -> Result<i32> {
         max_steps: args.max_steps,
         recording: launch_config::RecordingConfig::default(),
     };
-    let report = recordings::replay::replay(&args.file, &options)
+    let report = gap_diagnosis::replay::replay(&args.file, &options)
         .with_context(|| format!("replaying {}", args.file.display()))?;
     if args.json {
         println!("{}", serde_json::to_string(&report)?);
@@ -214,7 +214,7 @@ fn replay(args: ReplayArgs) -> Result<i32> {
     Ok(0)
 }
 
-/// `arthrosim recordings info|export|repair`.
+/// `arthrosim recordings info|summary|export|repair`.
 fn recordings(cmd: RecordingsCommand) -> Result<i32> {
     match cmd {
         RecordingsCommand::Info { file, json } => {
@@ -223,6 +223,14 @@ fn recordings(cmd: RecordingsCommand) -> Result<i32> {
                 println!("{}", serde_json::to_string_pretty(&info)?);
             } else {
                 println!("{info}");
+            }
+        }
+        RecordingsCommand::Summary { file, json } => {
+            let summary = recordings::session_summary(&file)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&summary)?);
+            } else {
+                println!("{summary}");
             }
         }
         RecordingsCommand::Export { file, csv } => {

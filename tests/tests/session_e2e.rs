@@ -2,35 +2,13 @@
 //! physics, haptic, bridge and recorder processes, exits 0, reports contacts in all three
 //! regions, and leaves no node process behind.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-fn workspace_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .parent()
-        .unwrap()
-        .to_path_buf()
-}
-
 /// The `arthrosim` binary of this test's profile, built (or brought up to date) first.
 fn arthrosim_binary() -> PathBuf {
-    // target/<profile>/deps/session_e2e-… → target/<profile>
-    let exe = std::env::current_exe().unwrap();
-    let profile_dir = exe.parent().and_then(Path::parent).unwrap().to_path_buf();
-    let release = profile_dir.file_name().is_some_and(|n| n == "release");
-    let mut build = Command::new(env!("CARGO"));
-    build
-        .current_dir(workspace_root())
-        .args(["build", "-p", "arthrosim"]);
-    if release {
-        build.arg("--release");
-    }
-    let status = build.status().expect("run cargo build -p arthrosim");
-    assert!(status.success(), "cargo build -p arthrosim failed");
-    let bin = profile_dir.join("arthrosim");
-    assert!(bin.is_file(), "{} not found after the build", bin.display());
-    bin
+    tests::workspace_binary("arthrosim", "arthrosim")
 }
 
 /// Processes whose command line names this session (the launcher passes `--session NAME`

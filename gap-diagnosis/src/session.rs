@@ -12,15 +12,16 @@ use super::experiment::{
 };
 use super::signal::{interp, lag_by_xcorr, norm, sub};
 use super::GapError;
-use crate::channels::*;
-use crate::read::{scan, Event};
 use launch_config::{DeviceConfig, LaunchFile, SceneConfig};
 use msgs::Pose;
+use recordings::channels::*;
+use recordings::read::{scan, Event};
 use serde::{Deserialize, Serialize};
+use session_metrics::Annotations;
 use std::path::{Path, PathBuf};
 
-/// Force magnitude above which the probe touches the tissue (contacts within the alarm
-/// distance carry no force), N.
+/// Force magnitude above which a device tick counts in the rendering gap (model or device
+/// side), N. Whether the probe touches the tissue is session-metrics' definition instead.
 const CONTACT_FORCE_N: f64 = 1e-3;
 /// Contact runs closer than this are one probing (a probe chattering at the surface), s.
 const MERGE_GAP_S: f64 = 0.25;
@@ -100,7 +101,7 @@ pub fn session_file(path: &Path) -> Result<Option<PathBuf>, GapError> {
 
 /// Reads the lossless channels and the scene/launch attachments of a recording.
 pub fn read_session(path: &Path) -> Result<SessionRecording, GapError> {
-    let mut lossless = crate::export::LosslessChannels::default();
+    let mut lossless = recordings::export::LosslessChannels::default();
     let mut scene_text: Option<String> = None;
     let mut launch_text: Option<String> = None;
     let outcome = scan(path, &mut |event| {
@@ -123,13 +124,13 @@ pub fn read_session(path: &Path) -> Result<SessionRecording, GapError> {
         Ok(())
     })?;
     if outcome.profile != PROFILE {
-        return Err(crate::RecordingError::WrongProfile {
+        return Err(recordings::RecordingError::WrongProfile {
             path: path.to_path_buf(),
             found: outcome.profile,
         }
         .into());
     }
-    let crate::export::LosslessChannels { steps, ticks, .. } = lossless;
+    let recordings::export::LosslessChannels { steps, ticks, .. } = lossless;
     if steps.is_empty() {
         return Err(input_err(
             path,
@@ -200,24 +201,23 @@ fn main_instance(steps: &[ContactStep]) -> u64 {
         .unwrap_or(0)
 }
 
-/// Protocol annotations (region, probing, phase) of each tick, by tick sequence.
-fn annotations(ticks: &[DeviceTick]) -> Vec<(u64, u32, u32, u32)> {
-    let mut a: Vec<(u64, u32, u32, u32)> = ticks
-        .iter()
-        .map(|t| (t.sequence, t.region, t.probing_index, t.phase))
-        .collect();
-    a.sort_by_key(|x| x.0);
-    a.dedup_by_key(|x| x.0);
+/// Protocol annotations of the ticks, by tick sequence (`session_metrics::matching`).
+fn annotations(ticks: &[DeviceTick]) -> Annotations {
+    let mut a = Annotations::default();
+    for t in ticks {
+        a.push(t.sequence, t.region, t.probing_index, t.phase);
+    }
     a
 }
 
 fn region_of(code: u32) -> Option<Region> {
-    Region::ALL.into_iter().find(|r| r.code() == code)
+    Region::from_code(code)
 }
 
-/// Touching the tissue: a contact force, not merely contacts within the alarm distance.
+/// Touching the tissue, as `session_metrics::ContactSample::in_contact` defines it (some
+/// constraint carries a normal impulse), not merely contacts within the alarm distance.
 fn in_contact(s: &ContactStep) -> bool {
-    norm(v3(&s.contact_force)) > CONTACT_FORCE_N
+    s.sample().in_contact()
 }
 
 /// Index ranges of the steps forming each probing: runs of one annotated probing index, or,
@@ -299,10 +299,10 @@ pub fn experiment_from_session(rec: &SessionRecording) -> Result<Experiment, Gap
     let ann: Vec<(u32, u32, u32)> = steps
         .iter()
         .map(|s| {
-            ann_by_seq
-                .binary_search_by_key(&s.device_sequence_used, |a| a.0)
-                .map(|i| (ann_by_seq[i].1, ann_by_seq[i].2, ann_by_seq[i].3))
-                .unwrap_or((0, 0, 0))
+            let a = ann_by_seq
+                .of_step(s.device_sequence_used)
+                .unwrap_or_default();
+            (a.region, a.probing_index, a.phase)
         })
         .collect();
     let ranges = probing_ranges(&steps, &ann);
@@ -357,7 +357,9 @@ pub fn experiment_from_session(rec: &SessionRecording) -> Result<Experiment, Gap
         };
         let mut name = format!(
             "probing_{index:03}_{}",
-            region.map(|r| r.name()).unwrap_or("unlabelled")
+            region
+                .map(|r| r.name())
+                .unwrap_or(msgs::protocol::UNLABELLED)
         );
         // a protocol that runs again restarts its probing index: keep trial names unique
         let repeats = trials
@@ -662,7 +664,7 @@ pub fn rendering_gap(rec: &SessionRecording) -> Result<RenderingGap, GapError> {
         .map(|c| {
             let name = region_of(c as u32)
                 .map(|r| r.name())
-                .unwrap_or("unlabelled");
+                .unwrap_or(msgs::protocol::UNLABELLED);
             regions[c].summary(name.into())
         })
         .collect();
@@ -797,6 +799,12 @@ mod tests {
             ..Default::default()
         };
         s.contact_force.z = fz;
+        // Touching (session-metrics' definition) when the tissue pushes back along +z.
+        if fz > 0.0 {
+            s.contact_count = 1;
+            s.touching = true;
+            s.contact_normal.z = 1.0;
+        }
         s.probe_pose.orientation.w = 1.0;
         s.probe_pose.position.z = -fz * 1e-4;
         s

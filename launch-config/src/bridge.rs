@@ -45,6 +45,23 @@ impl Default for BridgeConfig {
     }
 }
 
+impl BridgeConfig {
+    /// The session → ROS 2 mapping these settings describe (namespace, world frame, fixed
+    /// frames); the bridge publishes and the recorder records through it.
+    pub fn ros_mapping(&self) -> msgs::ros_mapping::Mapping {
+        let pose = |f: &FramePose| msgs::Pose {
+            position: f.position,
+            orientation: f.orientation,
+        };
+        msgs::ros_mapping::Mapping {
+            namespace: self.namespace.clone(),
+            world_frame: self.world_frame.clone(),
+            meniscus_pose: pose(&self.meniscus_pose),
+            touch_base_pose: pose(&self.touch_base_pose),
+        }
+    }
+}
+
 /// A fixed frame: position (m) and quaternion `[x, y, z, w]`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]

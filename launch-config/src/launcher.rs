@@ -372,6 +372,17 @@ impl Display {
     }
 }
 
+/// The CLOCK_REALTIME − CLOCK_MONOTONIC offset every node of this launcher's sessions gets
+/// (fixed at the first spawn; an offset already in the environment is passed on).
+fn session_clock_offset_ns() -> i64 {
+    static OFFSET: std::sync::OnceLock<i64> = std::sync::OnceLock::new();
+    *OFFSET.get_or_init(|| {
+        msgs::ros_mapping::StampClock::for_session()
+            .unwrap_or_else(|_| msgs::ros_mapping::StampClock::measure())
+            .offset_ns()
+    })
+}
+
 /// A session in progress.
 struct Session<'a> {
     opts: &'a RunOptions,
@@ -401,6 +412,12 @@ impl Session<'_> {
             .stderr(Stdio::piped())
             // Plain text in the logs and through the launcher's pipes.
             .env("NO_COLOR", "1")
+            // One stamp clock for the session: the bridge and the recorder turn a sample's
+            // publish time into the same ROS stamp.
+            .env(
+                msgs::ros_mapping::CLOCK_OFFSET_ENV,
+                session_clock_offset_ns().to_string(),
+            )
             .process_group(0);
 
         let parent = std::process::id() as libc::pid_t;

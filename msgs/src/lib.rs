@@ -12,6 +12,7 @@ pub mod clock;
 pub mod ipc;
 pub mod lifecycle;
 pub mod ros;
+pub mod ros_mapping;
 
 use iceoryx2::prelude::ZeroCopySend;
 

@@ -15,7 +15,9 @@ use ros2_client::{
 };
 use serde::Serialize;
 
-use crate::convert::{self, StampClock};
+use msgs::ros_mapping::{self, Mapping, StampClock, Topic};
+
+use crate::convert;
 use crate::stats::{percentile, BridgeStats, Stream, OUT_STREAMS};
 
 /// A message for the DDS side, with the monotonic publish time of the sample it came from.
@@ -90,15 +92,9 @@ pub fn qos(stream: &StreamConfig) -> QosProfile {
     })
 }
 
-/// Full ROS name of a topic: absolute names stay, others go below the namespace.
+/// Full ROS name of a topic ([`ros_mapping::full_topic_name`]), checked by ros2-client.
 pub fn topic_name(namespace: &str, topic: &str) -> Result<Name, DdsError> {
-    let full = if topic.starts_with('/') {
-        topic.to_string()
-    } else if namespace == "/" {
-        format!("/{topic}")
-    } else {
-        format!("{namespace}/{topic}")
-    };
+    let full = ros_mapping::full_topic_name(namespace, topic);
     Name::parse(&full).map_err(|e| DdsError::Name {
         name: full,
         detail: format!("{e:?}"),
@@ -162,6 +158,7 @@ struct DdsSide {
     config: BridgeConfig,
     stats: Arc<BridgeStats>,
     clock: StampClock,
+    mapping: Mapping,
     // Field order matters for drop: endpoints before the node, the node before the context.
     publishers: Publishers,
     target_pose: Option<Subscription<PoseStamped>>,
@@ -189,21 +186,24 @@ pub fn spawn(
     config: BridgeConfig,
     stats: Arc<BridgeStats>,
     clock: StampClock,
+    mapping: Mapping,
     outbound: Receiver<Envelope>,
     inbound: SyncSender<Inbound>,
 ) -> Result<DdsThread, DdsError> {
     let (ready_tx, ready_rx) = std::sync::mpsc::sync_channel::<Result<(), DdsError>>(1);
     let handle = std::thread::Builder::new()
         .name("viz-bridge-dds".into())
-        .spawn(move || match DdsSide::new(config, stats, clock, inbound) {
-            Ok(mut side) => {
-                let _ = ready_tx.send(Ok(()));
-                side.run(outbound);
-            }
-            Err(e) => {
-                let _ = ready_tx.send(Err(e));
-            }
-        })
+        .spawn(
+            move || match DdsSide::new(config, stats, clock, mapping, inbound) {
+                Ok(mut side) => {
+                    let _ = ready_tx.send(Ok(()));
+                    side.run(outbound);
+                }
+                Err(e) => {
+                    let _ = ready_tx.send(Err(e));
+                }
+            },
+        )
         .map_err(setup("spawn DDS thread"))?;
     match ready_rx.recv() {
         Ok(Ok(())) => Ok(DdsThread { handle }),
@@ -223,6 +223,7 @@ impl DdsSide {
         config: BridgeConfig,
         stats: Arc<BridgeStats>,
         clock: StampClock,
+        mapping: Mapping,
         inbound: SyncSender<Inbound>,
     ) -> Result<DdsSide, DdsError> {
         let context = Context::with_options(ContextOptions::new().domain_id(config.domain_id))
@@ -262,19 +263,30 @@ impl DdsSide {
             mesh: publisher(&mut node, &ns, Stream::Mesh.topic(), &s.mesh)?,
             contacts: publisher(&mut node, &ns, Stream::Contacts.topic(), &s.contacts)?,
             tf: publisher(&mut node, &ns, Stream::Tf.topic(), &s.tf)?,
-            diagnostics: publisher(&mut node, &ns, "/diagnostics", &s.diagnostics)?,
+            diagnostics: publisher(
+                &mut node,
+                &ns,
+                Topic::Diagnostics.relative(),
+                &s.diagnostics,
+            )?,
         };
-        let target_pose = subscription(&mut node, &ns, "probe/target_pose", &s.target_pose)?;
+        let target_pose = subscription(
+            &mut node,
+            &ns,
+            ros_mapping::TOPIC_TARGET_POSE,
+            &s.target_pose,
+        )?;
         let degeneration_grade = subscription(
             &mut node,
             &ns,
-            "material/degeneration_grade",
+            ros_mapping::TOPIC_DEGENERATION_GRADE,
             &s.degeneration_grade,
         )?;
         Ok(DdsSide {
             config,
             stats,
             clock,
+            mapping,
             publishers,
             target_pose,
             degeneration_grade,
@@ -484,43 +496,23 @@ impl DdsSide {
 
         let haptic = stats.haptic.lock().ok().and_then(|h| *h);
         let haptic_status = match haptic {
-            Some(h) => DiagnosticStatus {
-                level: if h.faults != 0 {
-                    DiagnosticStatus::WARN
-                } else {
-                    DiagnosticStatus::OK
-                },
-                name: "arthrosim/haptic".into(),
-                message: format!("{:.0} Hz", h.tick_hz),
-                hardware_id: "arthrosim".into(),
-                values: vec![
-                    KeyValue::new("tick_hz", format!("{:.1}", h.tick_hz)),
-                    KeyValue::new("period_err_p99_us", format!("{:.1}", h.period_err_p99_us)),
-                    KeyValue::new("lcp_p99_us", format!("{:.1}", h.lcp_p99_us)),
-                    KeyValue::new("frame_age_p99_us", format!("{:.1}", h.frame_age_p99_us)),
-                    KeyValue::new("transport_p99_us", format!("{:.1}", h.transport_p99_us)),
-                    KeyValue::new(
-                        "rendered_force_n",
-                        format!("{:.3}", h.rendered_force_norm_n),
-                    ),
-                    KeyValue::new("fault_count", h.fault_count),
-                    KeyValue::new("faults", format!("{:#x}", h.faults)),
-                    KeyValue::new("realtime", h.realtime),
-                ],
-            },
+            Some(h) => {
+                let mut status = DiagnosticStatus::default();
+                self.mapping.haptic_status_into(&mut status, &h);
+                status
+            }
             None => DiagnosticStatus {
                 level: DiagnosticStatus::STALE,
-                name: "arthrosim/haptic".into(),
+                name: ros_mapping::HAPTIC_STATUS_NAME.into(),
                 message: "no haptic statistics received".into(),
-                hardware_id: "arthrosim".into(),
+                hardware_id: String::new(),
                 values: Vec::new(),
             },
         };
         DiagnosticArray {
-            header: Header::new(
-                self.clock.stamp(msgs::clock::monotonic_ns()),
-                &self.config.world_frame,
-            ),
+            header: self
+                .mapping
+                .diagnostics_header(self.clock.stamp(msgs::clock::monotonic_ns())),
             status: vec![bridge, inputs_status, haptic_status],
         }
     }

@@ -33,18 +33,24 @@ impl Stream {
         Stream::Tf,
     ];
 
+    /// The session topic of this stream (`msgs::ros_mapping`, shared with the recorder).
+    pub fn ros_topic(self) -> msgs::ros_mapping::Topic {
+        use msgs::ros_mapping::Topic;
+        match self {
+            Stream::ProbePose => Topic::ProbePose,
+            Stream::ProbeWrench => Topic::ProbeWrench,
+            Stream::DeviceWrench => Topic::DeviceWrench,
+            Stream::JointStates => Topic::JointStates,
+            Stream::Buttons => Topic::Buttons,
+            Stream::Mesh => Topic::Mesh,
+            Stream::Contacts => Topic::Contacts,
+            Stream::Tf => Topic::Tf,
+        }
+    }
+
     /// Topic relative to the namespace (`/tf` is absolute).
     pub fn topic(self) -> &'static str {
-        match self {
-            Stream::ProbePose => "probe/pose",
-            Stream::ProbeWrench => "probe/wrench",
-            Stream::DeviceWrench => "device/wrench",
-            Stream::JointStates => "device/joint_states",
-            Stream::Buttons => "device/buttons",
-            Stream::Mesh => "meniscus/mesh",
-            Stream::Contacts => "contacts",
-            Stream::Tf => "/tf",
-        }
+        self.ros_topic().relative()
     }
 }
 

@@ -9,6 +9,9 @@ Modes
   drive --target x,y,z,qx,qy,qz,qw : publish a probe target pose at 20 Hz and record the
                          probe pose / wrench values received (compared by the Rust test with
                          what the real physics node published).
+  capture --out FILE --seconds S : subscribe to every topic the bridge publishes and write
+                         each type and each message described by ros_normal.describe to FILE
+                         (compared by the Rust test with the session MCAP).
   bench                : count probe pose / wrench samples (position.x / force.x carry the
                          sample number, -1 warm-up, -2 end), measure latency from the header
                          stamp to receipt; print one JSON line.
@@ -488,9 +491,40 @@ def run_drive(args):
     return 0
 
 
+def run_capture(args):
+    """Record every message of every session topic (described, not stored whole)."""
+    from ros_normal import describe
+
+    ns = args.namespace
+    dp = DomainParticipant(args.domain)
+    readers = {}
+    types = {}
+    for key, (rel, typ, latched) in TOPICS.items():
+        readers[key] = DataReader(dp, Topic(dp, topic_of(ns, rel), typ), qos=qos(5000, latched))
+        # IDL name pkg::msg::dds_::Type_ → ROS name pkg/msg/Type.
+        pkg, _, _, name = typ.__idl_typename__.split("::")
+        types[key] = f"{pkg}/msg/{name[:-1]}"
+    ws = WaitSet(dp)
+    for r in readers.values():
+        ws.attach(ReadCondition(r, SampleState.Any | ViewState.Any | InstanceState.Any))
+    print("READY", flush=True)
+    messages = {key: [] for key in TOPICS}
+    end = time.monotonic() + args.seconds
+    while time.monotonic() < end:
+        ws.wait(duration(milliseconds=20))
+        for key, reader in readers.items():
+            for m in reader.take(N=1024):
+                messages[key].append(describe(key, m))
+    with open(args.out, "w") as f:
+        json.dump({"types": types, "messages": messages}, f)
+    print(json.dumps({k: len(v) for k, v in messages.items()}), flush=True)
+    return 0
+
+
 def main():
     ap = argparse.ArgumentParser()
-    ap.add_argument("mode", choices=["check", "bench", "drive"])
+    ap.add_argument("mode", choices=["check", "bench", "drive", "capture"])
+    ap.add_argument("--out", help="capture: where to write the described messages")
     ap.add_argument("--target", default="0,0,0.05,0,0,0,1")
     ap.add_argument("--seconds", type=float, default=6.0)
     ap.add_argument("--expect")
@@ -506,6 +540,10 @@ def main():
         return run_check(args)
     if args.mode == "drive":
         return run_drive(args)
+    if args.mode == "capture":
+        if not args.out:
+            ap.error("capture needs --out FILE")
+        return run_capture(args)
     return run_bench(args)
 
 

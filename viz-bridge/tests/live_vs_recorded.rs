@@ -57,8 +57,9 @@ rate_hz = 5.0
 rate_hz = 50.0
 
 [recording]
-# Every surface and contact frame, so each one the bridge published has its twin.
-mesh_rate_hz = 1000.0
+# Every surface and contact frame (1 ns apart at least: physics publishes bursts of steps
+# when it catches up with real time), so each one the bridge published has its twin.
+mesh_rate_hz = 1.0e9
 "#;
 
 fn node_exe(name: &str) -> Option<PathBuf> {

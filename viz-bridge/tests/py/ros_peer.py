@@ -499,8 +499,9 @@ def run_capture(args):
     dp = DomainParticipant(args.domain)
     readers = {}
     types = {}
-    for key, (rel, typ, latched) in TOPICS.items():
-        readers[key] = DataReader(dp, Topic(dp, topic_of(ns, rel), typ), qos=qos(5000, latched))
+    for key, (rel, typ, _latched) in TOPICS.items():
+        # Volatile readers match volatile and transient-local writers alike.
+        readers[key] = DataReader(dp, Topic(dp, topic_of(ns, rel), typ), qos=qos(5000))
         # IDL name pkg::msg::dds_::Type_ → ROS name pkg/msg/Type.
         pkg, _, _, name = typ.__idl_typename__.split("::")
         types[key] = f"{pkg}/msg/{name[:-1]}"

@@ -14,6 +14,15 @@ pub mod servo;
 pub mod stats;
 pub mod transport;
 
+// The contact frame's W is laid out with msgs' row stride and solved by contact-lcp, which
+// has no dependencies and so keeps its own copy of the capacities: check they agree.
+const _: () = assert!(
+    msgs::MAX_CONTACTS == contact_lcp::MAX_CONTACTS
+        && msgs::ROWS_PER_CONTACT == contact_lcp::ROWS_PER_CONTACT
+        && msgs::MAX_ROWS == contact_lcp::MAX_ROWS,
+    "msgs and contact-lcp disagree on the contact capacity"
+);
+
 use std::path::PathBuf;
 
 /// Command-line arguments of the haptic node (also used by `arthrosim node haptic`).

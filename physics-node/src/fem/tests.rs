@@ -251,10 +251,7 @@ fn patch_test_reproduces_linear_field() {
 }
 
 /// Cantilever (L × h × h) clamped at x = 0, tip load P in −z: Euler–Bernoulli δ = PL³/(3EI).
-fn cantilever_deflection(nx: usize, nyz: usize, solver: LinearSolver) -> (f64, f64) {
-    cantilever_deflection_nu(nx, nyz, solver, 0.3)
-}
-
+/// The ν = 0.3 mesh-convergence table is `examples/cantilever_table.rs`.
 fn cantilever_deflection_nu(nx: usize, nyz: usize, solver: LinearSolver, nu: f64) -> (f64, f64) {
     let (l, h) = (1.0, 0.1);
     let mesh = box_mesh(l, h, h, nx, nyz, nyz);
@@ -286,17 +283,6 @@ fn cantilever_deflection_nu(nx: usize, nyz: usize, solver: LinearSolver, nu: f64
     let inertia = h * h * h * h / 12.0;
     let eb = p_total * l * l * l / (3.0 * mat.youngs_modulus * inertia);
     (deflection, eb)
-}
-
-/// ν = 0.3 table (run with --ignored --nocapture): 0.508, 0.793, 0.937, 0.971.
-#[test]
-#[ignore]
-fn cantilever_convergence_table() {
-    for (nx, n) in [(20, 2), (40, 4), (80, 8), (120, 12)] {
-        let t = std::time::Instant::now();
-        let (d, eb) = cantilever_deflection(nx, n, LinearSolver::Direct);
-        println!("{nx}x{n}x{n}: {:.4} ({:?})", d / eb, t.elapsed());
-    }
 }
 
 #[test]

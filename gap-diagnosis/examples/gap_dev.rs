@@ -1,9 +1,10 @@
-//! Development harness (ignored): re-diagnose kept self-test folders with the replays cached
-//! on disk (`caseNNN_cache.json` beside each folder), so the statistics can be iterated on
-//! in seconds instead of re-running the physics.
-//! `GAP_DEV_DIR=/tmp/s1 cargo test --release -p recordings --test gap_dev -- --ignored --nocapture`
-//! (`GAP_DEV_DIR` is a `--keep` folder of `arthrosim gap selftest`; `GAP_DEV_CASES=case005,…`
-//! restricts `rediagnose_kept_cases`; `phase_table` prints the held-out RMSE per phase).
+//! Development harness: re-diagnose kept self-test folders with the replays cached on disk
+//! (`caseNNN_cache.json` beside each folder), so the statistics can be iterated on in seconds
+//! instead of re-running the physics.
+//! `cargo run --release -p gap-diagnosis --example gap_dev -- DIR [rediagnose|phase-table]`
+//! (`DIR` is a `--keep` folder of `arthrosim gap selftest`; `GAP_DEV_CASES=case005,…`
+//! restricts `rediagnose`; `phase-table` prints the held-out RMSE per phase).
+use anyhow::{bail, Context};
 use gap_diagnosis::model::{ForceModel, ProbePath, Variant};
 use gap_diagnosis::{self as gap, GapError, SimForceModel};
 use std::collections::HashMap;
@@ -58,25 +59,22 @@ fn load_cache(p: &Path) -> HashMap<u64, Vec<[f64; 3]>> {
 }
 
 /// The kept case folders under `root`, sorted.
-fn case_dirs(root: &std::path::Path) -> Vec<PathBuf> {
+fn case_dirs(root: &Path) -> anyhow::Result<Vec<PathBuf>> {
     let mut dirs: Vec<PathBuf> = std::fs::read_dir(root)
-        .unwrap()
+        .with_context(|| format!("reading {}", root.display()))?
         .flatten()
         .map(|e| e.path())
         .filter(|p| p.is_dir())
         .collect();
     dirs.sort();
-    dirs
+    Ok(dirs)
 }
 
-#[test]
-#[ignore]
-fn rediagnose_kept_cases() {
-    let root = PathBuf::from(std::env::var("GAP_DEV_DIR").expect("GAP_DEV_DIR"));
+fn rediagnose_kept_cases(root: &Path) -> anyhow::Result<()> {
     let only: Option<Vec<String>> = std::env::var("GAP_DEV_CASES")
         .ok()
         .map(|s| s.split(',').map(|x| x.to_string()).collect());
-    let dirs = case_dirs(&root);
+    let dirs = case_dirs(root)?;
     let data = gap::data_dir();
     let (mut ok, mut n, mut shrink, mut neff) = (0, 0, 0.0, 0);
     let t_all = std::time::Instant::now();
@@ -87,13 +85,14 @@ fn rediagnose_kept_cases() {
                 continue;
             }
         }
+        let truth_file = root.join(format!("{name}_truth.json"));
         let truth: serde_json::Value = serde_json::from_str(
-            &std::fs::read_to_string(root.join(format!("{name}_truth.json"))).unwrap(),
-        )
-        .unwrap();
-        let label = truth["label"].as_str().unwrap().to_string();
-        let exp = gap::load_experiment(&dir, &data).unwrap();
-        let sim = SimForceModel::for_experiment(&exp, &data).unwrap();
+            &std::fs::read_to_string(&truth_file)
+                .with_context(|| format!("reading {}", truth_file.display()))?,
+        )?;
+        let label = truth["label"].as_str().unwrap_or("?").to_string();
+        let exp = gap::load_experiment(&dir, &data)?;
+        let sim = SimForceModel::for_experiment(&exp, &data)?;
         let cache_file = root.join(format!("{name}_cache.json"));
         let model = Cached {
             inner: &sim,
@@ -101,12 +100,12 @@ fn rediagnose_kept_cases() {
             dirty: Mutex::new(false),
         };
         let t0 = std::time::Instant::now();
-        let r = gap::diagnose(&exp, &model, &gap::Options::default()).unwrap();
+        let r = gap::diagnose(&exp, &model, &gap::Options::default())?;
         let el = t0.elapsed().as_secs_f64();
         if *model.dirty.lock().unwrap() {
             let v: Vec<(u64, Vec<[f64; 3]>)> =
                 model.map.into_inner().unwrap().into_iter().collect();
-            std::fs::write(&cache_file, serde_json::to_string(&v).unwrap()).unwrap();
+            std::fs::write(&cache_file, serde_json::to_string(&v)?)?;
         }
         n += 1;
         let good = r.verdict.effect == label;
@@ -154,26 +153,25 @@ fn rediagnose_kept_cases() {
         100.0 * shrink / neff.max(1) as f64,
         t_all.elapsed().as_secs_f64()
     );
+    Ok(())
 }
 
 /// Per-phase held-out RMSE of the ranked candidates (pair-rule design).
-#[test]
-#[ignore]
-fn phase_table() {
+fn phase_table(root: &Path) -> anyhow::Result<()> {
     use gap_diagnosis::dataset::{build, BuildOptions};
     use gap_diagnosis::effects::Effect;
     use gap_diagnosis::metrics::Phase;
-    let root = PathBuf::from(std::env::var("GAP_DEV_DIR").expect("GAP_DEV_DIR"));
-    let dirs = case_dirs(&root);
+    let dirs = case_dirs(root)?;
     let data = gap::data_dir();
     for dir in dirs {
         let name = dir.file_name().unwrap().to_string_lossy().to_string();
+        let truth_file = root.join(format!("{name}_truth.json"));
         let truth: serde_json::Value = serde_json::from_str(
-            &std::fs::read_to_string(root.join(format!("{name}_truth.json"))).unwrap(),
-        )
-        .unwrap();
-        let exp = gap::load_experiment(&dir, &data).unwrap();
-        let sim = SimForceModel::for_experiment(&exp, &data).unwrap();
+            &std::fs::read_to_string(&truth_file)
+                .with_context(|| format!("reading {}", truth_file.display()))?,
+        )?;
+        let exp = gap::load_experiment(&dir, &data)?;
+        let sim = SimForceModel::for_experiment(&exp, &data)?;
         let cache_file = root.join(format!("{name}_cache.json"));
         let model = Cached {
             inner: &sim,
@@ -189,8 +187,7 @@ fn phase_table() {
                 dt: 0.02,
                 progress: false,
             },
-        )
-        .unwrap();
+        )?;
         let r = gap::diagnose_data(
             name.clone(),
             String::new(),
@@ -198,11 +195,10 @@ fn phase_table() {
             &effects,
             &gap::Options::default(),
             std::time::Instant::now(),
-        )
-        .unwrap();
+        )?;
         eprintln!(
             "{name} truth {} found {}",
-            truth["label"].as_str().unwrap(),
+            truth["label"].as_str().unwrap_or("?"),
             r.verdict.effect
         );
         let row = |label: &str, pred: &dyn Fn(usize) -> Vec<[f64; 3]>| {
@@ -235,5 +231,19 @@ fn phase_table() {
         for c in r.ranking.iter().take(8) {
             row(&c.effect, &|i| c.heldout_pred[i].clone());
         }
+    }
+    Ok(())
+}
+
+fn main() -> anyhow::Result<()> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let Some(root) = args.first() else {
+        bail!("usage: gap_dev DIR [rediagnose|phase-table]");
+    };
+    let root = PathBuf::from(root);
+    match args.get(1).map(String::as_str) {
+        None | Some("rediagnose") => rediagnose_kept_cases(&root),
+        Some("phase-table") => phase_table(&root),
+        Some(other) => bail!("unknown mode {other:?} (expected rediagnose or phase-table)"),
     }
 }

@@ -58,6 +58,45 @@ fn load_cache(p: &Path) -> HashMap<u64, Vec<[f64; 3]>> {
         .unwrap_or_default()
 }
 
+/// One kept case folder: its name, ground truth, experiment, physics model and replay cache.
+struct Case {
+    name: String,
+    truth: serde_json::Value,
+    exp: gap::Experiment,
+    sim: SimForceModel,
+    cache_file: PathBuf,
+}
+
+impl Case {
+    fn open(root: &Path, dir: &Path, data: &Path) -> anyhow::Result<Case> {
+        let name = dir.file_name().unwrap().to_string_lossy().to_string();
+        let truth_file = root.join(format!("{name}_truth.json"));
+        let truth: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(&truth_file)
+                .with_context(|| format!("reading {}", truth_file.display()))?,
+        )?;
+        let exp = gap::load_experiment(dir, data)?;
+        let sim = SimForceModel::for_experiment(&exp, data)?;
+        let cache_file = root.join(format!("{name}_cache.json"));
+        Ok(Case {
+            name,
+            truth,
+            exp,
+            sim,
+            cache_file,
+        })
+    }
+
+    /// The physics model behind the on-disk replay cache.
+    fn cached_model(&self) -> Cached<'_> {
+        Cached {
+            inner: &self.sim,
+            map: Mutex::new(load_cache(&self.cache_file)),
+            dirty: Mutex::new(false),
+        }
+    }
+}
+
 /// The kept case folders under `root`, sorted.
 fn case_dirs(root: &Path) -> anyhow::Result<Vec<PathBuf>> {
     let mut dirs: Vec<PathBuf> = std::fs::read_dir(root)
@@ -85,27 +124,17 @@ fn rediagnose_kept_cases(root: &Path) -> anyhow::Result<()> {
                 continue;
             }
         }
-        let truth_file = root.join(format!("{name}_truth.json"));
-        let truth: serde_json::Value = serde_json::from_str(
-            &std::fs::read_to_string(&truth_file)
-                .with_context(|| format!("reading {}", truth_file.display()))?,
-        )?;
+        let case = Case::open(root, &dir, &data)?;
+        let (exp, truth, cache_file) = (&case.exp, &case.truth, &case.cache_file);
         let label = truth["label"].as_str().unwrap_or("?").to_string();
-        let exp = gap::load_experiment(&dir, &data)?;
-        let sim = SimForceModel::for_experiment(&exp, &data)?;
-        let cache_file = root.join(format!("{name}_cache.json"));
-        let model = Cached {
-            inner: &sim,
-            map: Mutex::new(load_cache(&cache_file)),
-            dirty: Mutex::new(false),
-        };
+        let model = case.cached_model();
         let t0 = std::time::Instant::now();
-        let r = gap::diagnose(&exp, &model, &gap::Options::default())?;
+        let r = gap::diagnose(exp, &model, &gap::Options::default())?;
         let el = t0.elapsed().as_secs_f64();
         if *model.dirty.lock().unwrap() {
             let v: Vec<(u64, Vec<[f64; 3]>)> =
                 model.map.into_inner().unwrap().into_iter().collect();
-            std::fs::write(&cache_file, serde_json::to_string(&v)?)?;
+            std::fs::write(cache_file, serde_json::to_string(&v)?)?;
         }
         n += 1;
         let good = r.verdict.effect == label;
@@ -164,23 +193,12 @@ fn phase_table(root: &Path) -> anyhow::Result<()> {
     let dirs = case_dirs(root)?;
     let data = gap::data_dir();
     for dir in dirs {
-        let name = dir.file_name().unwrap().to_string_lossy().to_string();
-        let truth_file = root.join(format!("{name}_truth.json"));
-        let truth: serde_json::Value = serde_json::from_str(
-            &std::fs::read_to_string(&truth_file)
-                .with_context(|| format!("reading {}", truth_file.display()))?,
-        )?;
-        let exp = gap::load_experiment(&dir, &data)?;
-        let sim = SimForceModel::for_experiment(&exp, &data)?;
-        let cache_file = root.join(format!("{name}_cache.json"));
-        let model = Cached {
-            inner: &sim,
-            map: Mutex::new(load_cache(&cache_file)),
-            dirty: Mutex::new(false),
-        };
+        let case = Case::open(root, &dir, &data)?;
+        let (name, exp, truth) = (&case.name, &case.exp, &case.truth);
+        let model = case.cached_model();
         let effects = Effect::ALL.to_vec();
         let td = build(
-            &exp,
+            exp,
             &model,
             &effects,
             &BuildOptions {

@@ -14,6 +14,7 @@
 pub mod bridge;
 pub mod device;
 pub mod load;
+pub mod node;
 pub mod recording;
 pub mod scene;
 pub mod validate;

@@ -33,7 +33,9 @@ fn main() -> anyhow::Result<()> {
         None | Some("diagnose") => diagnose_15_trials(),
         Some("selftest-cycle") => {
             let n = match args.get(1) {
-                Some(v) => v.parse().with_context(|| format!("CASES {v:?} is not a count"))?,
+                Some(v) => v
+                    .parse()
+                    .with_context(|| format!("CASES {v:?} is not a count"))?,
                 None => 14,
             };
             selftest_cycle(n)

@@ -23,6 +23,7 @@
 //! the force the tissue exerts on the probe as the sensor measured it and the pose of the probe
 //! tip frame. Sampling may be irregular.
 use super::GapError;
+use launch_config::scene::MaterialPreset;
 use msgs::csv_input::{self, Order, Spec};
 use msgs::Pose;
 use serde::{Deserialize, Serialize};
@@ -73,15 +74,16 @@ impl Default for SpecimenSpec {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct MaterialSpec {
+    /// The launch file's preset choice (an unknown value is a parse error naming the line).
     #[serde(default = "default_preset")]
-    pub preset: String,
+    pub preset: MaterialPreset,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub youngs_modulus: Option<f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub poisson_ratio: Option<f64>,
 }
-fn default_preset() -> String {
-    "lateral".into()
+fn default_preset() -> MaterialPreset {
+    MaterialPreset::Lateral
 }
 impl Default for MaterialSpec {
     fn default() -> Self {
@@ -290,12 +292,6 @@ pub fn load_experiment(dir: &Path, data_dir: &Path) -> Result<Experiment, GapErr
 }
 
 fn check_material(spec: &ExperimentSpec) -> Result<(), String> {
-    if !["lateral", "medial", "custom"].contains(&spec.material.preset.as_str()) {
-        return Err(format!(
-            "unknown material preset {:?}",
-            spec.material.preset
-        ));
-    }
     if let Some(e) = spec.material.youngs_modulus {
         if !(e.is_finite() && e > 0.0) {
             return Err(format!("youngs_modulus must be > 0, got {e}"));

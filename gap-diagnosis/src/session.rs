@@ -410,7 +410,7 @@ pub fn experiment_from_session(rec: &SessionRecording) -> Result<Experiment, Gap
             }),
         },
         material: MaterialSpec {
-            preset: sc.material.preset.clone(),
+            preset: sc.material.preset,
             youngs_modulus: sc.material.youngs_modulus,
             poisson_ratio: sc.material.poisson_ratio,
         },

@@ -36,7 +36,7 @@ pub struct NodeArgs {
     pub seconds: Option<f64>,
     /// Override `[device] backend` (touch | emulated | replay).
     #[arg(long, value_name = "BACKEND")]
-    pub device: Option<String>,
+    pub device: Option<launch_config::device::DeviceBackend>,
     /// Replay this CSV trajectory (sets the backend to `replay`).
     #[arg(long, value_name = "CSV")]
     pub replay: Option<PathBuf>,

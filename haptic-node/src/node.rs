@@ -8,6 +8,7 @@ use crate::stats::{LatencyHistogram, LoopStats, TRANSPORT_MAX_NS};
 use crate::transport;
 use crate::NodeArgs;
 use anyhow::Context;
+use launch_config::device::{DeviceBackend, SiteSource};
 use msgs::haptic_to_monitor::HapticStats;
 use msgs::haptic_to_physics::{fault, DeviceState};
 use msgs::ipc::{self, Queue};
@@ -23,12 +24,12 @@ pub fn resolve_sites(
     launch: Option<&Path>,
 ) -> anyhow::Result<Vec<operator::Site>> {
     let e = &config.emulated;
-    match e.sites.as_str() {
-        "plane" => Ok(operator::plane_sites(
+    match e.sites {
+        SiteSource::Plane => Ok(operator::plane_sites(
             e.plane_height_m,
             e.probings_per_region,
         )),
-        "scene" => {
+        SiteSource::Scene => {
             let scene = match launch {
                 Some(p) => {
                     launch_config::load(p)
@@ -55,7 +56,6 @@ pub fn resolve_sites(
                 })
                 .collect())
         }
-        other => anyhow::bail!("[device.emulated] sites = {other:?}: expected `scene` or `plane`"),
     }
 }
 
@@ -170,18 +170,18 @@ fn publish_state(
 pub fn run(args: NodeArgs) -> anyhow::Result<()> {
     let session = ipc::session_name(args.common.session.as_deref())?;
     let mut config = load_device_config(args.common.launch.as_deref())?;
-    if let Some(b) = &args.device {
-        config.backend = b.clone();
+    if let Some(b) = args.device {
+        config.backend = b;
     }
     if let Some(p) = &args.replay {
-        config.backend = "replay".into();
+        config.backend = DeviceBackend::Replay;
         config.replay.path = p.display().to_string();
     }
     if args.no_realtime {
         config.realtime = false;
     }
     let limits = Limits::from_config(&config)?;
-    let sites = if config.backend == "emulated" {
+    let sites = if config.backend == DeviceBackend::Emulated {
         resolve_sites(&config, args.common.launch.as_deref())?
     } else {
         Vec::new()

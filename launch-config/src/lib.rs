@@ -12,6 +12,7 @@
 //! loaded, so the [`LaunchFile`] a node receives only holds absolute paths.
 
 pub mod bridge;
+pub mod choices;
 pub mod device;
 pub mod load;
 pub mod node;

@@ -186,7 +186,10 @@ pub fn parse(text: &str, file: &Path, spec: &Spec) -> Result<Table, CsvError> {
                 let v = row[k];
                 match order {
                     Order::Increasing if v <= last => {
-                        return Err(err(line, format!("{name} not increasing: {v} after {last}")))
+                        return Err(err(
+                            line,
+                            format!("{name} not increasing: {v} after {last}"),
+                        ))
                     }
                     Order::NonDecreasing if v < last => {
                         return Err(err(line, format!("{name} decreasing: {v} after {last}")))
@@ -204,7 +207,9 @@ pub fn parse(text: &str, file: &Path, spec: &Spec) -> Result<Table, CsvError> {
                 if (norm - 1.0).abs() > UNIT_QUATERNION_TOLERANCE {
                     return Err(err(
                         line,
-                        format!("quaternion norm {norm} is not 1 (a rotation is a unit quaternion)"),
+                        format!(
+                            "quaternion norm {norm} is not 1 (a rotation is a unit quaternion)"
+                        ),
                     ));
                 }
                 for &k in &q {
@@ -235,7 +240,8 @@ mod tests {
 
     #[test]
     fn reads_columns_in_any_order_skipping_comments_and_blank_lines() {
-        let text = "# a comment\n\nqw, extra ,t_s,qx,qy,qz\n1,9,0,0,0,0\n  \n1.0000001,9,0.5,0,0,0\n";
+        let text =
+            "# a comment\n\nqw, extra ,t_s,qx,qy,qz\n1,9,0,0,0,0\n  \n1.0000001,9,0.5,0,0,0\n";
         let t = parse(text, Path::new("a.csv"), &spec(&[])).unwrap();
         assert_eq!(t.header_line, 3);
         assert_eq!(t.len(), 2);
@@ -251,11 +257,27 @@ mod tests {
             ("", 1, "empty file"),
             ("t_s,qx,qy,qw\n", 1, "missing column(s) qz"),
             ("t_s,qx,qy,qz,qw\n0,0,0,0\n", 2, "4 columns, header has 5"),
-            ("t_s,qx,qy,qz,qw\n0,0,zz,0,1\n", 2, "column qy: not a number: \"zz\""),
-            ("t_s,qx,qy,qz,qw\n0,0,NaN,0,1\n", 2, "column qy: non-finite value NaN"),
-            ("t_s,qx,qy,qz,qw\n0,0,0,0,1\n\n0,0,0,0,1\n", 4, "time not increasing: 0 after 0"),
+            (
+                "t_s,qx,qy,qz,qw\n0,0,zz,0,1\n",
+                2,
+                "column qy: not a number: \"zz\"",
+            ),
+            (
+                "t_s,qx,qy,qz,qw\n0,0,NaN,0,1\n",
+                2,
+                "column qy: non-finite value NaN",
+            ),
+            (
+                "t_s,qx,qy,qz,qw\n0,0,0,0,1\n\n0,0,0,0,1\n",
+                4,
+                "time not increasing: 0 after 0",
+            ),
             ("t_s,qx,qy,qz,qw\n0,0,0,0,0\n", 2, "zero quaternion"),
-            ("t_s,qx,qy,qz,qw\n0,0,0,0,0.9\n", 2, "quaternion norm 0.9 is not 1"),
+            (
+                "t_s,qx,qy,qz,qw\n0,0,0,0,0.9\n",
+                2,
+                "quaternion norm 0.9 is not 1",
+            ),
         ];
         for (text, line, problem) in cases {
             let e = parse(text, p, &spec(&[])).unwrap_err();
@@ -270,7 +292,10 @@ mod tests {
         };
         assert!(parse("d\n1\n1\n", p, &nd).is_ok());
         let e = parse("d\n1\n0.5\n", p, &nd).unwrap_err();
-        assert_eq!((e.line, e.problem.as_str()), (3, "displacement decreasing: 0.5 after 1"));
+        assert_eq!(
+            (e.line, e.problem.as_str()),
+            (3, "displacement decreasing: 0.5 after 1")
+        );
     }
 
     #[test]
@@ -279,13 +304,21 @@ mod tests {
         let t = parse(text, Path::new("c.csv"), &spec(&[1, 2, 3, 4])).unwrap();
         assert!(t.row(0)[1].is_nan());
         // Time is never a dropout column here.
-        let e = parse("t_s,qx,qy,qz,qw\nNaN,0,0,0,1\n", Path::new("c.csv"), &spec(&[1]));
+        let e = parse(
+            "t_s,qx,qy,qz,qw\nNaN,0,0,0,1\n",
+            Path::new("c.csv"),
+            &spec(&[1]),
+        );
         assert!(e.unwrap_err().problem.contains("non-finite"));
     }
 
     #[test]
     fn reads_a_file_and_names_an_unreadable_one() {
         let e = read(Path::new("/nonexistent/x.csv"), &spec(&[])).unwrap_err();
-        assert!(e.to_string().starts_with("/nonexistent/x.csv:0: cannot read"), "{e}");
+        assert!(
+            e.to_string()
+                .starts_with("/nonexistent/x.csv:0: cannot read"),
+            "{e}"
+        );
     }
 }

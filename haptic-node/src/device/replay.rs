@@ -32,13 +32,12 @@ pub fn parse_trajectory(text: &str, path: &str) -> Result<Vec<TimedPose>, Device
         quaternion: Some([4, 5, 6, 7]),
         dropouts: &[1, 2, 3, 4, 5, 6, 7],
     };
-    let table = csv_input::parse(text, Path::new(path), &spec).map_err(|e| {
-        DeviceError::ReplayLine {
+    let table =
+        csv_input::parse(text, Path::new(path), &spec).map_err(|e| DeviceError::ReplayLine {
             path: path.into(),
             line: e.line,
             problem: e.problem,
-        }
-    })?;
+        })?;
     if table.is_empty() {
         return Err(DeviceError::Replay {
             path: path.into(),

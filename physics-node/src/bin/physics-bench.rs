@@ -24,7 +24,7 @@ struct Args {
     friction: f64,
     /// FEM linear solver (`cg`, `cg-jacobi`, `cg-cholesky`, `cg-warped-cholesky`, `direct`).
     #[arg(long, default_value = "cg")]
-    solver: String,
+    solver: launch_config::scene::SolverKind,
     /// CG iteration cap (default: the scene's, SOFA's 25).
     #[arg(long)]
     cg_iterations: Option<u32>,
@@ -33,7 +33,7 @@ struct Args {
     cg_tolerance: Option<f64>,
     /// Precision of the CG matrix (`f32` or `f64`; default: the scene's).
     #[arg(long)]
-    cg_matrix: Option<String>,
+    cg_matrix: Option<launch_config::scene::CgMatrix>,
     /// Re-rotate an element's stiffness blocks only after its rotation moved by more than
     /// this, rad (default: the scene's; 0 = every step, as SOFA).
     #[arg(long)]
@@ -44,7 +44,7 @@ struct Args {
     steps: Option<usize>,
     /// Element rotation (`qr` = SOFA's "large", or `polar`).
     #[arg(long, default_value = "qr")]
-    rotation: String,
+    rotation: launch_config::scene::RotationMethod,
     /// Study data folder (default: $ARTHROSIM_DATA, else ../shared/data).
     #[arg(long)]
     data: Option<PathBuf>,
@@ -66,16 +66,16 @@ fn main() -> anyhow::Result<()> {
         scene.meniscus.fixed = "inferior".into();
     }
     scene.contact.friction = args.friction;
-    scene.solver.kind = args.solver.clone();
-    scene.solver.rotation = args.rotation.clone();
+    scene.solver.kind = args.solver;
+    scene.solver.rotation = args.rotation;
     if let Some(n) = args.cg_iterations {
         scene.solver.cg_iterations = n;
     }
     if let Some(t) = args.cg_tolerance {
         scene.solver.cg_tolerance = t;
     }
-    if let Some(m) = &args.cg_matrix {
-        scene.solver.cg_matrix = m.clone();
+    if let Some(m) = args.cg_matrix {
+        scene.solver.cg_matrix = m;
     }
     if let Some(t) = args.stiffness_tolerance {
         scene.solver.stiffness_rotation_tolerance = t;

@@ -123,7 +123,7 @@ pub fn load_str(text: &str, origin: impl AsRef<Path>) -> Result<LaunchFile, Laun
             }
         }
     }
-    // Choice issues come first, in file order, as they were found while parsing.
+    // Choice issues come first, in file order.
     let mut all = choice_issues;
     all.append(&mut issues);
     Err(LaunchError::Invalid {
@@ -163,7 +163,11 @@ fn parse_collecting(text: &str, origin: &str) -> Result<(LaunchFile, Vec<Issue>)
     let mut issues = Vec::new();
     loop {
         let e = match toml::from_str::<LaunchFile>(&patched) {
-            Ok(file) => return Ok((file, issues)),
+            Ok(file) => {
+                // serde meets the keys in struct order: report them in file order.
+                issues.sort_by_key(|i: &Issue| (i.line, i.column));
+                return Ok((file, issues));
+            }
             Err(e) => e,
         };
         // The patched text still parses: only quoted values were replaced by quoted values.

@@ -170,6 +170,13 @@ pub struct GapArgs {
 
 #[derive(Debug, Subcommand)]
 pub enum GapCommand {
+    /// The trials the diagnosis takes from a session recording (one per probing with
+    /// contact), with their region, contact steps and mean normal force; no re-simulation.
+    Trials {
+        file: PathBuf,
+        #[arg(long)]
+        json: bool,
+    },
     /// Diagnose N generated cases blind (each effect alone, some pairs, none) and print the
     /// confusion matrix and the mean held-out shrink.
     Selftest {

@@ -274,6 +274,30 @@ fn repaired_name(file: &Path) -> PathBuf {
 
 /// `arthrosim gap …`.
 fn gap_command(args: GapArgs) -> Result<i32> {
+    if let Some(GapCommand::Trials { file, json }) = &args.command {
+        let recording = gap::session::read_session(file)?;
+        let trials = gap::session::trial_contacts(&recording)?;
+        if *json {
+            println!("{}", serde_json::to_string_pretty(&trials)?);
+        } else {
+            println!(
+                "{:<28} {:>10} {:>8} {:>14} {:>14}",
+                "trial", "region", "probing", "contact steps", "mean F_n [N]"
+            );
+            for t in &trials {
+                println!(
+                    "{:<28} {:>10} {:>8} {:>14} {:>14}",
+                    t.name,
+                    t.region.map_or(msgs::protocol::UNLABELLED, |r| r.name()),
+                    t.probing_index,
+                    t.contact_steps,
+                    t.mean_normal_force_n
+                        .map_or("–".into(), |f| format!("{f:.3}"))
+                );
+            }
+        }
+        return Ok(0);
+    }
     if let Some(GapCommand::Selftest {
         cases,
         seed,

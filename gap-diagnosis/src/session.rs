@@ -284,8 +284,32 @@ fn probing_ranges(steps: &[&ContactStep], ann: &[(u32, u32, u32)]) -> Vec<(usize
     out
 }
 
+/// What a trial taken from a session holds of contact, in session-metrics' terms: the
+/// numbers a researcher checks against the session summary and the study CSV.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct TrialContact {
+    pub name: String,
+    pub region: Option<Region>,
+    pub probing_index: u32,
+    /// Physics steps of the trial in contact (`ContactSample::in_contact`).
+    pub contact_steps: u64,
+    /// Mean normal force F_n = −f·n over those steps, N (negative in compression).
+    pub mean_normal_force_n: Option<f64>,
+}
+
 /// The experiment a recording stands for (see the module docs).
 pub fn experiment_from_session(rec: &SessionRecording) -> Result<Experiment, GapError> {
+    Ok(trials_from_session(rec)?.0)
+}
+
+/// The trials the diagnosis takes from a recording, with their contact in session terms.
+pub fn trial_contacts(rec: &SessionRecording) -> Result<Vec<TrialContact>, GapError> {
+    Ok(trials_from_session(rec)?.1)
+}
+
+fn trials_from_session(
+    rec: &SessionRecording,
+) -> Result<(Experiment, Vec<TrialContact>), GapError> {
     let path = &rec.path;
     let instance = main_instance(&rec.steps);
     let mut steps: Vec<&ContactStep> = rec
@@ -308,6 +332,7 @@ pub fn experiment_from_session(rec: &SessionRecording) -> Result<Experiment, Gap
     let ranges = probing_ranges(&steps, &ann);
     let annotated = ann.iter().any(|a| a.1 > 0);
     let mut trials = Vec::new();
+    let mut contacts = Vec::new();
     let mut specs = Vec::new();
     let mut skipped_no_contact = 0;
     for (lo, hi) in ranges {
@@ -369,6 +394,18 @@ pub fn experiment_from_session(rec: &SessionRecording) -> Result<Experiment, Gap
         if repeats > 0 {
             name = format!("{name}_{}", repeats + 1);
         }
+        let (mut contact_steps, mut normal_sum) = (0u64, 0.0);
+        for sample in run.iter().map(|s| s.sample()).filter(|s| s.in_contact()) {
+            contact_steps += 1;
+            normal_sum += sample.normal_force();
+        }
+        contacts.push(TrialContact {
+            name: name.clone(),
+            region,
+            probing_index: if annotated { ann[lo].1 } else { 0 },
+            contact_steps,
+            mean_normal_force_n: (contact_steps > 0).then(|| normal_sum / contact_steps as f64),
+        });
         specs.push(TrialSpec {
             file: format!("{}#{name}", path.display()),
             region: region.map(|r| r.name().to_string()),
@@ -420,12 +457,15 @@ pub fn experiment_from_session(rec: &SessionRecording) -> Result<Experiment, Gap
         },
         trials: specs,
     };
-    Ok(Experiment {
-        dir: path.clone(),
-        spec,
-        trials,
-        quasi_static: false,
-    })
+    Ok((
+        Experiment {
+            dir: path.clone(),
+            spec,
+            trials,
+            quasi_static: false,
+        },
+        contacts,
+    ))
 }
 
 /// Device limits the rendering gap is judged against.

@@ -15,9 +15,11 @@ pub fn workspace_root() -> PathBuf {
 }
 
 /// Binary `bin` of workspace package `package` in the calling test's profile directory
-/// (`target/<profile>`), built (or brought up to date) first with `cargo build -p package
-/// --bin bin`, bounded at 15 minutes. Cargo gives a test `CARGO_BIN_EXE_*` only for its own
-/// package's binaries; process tests across packages come here. Panics with what failed.
+/// (`target/<profile>`), built (or brought up to date) first, bounded at 15 minutes. Cargo
+/// gives a test `CARGO_BIN_EXE_*` only for its own package's binaries; process tests across
+/// packages come here. Every caller builds all the workspace's binaries at once (`--workspace
+/// --bins`): one feature unification for all of them, so dependencies are built once, not
+/// once per package asked for. Panics with what failed.
 pub fn workspace_binary(package: &str, bin: &str) -> PathBuf {
     // target/<profile>/deps/<test>-… → target/<profile>
     let exe = std::env::current_exe().expect("test executable path");
@@ -30,7 +32,7 @@ pub fn workspace_binary(package: &str, bin: &str) -> PathBuf {
     let mut build = Command::new(cargo);
     build
         .current_dir(workspace_root())
-        .args(["build", "-p", package, "--bin", bin]);
+        .args(["build", "--workspace", "--bins"]);
     if profile_dir.file_name().is_some_and(|n| n == "release") {
         build.arg("--release");
     }
@@ -56,7 +58,7 @@ pub fn workspace_binary(package: &str, bin: &str) -> PathBuf {
     let path = profile_dir.join(bin);
     assert!(
         path.is_file(),
-        "{bin} binary missing at {} (cargo build -p {package} --bin {bin} {})",
+        "{bin} binary missing at {} (package {package}, cargo build --workspace --bins {})",
         path.display(),
         if ok {
             "succeeded but produced no binary"
@@ -66,7 +68,7 @@ pub fn workspace_binary(package: &str, bin: &str) -> PathBuf {
     );
     if !ok {
         eprintln!(
-            "warning: cargo build -p {package} failed; using the existing {}",
+            "warning: cargo build --workspace --bins failed; using the existing {}",
             path.display()
         );
     }

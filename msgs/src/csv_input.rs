@@ -124,8 +124,17 @@ pub fn parse(text: &str, file: &Path, spec: &Spec) -> Result<Table, CsvError> {
         Ok(rec) => !(rec.len() == 1 && rec[0].is_empty()),
         Err(_) => true,
     });
-    let record_line = |e: &csv::Error| e.position().map(|p| p.line() as usize).unwrap_or(0);
-    let line_of = |r: &csv::StringRecord| r.position().map(|p| p.line() as usize).unwrap_or(0);
+    // The csv crate's line counter skips comment and blank lines; its byte offsets do not,
+    // so lines are counted here from the offsets.
+    let line_starts: Vec<usize> = std::iter::once(0)
+        .chain(text.match_indices('\n').map(|(i, _)| i + 1))
+        .collect();
+    let line_at = |p: Option<&csv::Position>| match p {
+        Some(p) => line_starts.partition_point(|&s| s <= p.byte() as usize),
+        None => 0,
+    };
+    let record_line = |e: &csv::Error| line_at(e.position());
+    let line_of = |r: &csv::StringRecord| line_at(r.position());
 
     let header = match records.next() {
         None => {

@@ -124,14 +124,26 @@ pub fn parse(text: &str, file: &Path, spec: &Spec) -> Result<Table, CsvError> {
         Ok(rec) => !(rec.len() == 1 && rec[0].is_empty()),
         Err(_) => true,
     });
-    // The csv crate's line counter skips comment and blank lines; its byte offsets do not,
-    // so lines are counted here from the offsets.
+    // The csv crate's line counter skips comment and blank lines, and a record's byte offset
+    // is where the skipped lines before it start: count lines here from the offset, past
+    // the blank and comment lines.
     let line_starts: Vec<usize> = std::iter::once(0)
         .chain(text.match_indices('\n').map(|(i, _)| i + 1))
         .collect();
-    let line_at = |p: Option<&csv::Position>| match p {
-        Some(p) => line_starts.partition_point(|&s| s <= p.byte() as usize),
-        None => 0,
+    let line_at = |p: Option<&csv::Position>| {
+        let Some(p) = p else { return 0 };
+        let mut line = line_starts.partition_point(|&s| s <= p.byte() as usize);
+        while line < line_starts.len() {
+            let start = line_starts[line - 1];
+            let end = line_starts[line];
+            let l = text[start..end].trim();
+            if l.is_empty() || l.starts_with('#') {
+                line += 1;
+            } else {
+                break;
+            }
+        }
+        line
     };
     let record_line = |e: &csv::Error| line_at(e.position());
     let line_of = |r: &csv::StringRecord| line_at(r.position());

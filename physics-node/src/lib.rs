@@ -9,5 +9,6 @@ pub mod geometry;
 pub mod mesh;
 pub mod node;
 pub mod probe;
+pub mod probe_curve;
 pub mod sim;
 pub mod visual;

@@ -45,6 +45,7 @@
 mod element;
 pub mod material;
 pub mod sparse;
+mod stiffening;
 pub mod test_meshes;
 
 #[cfg(test)]
@@ -55,9 +56,10 @@ use nalgebra::{Matrix3, Point3, UnitQuaternion, Vector3};
 
 use crate::mesh::TetMesh;
 use element::{ElementOutput, TetRest, UpperScatter};
-pub use material::{Material, MaterialModel};
+pub use material::{Material, MaterialModel, StrainStiffening};
 pub use sparse::{BlockPattern, SparseCholesky};
 use sparse::{UpperF32, NO_BLOCK};
+use stiffening::StiffeningState;
 
 /// Errors of the FEM model.
 #[derive(Debug, thiserror::Error)]
@@ -370,6 +372,8 @@ pub struct FemModel {
     direct: Option<SparseCholesky>,
     last_dt: f64,
     last_stats: SolveStats,
+    /// Strain-stiffening factors (all 1 with the linear law).
+    stiffening: StiffeningState,
 }
 
 impl std::fmt::Debug for FemModel {
@@ -474,6 +478,7 @@ impl FemModel {
         let upper32 = UpperF32::new(&pattern);
         let upper_scatter = upper32.scatter(&pattern, &free_index, &mesh.tets, &elem_blocks);
         let (mu, lambda) = material.lame();
+        let stiffening = StiffeningState::new(StrainStiffening::NONE, &mesh.tets, &rest_elems, n);
         let mut model = FemModel {
             material,
             mu,
@@ -516,6 +521,7 @@ impl FemModel {
             direct: None,
             last_dt: settings.dt,
             last_stats: SolveStats::default(),
+            stiffening,
         };
         model.prepare_solver()?;
         Ok(model)
@@ -631,6 +637,29 @@ impl FemModel {
         self.prepare_solver()
     }
 
+    /// Sets the strain-stiffening law (see [`StrainStiffening`]); the factors follow from the
+    /// next step's committed state.
+    pub fn set_stiffening(&mut self, law: StrainStiffening) {
+        self.stiffening.law = law;
+        self.stiffening.reset();
+        self.upper32_k_scale = f64::NAN;
+    }
+
+    pub fn stiffening(&self) -> StrainStiffening {
+        self.stiffening.law
+    }
+
+    /// Modulus factor per node (volume-weighted mean of its elements') of the committed state
+    /// at the last `free_motion`; all 1 with the linear law.
+    pub fn node_stiffening(&self) -> &[f64] {
+        &self.stiffening.node
+    }
+
+    /// Modulus factor per element at the last `free_motion`.
+    pub fn element_stiffening(&self) -> &[f64] {
+        &self.stiffening.elem
+    }
+
     /// Sets a node's committed position (kinematic held nodes, test set-ups) and free position.
     pub fn set_position(&mut self, node: usize, p: Point3<f64>) -> Result<(), FemError> {
         if node >= self.x.len() || !p.iter().all(|c| c.is_finite()) {
@@ -669,6 +698,7 @@ impl FemModel {
         self.node_rot.fill(Matrix3::identity());
         self.dv.fill(0.0);
         self.upper32_k_scale = f64::NAN;
+        self.stiffening.reset();
     }
 
     // ---- assembly --------------------------------------------------------------------
@@ -725,8 +755,11 @@ impl FemModel {
             mu,
             lambda,
             settings,
+            stiffening,
             ..
         } = self;
+        // The rest system stays linear (it is the reference of the warped compliance).
+        let stiff_active = !at_rest && stiffening.law.is_active();
         let (mu, lambda) = (*mu, *lambda);
         force.fill(Vector3::zeros());
         // The common case (corotational, f32 CG matrix) writes its blocks straight into the
@@ -778,6 +811,8 @@ impl FemModel {
                 elem_rot_k,
                 rebuild,
                 tolerance: settings.stiffness_rotation_tolerance,
+                scale: if stiff_active { &stiffening.elem } else { &[] },
+                scale_k: &mut stiffening.elem_k,
             }
             .run();
             return;
@@ -807,6 +842,11 @@ impl FemModel {
                 );
                 elem_rot_m[e] = r;
                 r
+            };
+            let (mu, lambda) = if stiff_active {
+                (mu * stiffening.elem[e], lambda * stiffening.elem[e])
+            } else {
+                (mu, lambda)
             };
             match material.model {
                 MaterialModel::Corotational => {
@@ -899,6 +939,9 @@ impl FemModel {
             return Err(FemError::Input(format!("dt must be > 0 s, got {dt}")));
         }
         self.last_dt = dt;
+        // Secant modulus factors of the committed state (no-op for the linear law).
+        self.stiffening
+            .update(&self.tets, &self.rest_elems, &self.x, &self.elem_rot_m);
         let (alpha, beta) = (
             self.settings.rayleigh_mass,
             self.settings.rayleigh_stiffness,
@@ -1484,6 +1527,10 @@ struct CorotationalUpperPass<'a> {
     rebuild: bool,
     /// Re-rotate an element's blocks once its rotation moved by more than this.
     tolerance: f64,
+    /// Modulus factor per element (strain stiffening); empty: 1 everywhere.
+    scale: &'a [f64],
+    /// Factor each element's blocks were built with (updated when rebuilt).
+    scale_k: &'a mut [f64],
 }
 
 impl CorotationalUpperPass<'_> {
@@ -1563,28 +1610,50 @@ impl CorotationalUpperPass<'_> {
     #[inline(always)]
     fn finish(&mut self, e: usize, rot: &Matrix3<f64>, nodal: &[Vector3<f64>; 4]) -> bool {
         let t = self.tets[e];
+        let s = self.scale.get(e).copied().unwrap_or(1.0);
         for k in 0..4 {
-            self.force[t[k]] += nodal[k];
+            self.force[t[k]] += nodal[k] * s;
         }
         let built = &mut self.elem_rot_k[e];
-        let replaced = if self.rebuild {
+        let s_built = self.scale_k[e];
+        let rescaled = s != s_built;
+        if !self.rebuild {
+            let turned = (rot - *built).amax() > self.tolerance;
+            let stiffened = (s - s_built).abs() > self.tolerance * s_built;
+            if !(turned || stiffened) {
+                return false;
+            }
+            if rescaled {
+                // The modulus changed: take the old blocks out whole, then add the new ones.
+                element::corotational_stiffness_upper(
+                    &self.rest_elems[e],
+                    built,
+                    None,
+                    -self.mu * s_built,
+                    -self.lambda * s_built,
+                    self.k_scale,
+                    &self.upper_scatter[e],
+                    self.blocks,
+                );
+            }
+        }
+        let replaced = if self.rebuild || rescaled {
             None
-        } else if (rot - *built).amax() > self.tolerance {
-            Some(*built)
         } else {
-            return false;
+            Some(*built)
         };
         element::corotational_stiffness_upper(
             &self.rest_elems[e],
             rot,
             replaced.as_ref(),
-            self.mu,
-            self.lambda,
+            self.mu * s,
+            self.lambda * s,
             self.k_scale,
             &self.upper_scatter[e],
             self.blocks,
         );
         *built = *rot;
+        self.scale_k[e] = s;
         true
     }
 

@@ -49,6 +49,43 @@ pub fn diagnose_force_displacement(file: &Path, opts: &Options) -> Result<Report
     let mut scene = launch_config::SceneConfig::default();
     scene.meniscus.mesh = conv.mesh.clone();
     let model = SimForceModel::from_scene(scene, &data);
+    diagnose_table_at_mid_site(file, &conv, &model, opts)
+}
+
+impl TableConvention {
+    /// Issue 13's convention for calibrating a scene to a table: displacement as measured
+    /// (no ×2/3), the first row's force as the offset, a press at the mid-body site of the
+    /// scene's own mesh.
+    pub fn as_measured(mesh: &str) -> TableConvention {
+        TableConvention {
+            displacement_scale: 1.0,
+            mesh: mesh.to_string(),
+            ..TableConvention::default()
+        }
+    }
+}
+
+/// Diagnose a table against `scene` (its mesh, material, probe and support) with
+/// [`TableConvention::as_measured`]: what `gap --force-displacement --calibrate` fits.
+pub fn diagnose_table_in_scene(
+    file: &Path,
+    scene: &launch_config::SceneConfig,
+    opts: &Options,
+) -> Result<Report, GapError> {
+    let conv = TableConvention::as_measured(&scene.meniscus.mesh);
+    let model = SimForceModel::from_scene(scene.clone(), &super::data_dir());
+    diagnose_table_at_mid_site(file, &conv, &model, opts)
+}
+
+/// The middle probing site of the convention's region on the model's specimen.
+fn diagnose_table_at_mid_site(
+    file: &Path,
+    conv: &TableConvention,
+    model: &SimForceModel,
+    opts: &Options,
+) -> Result<Report, GapError> {
+    // the table is read first: a bad file fails before the specimen is built
+    read_force_displacement(file)?;
     let sites = model.sites().map_err(|e| GapError::Input {
         file: file.to_path_buf(),
         msg: format!("{} ({e})", conv.mesh),
@@ -61,7 +98,7 @@ pub fn diagnose_force_displacement(file: &Path, opts: &Options) -> Result<Report
             conv.mesh
         ))
     })?;
-    diagnose_table_with(file, &conv, &model, site.point, site.normal, opts)
+    diagnose_table_with(file, conv, model, site.point, site.normal, opts)
 }
 
 /// Same with any model and probing site (point on the surface, outward normal).

@@ -29,6 +29,7 @@
 //! The replay model is [`SimForceModel`] (the physics node's `Simulation` driven kinematically);
 //! statistics and effects are written against the [`ForceModel`] trait.
 
+pub mod calibrate;
 pub mod dataset;
 pub mod effects;
 pub mod experiment;
@@ -229,14 +230,22 @@ pub mod sim_model;
 /// model; with device ticks, the report also carries the rendering gap.
 pub fn diagnose_session(mcap: &Path, opts: &Options) -> Result<Report, GapError> {
     let rec = session::read_session(mcap)?;
-    let exp = session::experiment_from_session(&rec)?;
+    diagnose_recording(&rec, opts)
+}
+
+/// [`diagnose_session`] on a recording already read.
+pub fn diagnose_recording(
+    rec: &session::SessionRecording,
+    opts: &Options,
+) -> Result<Report, GapError> {
+    let exp = session::experiment_from_session(rec)?;
     // the rendering gap is cheap: computed first so its input errors come before the replays
     let rendering = if rec.ticks.is_empty() {
         None
     } else {
-        Some(session::rendering_gap(&rec)?)
+        Some(session::rendering_gap(rec)?)
     };
-    let model = SimForceModel::for_session(&rec, &data_dir())?;
+    let model = SimForceModel::for_session(rec, &data_dir())?;
     let mut report = diagnose(&exp, &model, opts)?;
     report.rendering_gap = rendering;
     Ok(report)

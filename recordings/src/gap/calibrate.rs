@@ -12,8 +12,10 @@
 //! The one place that maps an effect to launch keys is [`apply_effect`]; [`TISSUE_KEYS`] lists
 //! the keys it can write (a force–displacement table is calibrated from a scene with them
 //! reset, so the result does not depend on what the base launch file already holds).
+use super::dataset::{diverged, TrialData};
 use super::effects::Effect;
 use super::fit::FittedParam;
+use super::model::{replay, ForceModel};
 use super::sim_model::{refined_spec, SimForceModel};
 use super::{GapError, Options, Report};
 use launch_config::{LaunchFile, SceneConfig};
@@ -307,6 +309,8 @@ pub struct Calibration {
     /// Held-out RMSE the report promised for the verdict, and the baseline's, N.
     pub promised_heldout_rmse: f64,
     pub baseline_heldout_rmse: f64,
+    /// Re-simulations added at fitted values before the final fit ([`refine`]).
+    pub refined: Vec<String>,
 }
 
 impl Calibration {
@@ -348,6 +352,7 @@ pub fn calibrate_report(
         source: report.input.clone(),
         promised_heldout_rmse: report.heldout.winner_rmse,
         baseline_heldout_rmse: report.heldout.baseline_rmse,
+        refined: Vec::new(),
     })
 }
 
@@ -377,6 +382,12 @@ pub enum Input {
     Table(PathBuf),
 }
 
+/// Relative spacing of the knots [`refine`] adds either side of a settled fit.
+pub const REFINE_BRACKET: f64 = 0.1;
+
+/// Rounds of [`refine`] at most (each re-simulates every trial once per refined effect).
+pub const MAX_REFINE_ROUNDS: usize = 5;
+
 /// Diagnoses `input` and applies the verdict.
 ///
 /// - Experiment folder: its specimen scene (as the diagnosis builds it) replaces the base's.
@@ -384,50 +395,183 @@ pub enum Input {
 ///   is given.
 /// - Force–displacement table: the base's scene with [`TISSUE_KEYS`] reset, pressed at the
 ///   mid-body site, displacement as measured, first row's force as the offset
-///   ([`super::fd::diagnose_table_in_scene`]).
+///   ([`super::fd::TableConvention::as_measured`]).
 ///
+/// The diagnosis is the plain one, then [`refine`]d: a re-simulated effect in the verdict is
+/// re-simulated at its fitted value and refitted, so the held-out error the report promises is
+/// the error of the scene written, not of an interpolation between distant knots.
 /// `base` = None: the embedded default launch file.
 pub fn calibrate_input(
     input: &Input,
     base: Option<LaunchFile>,
     opts: &Options,
 ) -> Result<(Report, Calibration), GapError> {
-    match input {
+    let data_dir = super::data_dir();
+    let (exp, model, label, base, rendering) = match input {
         Input::Table(file) => {
             let base = match base {
                 Some(b) => b,
                 None => default_launch()?,
             };
             let scene = neutral_tissue(&base.scene);
-            let report = super::fd::diagnose_table_in_scene(file, &scene, opts)?;
-            let cal = calibrate_report(&report, &scene, &base)?;
-            Ok((report, cal))
+            let conv = super::fd::TableConvention::as_measured(&scene.meniscus.mesh);
+            let model = SimForceModel::from_scene(scene, &data_dir);
+            let site = super::fd::mid_site(file, &conv, &model)?;
+            let (exp, label) =
+                super::fd::table_experiment(file, &conv, &model, site.point, site.normal, opts.dt)?;
+            (exp, model, label, base, None)
         }
-        Input::Path(path) => {
-            if let Some(mcap) = super::session::session_file(path)? {
+        Input::Path(path) => match super::session::session_file(path)? {
+            Some(mcap) => {
                 let rec = super::session::read_session(&mcap)?;
-                let base = match (base, &rec.launch) {
+                let exp = super::session::experiment_from_session(&rec)?;
+                let rendering = if rec.ticks.is_empty() {
+                    None
+                } else {
+                    Some(super::session::rendering_gap(&rec)?)
+                };
+                let model = SimForceModel::for_session(&rec, &data_dir)?;
+                let base = match (base, rec.launch) {
                     (Some(b), _) => b,
-                    (None, Some(l)) => l.clone(),
+                    (None, Some(l)) => l,
                     (None, None) => default_launch()?,
                 };
-                let scene = rec.scene.clone();
-                let report = super::diagnose_recording(&rec, opts)?;
-                let cal = calibrate_report(&report, &scene, &base)?;
-                return Ok((report, cal));
+                let label = exp.dir.display().to_string();
+                (exp, model, label, base, rendering)
             }
-            let data = super::data_dir();
-            let exp = super::load_experiment(path, &data)?;
-            let model = SimForceModel::for_experiment(&exp, &data)?;
-            let report = super::diagnose(&exp, &model, opts)?;
-            let base = match base {
-                Some(b) => b,
-                None => default_launch()?,
+            None => {
+                let exp = super::load_experiment(path, &data_dir)?;
+                let model = SimForceModel::for_experiment(&exp, &data_dir)?;
+                let base = match base {
+                    Some(b) => b,
+                    None => default_launch()?,
+                };
+                let label = exp.dir.display().to_string();
+                (exp, model, label, base, None)
+            }
+        },
+    };
+    let start = std::time::Instant::now();
+    let effects = super::candidate_effects(&exp, &model, opts);
+    let mut data = super::dataset::build(
+        &exp,
+        &model,
+        &effects,
+        &super::dataset::BuildOptions {
+            dt: opts.dt,
+            progress: opts.progress,
+        },
+    )?;
+    let diagnose = |data: &[TrialData]| {
+        super::diagnose_data(
+            label.clone(),
+            model.describe(),
+            data,
+            &effects,
+            opts,
+            start,
+        )
+    };
+    let mut report = diagnose(&data)?;
+    let mut refined = Vec::new();
+    for _ in 0..MAX_REFINE_ROUNDS {
+        let added = refine(&report, &model, &mut data)?;
+        if added.is_empty() {
+            break;
+        }
+        refined.extend(added);
+        report = diagnose(&data)?;
+    }
+    report.rendering_gap = rendering;
+    let mut cal = calibrate_report(&report, &model.scene, &base)?;
+    cal.refined = refined;
+    Ok((report, cal))
+}
+
+/// Adds a re-simulated knot at the fitted value of every piecewise-linear effect of the
+/// verdict (`support`, `friction`) that is not already close to one; returns what it did.
+///
+/// Why: the diagnosis interpolates these effects between re-simulations at fixed knots
+/// (support at 1000 and 4000 N/m); between them the interpolation is off by a large share of
+/// the effect (a 1500 N/m support read as 1270 N/m), so a scene written from it would not
+/// render what the report promised.
+pub fn refine(
+    report: &Report,
+    model: &dyn ForceModel,
+    data: &mut [TrialData],
+) -> Result<Vec<String>, GapError> {
+    let mut done = Vec::new();
+    if report.verdict.effect == "none" {
+        return Ok(done);
+    }
+    for name in report.verdict.effect.split('+') {
+        let Some(e) = Effect::parse(name) else {
+            continue;
+        };
+        let Some(spec) = e.params().into_iter().next() else {
+            continue;
+        };
+        let x = value_of(&report.verdict.params, e, spec.name);
+        let Some(first) = data.first() else {
+            continue;
+        };
+        if !data.iter().all(|d| d.has_resims(e)) {
+            continue;
+        }
+        // a knot within 1% of a value: the interpolation is exact enough there
+        let have = |v: f64| {
+            let near = |k: f64| (k - v).abs() <= 0.01 * k.abs().max(v.abs());
+            e.default_knots().iter().copied().any(near)
+                || first
+                    .extra_knots
+                    .get(&e)
+                    .is_some_and(|ks| ks.iter().any(|(k, _)| near(*k)))
+        };
+        // the fitted value, and knots REFINE_BRACKET either side of it: the held-out score
+        // fits every fold on its own, and those fits land near, not at, the overall one
+        let wanted: Vec<f64> = [x, x * (1.0 - REFINE_BRACKET), x * (1.0 + REFINE_BRACKET)]
+            .into_iter()
+            .filter(|&v| v > 0.0 && v <= spec.hi && !have(v))
+            .collect();
+        // the bracket only once the fit has settled on a knot
+        let wanted: Vec<f64> = if wanted.contains(&x) {
+            vec![x]
+        } else {
+            wanted
+        };
+        for v in wanted {
+            let Some(variant) = e.knot_variant(v) else {
+                continue;
             };
-            let cal = calibrate_report(&report, &model.scene, &base)?;
-            Ok((report, cal))
+            use rayon::prelude::*;
+            let forces: Vec<Result<Vec<[f64; 3]>, GapError>> = data
+                .par_iter()
+                .map(|d| {
+                    replay(model, &variant, &d.path).map_err(|err| {
+                        GapError::Sim(format!("trial {}, {}: {err}", d.name, variant.label()))
+                    })
+                })
+                .collect();
+            let mut kept = 0;
+            for (d, f) in data.iter_mut().zip(forces) {
+                let f = f?;
+                if diverged(&f, &d.base, &d.f) {
+                    continue;
+                }
+                d.extra_knots.entry(e).or_default().push((v, f));
+                kept += 1;
+            }
+            done.push(format!(
+                "{}: re-simulated at {} = {v:.6} {} ({}; {kept} of {} trials usable)",
+                e.name(),
+                spec.name,
+                spec.unit,
+                variant.label(),
+                data.len()
+            ));
         }
     }
+    Ok(done)
 }
 
 /// Checks that `out` can be written before any replay runs: its folder exists and it is not
@@ -494,6 +638,12 @@ pub fn render(cal: &Calibration) -> Result<String, GapError> {
             head.push_str("Set:\n");
             head.push_str(&set.join("\n"));
             head.push('\n');
+        }
+        if !cal.refined.is_empty() {
+            head.push_str("Refined:\n");
+            for r in &cal.refined {
+                head.push_str(&format!("  {r}\n"));
+            }
         }
         let notes: Vec<String> = cal.notes().map(|c| format!("  {}", c.line())).collect();
         if !notes.is_empty() {

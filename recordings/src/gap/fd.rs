@@ -77,13 +77,22 @@ pub fn diagnose_table_in_scene(
     diagnose_table_at_mid_site(file, &conv, &model, opts)
 }
 
-/// The middle probing site of the convention's region on the model's specimen.
 fn diagnose_table_at_mid_site(
     file: &Path,
     conv: &TableConvention,
     model: &SimForceModel,
     opts: &Options,
 ) -> Result<Report, GapError> {
+    let site = mid_site(file, conv, model)?;
+    diagnose_table_with(file, conv, model, site.point, site.normal, opts)
+}
+
+/// The middle probing site of the convention's region on the model's specimen.
+pub fn mid_site(
+    file: &Path,
+    conv: &TableConvention,
+    model: &SimForceModel,
+) -> Result<super::reality::Site, GapError> {
     // the table is read first: a bad file fails before the specimen is built
     read_force_displacement(file)?;
     let sites = model.sites().map_err(|e| GapError::Input {
@@ -98,7 +107,7 @@ fn diagnose_table_at_mid_site(
             conv.mesh
         ))
     })?;
-    diagnose_table_with(file, conv, model, site.point, site.normal, opts)
+    Ok(**site)
 }
 
 /// Same with any model and probing site (point on the surface, outward normal).
@@ -111,6 +120,23 @@ pub fn diagnose_table_with(
     opts: &Options,
 ) -> Result<Report, GapError> {
     let start = std::time::Instant::now();
+    let (exp, input) = table_experiment(file, conv, model, point, normal, opts.dt)?;
+    let mut r = super::diagnose(&exp, model, opts)?;
+    r.input = input;
+    r.elapsed_s = start.elapsed().as_secs_f64();
+    Ok(r)
+}
+
+/// The table as a one-trial quasi-static experiment pressed at `point` along −`normal`
+/// (replay step `dt`), and the label a report gives it.
+pub fn table_experiment(
+    file: &Path,
+    conv: &TableConvention,
+    model: &dyn ForceModel,
+    point: [f64; 3],
+    normal: [f64; 3],
+    dt: f64,
+) -> Result<(Experiment, String), GapError> {
     let table = read_force_displacement(file)?;
     let offset = if conv.subtract_first_row {
         table.force_n[0]
@@ -124,7 +150,6 @@ pub fn diagnose_table_with(
         .collect();
     let dmax = *depth_m.last().unwrap();
     // approach sweep: from 4 mm above to dmax + 1 mm below the site point
-    let dt = opts.dt;
     let above = 4.0e-3;
     let n_steps = ((above + dmax + 1.0e-3) / conv.speed / dt).ceil() as usize + 1;
     let sweep = ProbePath {
@@ -210,8 +235,7 @@ pub fn diagnose_table_with(
         trials: vec![trial],
         quasi_static: true,
     };
-    let mut r = super::diagnose(&exp, model, opts)?;
-    r.input = format!(
+    let input = format!(
         "{} (force–displacement table: depth = displacement × {:.3}, offset {:.3} N removed, {} site, {})",
         file.display(),
         conv.displacement_scale,
@@ -219,6 +243,5 @@ pub fn diagnose_table_with(
         conv.region.name(),
         conv.mesh
     );
-    r.elapsed_s = start.elapsed().as_secs_f64();
-    Ok(r)
+    Ok((exp, input))
 }

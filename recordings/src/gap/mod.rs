@@ -274,14 +274,7 @@ pub fn diagnose(
     opts: &Options,
 ) -> Result<Report, GapError> {
     let start = std::time::Instant::now();
-    let effects: Vec<Effect> = opts
-        .effects
-        .iter()
-        .copied()
-        .filter(|&e| {
-            fit::applicable(e, exp.quasi_static) && (e != Effect::Mesh || model.has_refinement())
-        })
-        .collect();
+    let effects = candidate_effects(exp, model, opts);
     let data = dataset::build(
         exp,
         model,
@@ -299,6 +292,17 @@ pub fn diagnose(
         opts,
         start,
     )
+}
+
+/// The candidate effects [`diagnose`] considers for `exp` with `model`.
+pub fn candidate_effects(exp: &Experiment, model: &dyn ForceModel, opts: &Options) -> Vec<Effect> {
+    opts.effects
+        .iter()
+        .copied()
+        .filter(|&e| {
+            fit::applicable(e, exp.quasi_static) && (e != Effect::Mesh || model.has_refinement())
+        })
+        .collect()
 }
 
 fn baseline_study_error(data: &[TrialData]) -> f64 {

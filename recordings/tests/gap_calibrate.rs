@@ -143,6 +143,9 @@ fn verdict_none_writes_the_input_scene_unchanged() {
     let input = SimForceModel::for_experiment(&exp, &data).unwrap().scene;
     assert_eq!(written.scene, input);
     let text = std::fs::read_to_string(&out).unwrap();
-    assert!(text.contains("Verdict none") && text.contains("unchanged"), "{text}");
+    assert!(
+        text.contains("Verdict none") && text.contains("unchanged"),
+        "{text}"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -463,14 +463,7 @@ pub fn calibrate_input(
         },
     )?;
     let diagnose = |data: &[TrialData]| {
-        super::diagnose_data(
-            label.clone(),
-            model.describe(),
-            data,
-            &effects,
-            opts,
-            start,
-        )
+        super::diagnose_data(label.clone(), model.describe(), data, &effects, opts, start)
     };
     let mut report = diagnose(&data)?;
     let mut refined = Vec::new();
@@ -534,11 +527,7 @@ pub fn refine(
             .filter(|&v| v > 0.0 && v <= spec.hi && !have(v))
             .collect();
         // the bracket only once the fit has settled on a knot
-        let wanted: Vec<f64> = if wanted.contains(&x) {
-            vec![x]
-        } else {
-            wanted
-        };
+        let wanted: Vec<f64> = if wanted.contains(&x) { vec![x] } else { wanted };
         for v in wanted {
             let Some(variant) = e.knot_variant(v) else {
                 continue;
@@ -647,7 +636,7 @@ pub fn render(cal: &Calibration) -> Result<String, GapError> {
         }
         let notes: Vec<String> = cal.notes().map(|c| format!("  {}", c.line())).collect();
         if !notes.is_empty() {
-            head.push_str("Not scene physics, left out (the scene has no key for it):\n");
+            head.push_str("Left out (no scene key for it; comments only):\n");
             head.push_str(&notes.join("\n"));
             head.push('\n');
         }

@@ -278,7 +278,10 @@ fn piecewise_knots(grid: &mut [[f64; 3]], td: &TrialData, e: Effect, x: f64, def
     }
     // the segment holding x: (0, baseline) to the first knot, or between two knots, or the
     // last one extended
-    let i = knots.iter().position(|k| x <= k.0).unwrap_or(knots.len() - 1);
+    let i = knots
+        .iter()
+        .position(|k| x <= k.0)
+        .unwrap_or(knots.len() - 1);
     if i == 0 {
         let (x1, r1) = knots[0];
         axpy(grid, x / x1, r1, Some(&td.base));
@@ -307,9 +310,7 @@ pub fn predict(
         let th = &theta[k..k + np];
         k += np;
         match e {
-            Effect::Friction => {
-                piecewise_knots(grid, td, Effect::Friction, th[0], FRICTION_KNOTS)
-            }
+            Effect::Friction => piecewise_knots(grid, td, Effect::Friction, th[0], FRICTION_KNOTS),
             Effect::Support => piecewise_knots(grid, td, Effect::Support, th[0], SUPPORT_KNOTS),
             Effect::Tilt => {
                 let r = td.resim(Effect::Tilt);

@@ -1,0 +1,745 @@
+//! Sim-to-real gap diagnosis and offline re-simulation: where the simulated and measured
+//! probe forces differ, which unmodelled effect explains it, and how far the gap shrinks on
+//! held-out trials.
+//!
+//! Data comes in from experiment folders (`experiment.toml` + trial CSVs), force–displacement
+//! tables and session recordings (read through `recordings`); it is replayed through the
+//! physics node's `Simulation` driven kinematically ([`SimForceModel`], [`replay`]) and goes out
+//! as `report.json` + `report.html`. This is the last stage of the data path
+//! physics → haptic → bridge / recorder → gap.
+//!
+//! # API the CLI wires (no clap types here; every function returns `Result<_, GapError>`)
+//! ```text
+//! arthrosim gap EXPERIMENT_DIR --out REPORT_DIR [--dt S]
+//!     let report = gap_diagnosis::diagnose_dir(dir, &gap_diagnosis::Options { progress: true, ..Default::default() })?;
+//!     gap_diagnosis::write_report(&report, out_dir)?;            // report.json + report.html
+//!     println!("{}", report.verdict.effect);
+//! arthrosim gap SESSION.mcap --out REPORT_DIR     (or a folder holding one .mcap, no experiment.toml)
+//!     let report = gap_diagnosis::diagnose_dir(path, &opts)?;     // → diagnose_session: probings as trials,
+//!                                                       //   report.rendering_gap from the device ticks
+//! arthrosim gap EXPERIMENT_DIR --session SESSION.mcap --out REPORT_DIR
+//!     report.rendering_gap = Some(gap_diagnosis::session_rendering_gap(mcap)?);  // checked before the replays
+//! arthrosim gap --force-displacement FILE.csv --out REPORT_DIR
+//!     let report = gap_diagnosis::diagnose_force_displacement(file, &opts)?; gap_diagnosis::write_report(&report, out)?;
+//! arthrosim gap selftest --cases N --seed S [--json]
+//!     let r = gap_diagnosis::selftest::selftest(n, seed, &gap_diagnosis::selftest::SelftestOptions { verbose: true, ..Default::default() })?;
+//!     print!("{}", r.table());                          // per-case lines + confusion matrix
+//!     if json { println!("{}", serde_json::to_string(&r.summary())?) }  // cases, correct, accuracy, heldout_shrink_mean
+//! arthrosim gap bench [--effect NAME] [--seed S]       // one JSON line with diagnose_s
+//!     println!("{}", gap_diagnosis::selftest::bench("hardening", seed, &gap_diagnosis::Options::default())?);
+//! arthrosim gap INPUT … --out REPORT_DIR --calibrate OUT.toml [--launch BASE.toml]
+//!     calibrate::check_out_path(out)?;                  // before the replays
+//!     let (report, cal) = calibrate::calibrate_input(&input, base, &opts)?;
+//!     calibrate::write_launch(&cal, out)?;              // the verdict as scene keys, validated
+//! arthrosim reality --effect NAME[=STRENGTH] [--effect ...] --seed S --out DIR --truth FILE
+//!     let spec = gap_diagnosis::reality::RealitySpec::from_effects(&["friction=0.3", "sensor"], seed)?;
+//!     gap_diagnosis::reality::write_experiment(&spec, dir, truth_file)?;   // truth file must lie outside DIR
+//! ```
+//! Lower level: `load_experiment(dir, &data_dir())`, `SimForceModel::for_experiment(&exp, &data_dir())`,
+//! `diagnose(&exp, &model, &opts)` with any [`ForceModel`].
+//! The replay model is [`SimForceModel`] (the physics node's `Simulation` driven kinematically);
+//! statistics and effects are written against the [`ForceModel`] trait.
+
+pub mod calibrate;
+pub mod dataset;
+pub mod effects;
+pub mod experiment;
+pub mod fd;
+pub mod fit;
+pub mod html;
+pub mod metrics;
+pub mod model;
+pub mod reality;
+pub mod replay;
+pub mod selftest;
+pub mod session;
+pub mod signal;
+
+pub use effects::{Candidate, Effect};
+pub use experiment::{
+    load_experiment, read_force_displacement, Experiment, ExperimentSpec, Region, Trial,
+};
+pub use fd::diagnose_force_displacement;
+pub use model::{ForceModel, ProbePath, Variant};
+
+use dataset::{BuildOptions, TrialData};
+use fit::{make_folds, score_candidate, Baseline, CandidateScore};
+use metrics::{
+    band_label, band_of, region_label, trial_metrics, Acc, GroupResidual, Phase, TrialMetrics,
+};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use signal::{dot, lag_by_xcorr, noise_sigma, sub};
+use std::path::{Path, PathBuf};
+
+#[derive(Debug, thiserror::Error)]
+pub enum GapError {
+    #[error("{}: {msg}", file.display())]
+    Input { file: PathBuf, msg: String },
+    #[error("{}:{line}: {msg}", file.display())]
+    Line {
+        file: PathBuf,
+        line: usize,
+        msg: String,
+    },
+    #[error("{path}: {err}", path = .0.display(), err = .1)]
+    Io(PathBuf, std::io::Error),
+    #[error("simulation: {0}")]
+    Sim(String),
+    /// Reading a session recording (the error names the file).
+    #[error(transparent)]
+    Recording(#[from] recordings::RecordingError),
+    #[error("{0}")]
+    Other(String),
+}
+
+/// Study data folder: `ARTHROSIM_DATA`, else `../shared/data` next to the workspace.
+pub fn data_dir() -> PathBuf {
+    if let Ok(d) = std::env::var("ARTHROSIM_DATA") {
+        return PathBuf::from(d);
+    }
+    let rel = PathBuf::from("../shared/data");
+    if rel.is_dir() {
+        return rel;
+    }
+    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data"))
+}
+
+#[derive(Debug, Clone)]
+pub struct Options {
+    /// Replay step, s.
+    pub dt: f64,
+    pub progress: bool,
+    /// Candidate effects considered (default: all nine).
+    pub effects: Vec<Effect>,
+    /// Consider pairs of effects.
+    pub pairs: bool,
+    /// Minimum held-out shrink for an effect to count as identified.
+    pub min_shrink: f64,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            dt: 0.02,
+            progress: false,
+            effects: Effect::ALL.to_vec(),
+            pairs: true,
+            min_shrink: 0.08,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Heatmap {
+    pub phases: Vec<String>,
+    pub regions: Vec<String>,
+    /// rmse[phase][region], N (null where no samples).
+    pub rmse: Vec<Vec<Option<f64>>>,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Localisation {
+    pub overall: GroupResidual,
+    pub by_axis: Vec<GroupResidual>,
+    pub by_phase: Vec<GroupResidual>,
+    pub by_region: Vec<GroupResidual>,
+    pub by_depth_band: Vec<GroupResidual>,
+    pub heatmap: Heatmap,
+    pub worst_axis: String,
+    pub worst_phase: String,
+    pub worst_region: String,
+    pub worst_depth_band: String,
+    /// The study's metric over all contact samples: mean normal force, N.
+    pub mean_normal_force_measured: f64,
+    pub mean_normal_force_simulated: f64,
+    pub summary: String,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Series {
+    pub t: Vec<f64>,
+    pub measured: Vec<[f64; 3]>,
+    pub baseline: Vec<[f64; 3]>,
+    /// Held-out prediction with the winning effect (baseline when the verdict is none).
+    pub winner: Vec<[f64; 3]>,
+    pub depth_mm: Vec<f64>,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct TrialReport {
+    pub name: String,
+    pub region: Option<Region>,
+    pub samples: usize,
+    /// Lag of the measured force behind the simulated one (cross-correlation), s.
+    pub lag_s: Option<f64>,
+    pub before: TrialMetrics,
+    pub after: TrialMetrics,
+    pub series: Series,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Heldout {
+    pub scheme: String,
+    pub baseline_rmse: f64,
+    pub winner_rmse: f64,
+    pub shrink: f64,
+    pub baseline_study_error: f64,
+    pub winner_study_error: f64,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Verdict {
+    /// A candidate's name, a `+`-joined pair, or `none`.
+    pub effect: String,
+    /// Held-out RMSE shrink of the winner, fraction.
+    pub heldout_shrink: f64,
+    pub params: Vec<fit::FittedParam>,
+    pub reason: String,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Report {
+    pub input: String,
+    pub model: String,
+    pub trials: usize,
+    pub samples: usize,
+    /// Measurement noise estimated from the data, N.
+    pub noise_sigma: f64,
+    pub lag_median_s: Option<f64>,
+    pub localisation: Localisation,
+    pub ranking: Vec<CandidateScore>,
+    pub heldout: Heldout,
+    pub verdict: Verdict,
+    pub elapsed_s: f64,
+    pub trial_reports: Vec<TrialReport>,
+    /// Re-simulations left out as diverged (`trial: variant`); the effects needing them
+    /// interpolate through their other knots.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub diverged_replays: Vec<String>,
+    /// Device-rendered vs model force, when a session recording was given.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rendering_gap: Option<session::RenderingGap>,
+}
+
+/// Load an experiment folder and diagnose it against the physics model. A session
+/// recording (an `.mcap` file, or a folder without `experiment.toml` holding one) is
+/// diagnosed with [`diagnose_session`].
+pub fn diagnose_dir(dir: &Path, opts: &Options) -> Result<Report, GapError> {
+    if let Some(mcap) = session::session_file(dir)? {
+        return diagnose_session(&mcap, opts);
+    }
+    let data = data_dir();
+    let exp = load_experiment(dir, &data)?;
+    let model = sim_model::SimForceModel::for_experiment(&exp, &data)?;
+    diagnose(&exp, &model, opts)
+}
+
+pub use sim_model::SimForceModel;
+pub mod sim_model;
+
+/// Diagnose an arthrosim session recording: its probings are the trials, its scene the
+/// model; with device ticks, the report also carries the rendering gap.
+pub fn diagnose_session(mcap: &Path, opts: &Options) -> Result<Report, GapError> {
+    let rec = session::read_session(mcap)?;
+    diagnose_recording(&rec, opts)
+}
+
+/// [`diagnose_session`] on a recording already read.
+pub fn diagnose_recording(
+    rec: &session::SessionRecording,
+    opts: &Options,
+) -> Result<Report, GapError> {
+    let exp = session::experiment_from_session(rec)?;
+    // the rendering gap is cheap: computed first so its input errors come before the replays
+    let rendering = if rec.ticks.is_empty() {
+        None
+    } else {
+        Some(session::rendering_gap(rec)?)
+    };
+    let model = SimForceModel::for_session(rec, &data_dir())?;
+    let mut report = diagnose(&exp, &model, opts)?;
+    report.rendering_gap = rendering;
+    Ok(report)
+}
+
+/// The rendering gap of a haptic session recording (`--session FILE.mcap` beside an
+/// experiment).
+pub fn session_rendering_gap(mcap: &Path) -> Result<session::RenderingGap, GapError> {
+    let file = session::session_file(mcap)?.ok_or_else(|| GapError::Input {
+        file: mcap.to_path_buf(),
+        msg: "not an MCAP session recording (expected an .mcap file)".into(),
+    })?;
+    session::rendering_gap(&session::read_session(&file)?)
+}
+
+/// Add the rendering gap of a session recording to a report.
+pub fn attach_session(report: &mut Report, mcap: &Path) -> Result<(), GapError> {
+    report.rendering_gap = Some(session_rendering_gap(mcap)?);
+    Ok(())
+}
+
+/// Diagnose an experiment with a given force model.
+pub fn diagnose(
+    exp: &Experiment,
+    model: &dyn ForceModel,
+    opts: &Options,
+) -> Result<Report, GapError> {
+    let start = std::time::Instant::now();
+    let effects = candidate_effects(exp, model, opts);
+    let data = dataset::build(
+        exp,
+        model,
+        &effects,
+        &BuildOptions {
+            dt: opts.dt,
+            progress: opts.progress,
+        },
+    )?;
+    diagnose_data(
+        exp.dir.display().to_string(),
+        model.describe(),
+        &data,
+        &effects,
+        opts,
+        start,
+    )
+}
+
+/// The candidate effects [`diagnose`] considers for `exp` with `model`.
+pub fn candidate_effects(exp: &Experiment, model: &dyn ForceModel, opts: &Options) -> Vec<Effect> {
+    opts.effects
+        .iter()
+        .copied()
+        .filter(|&e| {
+            fit::applicable(e, exp.quasi_static) && (e != Effect::Mesh || model.has_refinement())
+        })
+        .collect()
+}
+
+fn baseline_study_error(data: &[TrialData]) -> f64 {
+    data.iter()
+        .map(|d| {
+            let (m, p) = fit::study_metric(d, &d.base_at_t);
+            (p - m).abs()
+        })
+        .sum::<f64>()
+        / data.len().max(1) as f64
+}
+
+/// Diagnosis on prepared trials (replays done).
+pub fn diagnose_data(
+    input: String,
+    model: String,
+    data: &[TrialData],
+    effects: &[Effect],
+    opts: &Options,
+    start: std::time::Instant,
+) -> Result<Report, GapError> {
+    if data.is_empty() {
+        return Err(GapError::Other("no trials".into()));
+    }
+    let samples: usize = data.iter().map(|d| d.t.len()).sum();
+    // noise: robust per trial and axis, pooled by median
+    let mut sig: Vec<f64> = data
+        .iter()
+        .map(|d| {
+            let s2: f64 = (0..3)
+                .map(|k| noise_sigma(&d.f.iter().map(|f| f[k]).collect::<Vec<_>>()).powi(2))
+                .sum();
+            (s2 / 3.0).sqrt()
+        })
+        .collect();
+    let noise = signal::median(&mut sig);
+    let lags: Vec<Option<f64>> = data
+        .iter()
+        .map(|d| {
+            let m: Vec<f64> = d.f.iter().map(|f| dot(*f, d.normal)).collect();
+            let b: Vec<f64> = d.base_at_t.iter().map(|f| dot(*f, d.normal)).collect();
+            lag_by_xcorr(&d.t, &b, &d.t, &m, 0.5, 0.005)
+                .filter(|(_, c)| *c > 0.5)
+                .map(|(l, _)| l)
+        })
+        .collect();
+    let mut lv: Vec<f64> = lags.iter().flatten().copied().collect();
+    let lag_median = (!lv.is_empty()).then(|| signal::median(&mut lv));
+    let localisation = localise(data);
+    let (scheme, folds) = make_folds(data);
+    let base = Baseline::of(data);
+    let (r0, study0) = (base.rmse, baseline_study_error(data));
+
+    let usable: Vec<Effect> = effects
+        .iter()
+        .copied()
+        .filter(|&e| data.iter().all(|d| d.has_resims(e)))
+        .collect();
+    let bar = dataset::progress_bar(opts.progress, usable.len() as u64, "fitting");
+    let mut singles: Vec<CandidateScore> = usable
+        .par_iter()
+        .map(|&e| {
+            let s = score_candidate(&Candidate::single(e), data, &folds, &base, &[]);
+            if let Some(b) = &bar {
+                b.inc(1);
+            }
+            s
+        })
+        .collect();
+    if let Some(b) = bar {
+        b.finish_and_clear();
+    }
+    singles.sort_by(|a, b| a.score.total_cmp(&b.score));
+    let mut ranking = singles.clone();
+    if opts.pairs {
+        // every pair: a second effect can be invisible alone while the first dominates the
+        // residual, and two can hide each other (a tilt's extra force under a relaxation's
+        // loss: neither alone beat the baseline)
+        let top: Vec<&CandidateScore> = singles.iter().collect();
+        let mut pairs: Vec<(Candidate, Vec<f64>)> = Vec::new();
+        for t in &top {
+            let a = Effect::parse(&t.effect).unwrap();
+            for o in &singles {
+                let b = Effect::parse(&o.effect).unwrap();
+                if !fit::pair_allowed(a, b) {
+                    continue;
+                }
+                let c = Candidate::pair(a, b);
+                if pairs.iter().any(|(p, _)| *p == c) {
+                    continue;
+                }
+                let theta_of = |e: Effect| {
+                    if e == a {
+                        t.theta.clone()
+                    } else {
+                        o.theta.clone()
+                    }
+                };
+                let init: Vec<f64> = c.0.iter().flat_map(|&e| theta_of(e)).collect();
+                pairs.push((c, init));
+            }
+        }
+        let bar = dataset::progress_bar(opts.progress, pairs.len() as u64, "pairs");
+        let scored: Vec<CandidateScore> = pairs
+            .par_iter()
+            .map(|(c, init)| {
+                let s = score_candidate(c, data, &folds, &base, std::slice::from_ref(init));
+                if let Some(b) = &bar {
+                    b.inc(1);
+                }
+                s
+            })
+            .collect();
+        if let Some(b) = bar {
+            b.finish_and_clear();
+        }
+        ranking.extend(scored);
+    }
+    ranking.sort_by(|a, b| a.score.total_cmp(&b.score));
+
+    // two effects need several independent trials to be told apart (not one table)
+    let verdict = decide(
+        &singles,
+        &ranking,
+        r0,
+        noise,
+        opts.min_shrink,
+        data.len() >= 3,
+    );
+    let winner = ranking.iter().find(|c| c.effect == verdict.effect);
+    let heldout = Heldout {
+        scheme,
+        baseline_rmse: r0,
+        winner_rmse: winner.map(|w| w.heldout_rmse).unwrap_or(r0),
+        shrink: winner.map(|w| w.heldout_shrink).unwrap_or(0.0),
+        baseline_study_error: study0,
+        winner_study_error: winner.map(|w| w.heldout_study_error).unwrap_or(study0),
+    };
+    let trial_reports = data
+        .iter()
+        .enumerate()
+        .map(|(i, d)| {
+            let after_pred = winner
+                .map(|w| w.heldout_pred[i].clone())
+                .unwrap_or_else(|| d.base_at_t.clone());
+            TrialReport {
+                name: d.name.clone(),
+                region: d.region,
+                samples: d.t.len(),
+                lag_s: lags[i],
+                before: trial_metrics(&d.f, &d.base_at_t, d.normal, &d.depth, &d.phase),
+                after: trial_metrics(&d.f, &after_pred, d.normal, &d.depth, &d.phase),
+                series: Series {
+                    t: d.t.clone(),
+                    measured: d.f.clone(),
+                    baseline: d.base_at_t.clone(),
+                    winner: after_pred,
+                    depth_mm: d.depth.clone(),
+                },
+            }
+        })
+        .collect();
+    Ok(Report {
+        input,
+        model,
+        trials: data.len(),
+        samples,
+        noise_sigma: noise,
+        lag_median_s: lag_median,
+        localisation,
+        ranking,
+        heldout,
+        verdict,
+        elapsed_s: start.elapsed().as_secs_f64(),
+        trial_reports,
+        diverged_replays: data.iter().flat_map(|d| d.diverged_labels()).collect(),
+        rendering_gap: None,
+    })
+}
+
+/// The verdict: the best-ranked candidate if it beats the baseline beyond noise; a pair only
+/// when the best single leaves a residual well above noise and the pair removes much of it.
+///
+/// Shrinks and gains are weighed on the phase-weighted RMSE (one residual variance per phase,
+/// see [`fit::PhaseSse`]): a sensor bias of tenths of a newton is invisible in the plain RMSE
+/// under tens of newtons of contact force and a coarse mesh's model error, but is the whole
+/// residual before the tip touches, where the model is exact.
+fn decide(
+    singles: &[CandidateScore],
+    ranking: &[CandidateScore],
+    r0: f64,
+    noise: f64,
+    min_shrink: f64,
+    pairs_allowed: bool,
+) -> Verdict {
+    let none = |reason: String| Verdict {
+        effect: "none".into(),
+        heldout_shrink: 0.0,
+        params: vec![],
+        reason,
+    };
+    if r0 <= 1.15 * noise {
+        return none(format!(
+            "baseline residual {r0:.4} N is within noise ({noise:.4} N)"
+        ));
+    }
+    let best = match singles.first() {
+        Some(b) => b,
+        None => return none("no candidate could be assessed".into()),
+    };
+    // identified: a clear held-out shrink, phase-weighted or plain, with positive evidence
+    let shrink = best.heldout_weighted_shrink.max(best.heldout_shrink);
+    if !(shrink >= min_shrink && best.delta_bic <= -10.0) {
+        // two effects that hide each other: the best pair, identified on its own and well
+        // ahead of every single
+        let pair = ranking
+            .iter()
+            .filter(|c| c.effect.contains('+'))
+            .min_by(|a, b| a.score.total_cmp(&b.score));
+        if let Some(pair) = pair.filter(|_| pairs_allowed) {
+            let pair_shrink = pair.heldout_weighted_shrink.max(pair.heldout_shrink);
+            let gain = (1.0 - pair.heldout_weighted_rmse / best.heldout_weighted_rmse)
+                .max(1.0 - pair.heldout_rmse / best.heldout_rmse);
+            if pair_shrink >= min_shrink
+                && pair.delta_bic <= -10.0
+                && gain > 0.2
+                && pair.score < best.score
+            {
+                return Verdict {
+                    effect: pair.effect.clone(),
+                    heldout_shrink: pair.heldout_shrink,
+                    params: pair.params.clone(),
+                    reason: format!(
+                        "no single effect shrinks the held-out RMSE clearly (best {} {:.1}%); \
+                         the pair {} does: {:.4} → {:.4} N ({:.1}%; {:.1}% phase-weighted), ΔBIC {:.1}",
+                        best.effect,
+                        100.0 * best.heldout_shrink,
+                        pair.effect,
+                        r0,
+                        pair.heldout_rmse,
+                        100.0 * pair.heldout_shrink,
+                        100.0 * pair.heldout_weighted_shrink,
+                        pair.delta_bic
+                    ),
+                };
+            }
+        }
+        return none(format!(
+            "best candidate {} shrinks held-out RMSE by only {:.1}% ({:.1}% phase-weighted, ΔBIC {:.1})",
+            best.effect,
+            100.0 * best.heldout_shrink,
+            100.0 * best.heldout_weighted_shrink,
+            best.delta_bic
+        ));
+    }
+    let mut win = best;
+    let mut reason = format!(
+        "{} shrinks held-out RMSE {:.4} → {:.4} N ({:.1}%; {:.1}% phase-weighted), ΔBIC {:.1}",
+        best.effect,
+        r0,
+        best.heldout_rmse,
+        100.0 * best.heldout_shrink,
+        100.0 * best.heldout_weighted_shrink,
+        best.delta_bic
+    );
+    if pairs_allowed && best.heldout_rmse > 1.3 * noise {
+        if let Some(pair) = ranking
+            .iter()
+            .filter(|c| c.effect.contains('+'))
+            .min_by(|a, b| a.score.total_cmp(&b.score))
+        {
+            // what the pair removes of the single's residual, phase-weighted or plain
+            let gain = (1.0 - pair.heldout_weighted_rmse / best.heldout_weighted_rmse)
+                .max(1.0 - pair.heldout_rmse / best.heldout_rmse);
+            if gain > 0.2 && pair.score < best.score {
+                reason = format!(
+                    "{} leaves {:.4} N phase-weighted ({:.4} N plain, noise {:.4} N); the pair {} \
+                     removes {:.0}% more ({:.4} N phase-weighted, {:.4} N plain)",
+                    best.effect,
+                    best.heldout_weighted_rmse,
+                    best.heldout_rmse,
+                    noise,
+                    pair.effect,
+                    100.0 * gain,
+                    pair.heldout_weighted_rmse,
+                    pair.heldout_rmse
+                );
+                win = pair;
+            }
+        }
+    }
+    Verdict {
+        effect: win.effect.clone(),
+        heldout_shrink: win.heldout_shrink,
+        params: win.params.clone(),
+        reason,
+    }
+}
+
+/// Residual of the baseline broken down by axis, phase, region and depth band.
+pub fn localise(data: &[TrialData]) -> Localisation {
+    let mut overall = Acc::default();
+    let mut phase: Vec<Acc> = vec![Acc::default(); Phase::ALL.len()];
+    let mut region: std::collections::BTreeMap<String, Acc> = Default::default();
+    let mut band: Vec<Acc> = vec![Acc::default(); metrics::DEPTH_BANDS_MM.len()];
+    let regions: Vec<&str> = {
+        let mut r: Vec<&str> = data.iter().map(|d| region_label(d.region)).collect();
+        r.sort_by_key(|s| {
+            ["posterior", "mid", "anterior", "unlabelled"]
+                .iter()
+                .position(|x| x == s)
+        });
+        r.dedup();
+        r
+    };
+    let mut heat: Vec<Vec<Acc>> = vec![vec![Acc::default(); regions.len()]; Phase::ALL.len()];
+    let (mut sm, mut ss, mut sc) = (0.0, 0.0, 0usize);
+    for d in data {
+        let rl = region_label(d.region);
+        let ri = regions.iter().position(|r| *r == rl).unwrap();
+        for j in 0..d.t.len() {
+            let r = sub(d.base_at_t[j], d.f[j]);
+            overall.push(r, d.normal);
+            let pi = Phase::ALL.iter().position(|p| *p == d.phase[j]).unwrap();
+            phase[pi].push(r, d.normal);
+            heat[pi][ri].push(r, d.normal);
+            region.entry(rl.to_string()).or_default().push(r, d.normal);
+            if d.phase[j] != Phase::Approach {
+                if let Some(b) = band_of(d.depth[j]) {
+                    band[b].push(r, d.normal);
+                }
+                sm += dot(d.f[j], d.normal);
+                ss += dot(d.base_at_t[j], d.normal);
+                sc += 1;
+            }
+        }
+    }
+    let ov = overall.summary("all".into());
+    let by_axis = vec![
+        GroupResidual {
+            group: "normal".into(),
+            samples: ov.samples,
+            rmse: ov.rmse_normal,
+            bias_normal: ov.bias_normal,
+            rmse_normal: ov.rmse_normal,
+            rmse_tangential: f64::NAN,
+        },
+        GroupResidual {
+            group: "tangential".into(),
+            samples: ov.samples,
+            rmse: ov.rmse_tangential,
+            bias_normal: f64::NAN,
+            rmse_normal: f64::NAN,
+            rmse_tangential: ov.rmse_tangential,
+        },
+    ];
+    let by_phase: Vec<GroupResidual> = Phase::ALL
+        .iter()
+        .zip(&phase)
+        .filter(|(_, a)| a.n > 0)
+        .map(|(p, a)| a.summary(p.name().into()))
+        .collect();
+    let by_region: Vec<GroupResidual> = regions
+        .iter()
+        .map(|r| region[*r].summary(r.to_string()))
+        .collect();
+    let by_depth_band: Vec<GroupResidual> = band
+        .iter()
+        .enumerate()
+        .filter(|(_, a)| a.n > 0)
+        .map(|(i, a)| a.summary(band_label(i)))
+        .collect();
+    let worst = |v: &[GroupResidual]| {
+        v.iter()
+            .filter(|g| g.rmse.is_finite())
+            .max_by(|a, b| a.rmse.total_cmp(&b.rmse))
+            .map(|g| g.group.clone())
+            .unwrap_or_default()
+    };
+    let worst_axis = if ov.rmse_normal >= ov.rmse_tangential {
+        "normal"
+    } else {
+        "tangential"
+    }
+    .to_string();
+    let heatmap = Heatmap {
+        phases: Phase::ALL.iter().map(|p| p.name().to_string()).collect(),
+        regions: regions.iter().map(|r| r.to_string()).collect(),
+        rmse: heat
+            .iter()
+            .map(|row| row.iter().map(|a| (a.n > 0).then(|| a.rmse())).collect())
+            .collect(),
+    };
+    let (wp, wr, wb) = (worst(&by_phase), worst(&by_region), worst(&by_depth_band));
+    let mn_m = if sc > 0 { sm / sc as f64 } else { 0.0 };
+    let mn_s = if sc > 0 { ss / sc as f64 } else { 0.0 };
+    let summary = format!(
+        "largest residual along the {worst_axis} axis, in the {wp} phase, {wr} region, depth band {wb}; \
+         mean normal force in contact: simulated {mn_s:.3} N vs measured {mn_m:.3} N"
+    );
+    Localisation {
+        overall: ov,
+        by_axis,
+        by_phase,
+        by_region,
+        by_depth_band,
+        heatmap,
+        worst_axis,
+        worst_phase: wp,
+        worst_region: wr,
+        worst_depth_band: wb,
+        mean_normal_force_measured: mn_m,
+        mean_normal_force_simulated: mn_s,
+        summary,
+    }
+}
+
+/// Write `report.json` and `report.html` into `out_dir` (created).
+pub fn write_report(report: &Report, out_dir: &Path) -> Result<(), GapError> {
+    std::fs::create_dir_all(out_dir).map_err(|e| GapError::Io(out_dir.to_path_buf(), e))?;
+    let jp = out_dir.join("report.json");
+    let json = serde_json::to_string_pretty(report)
+        .map_err(|e| GapError::Other(format!("report.json: {e}")))?;
+    std::fs::write(&jp, json).map_err(|e| GapError::Io(jp.clone(), e))?;
+    let hp = out_dir.join("report.html");
+    std::fs::write(&hp, html::render(report)).map_err(|e| GapError::Io(hp.clone(), e))?;
+    Ok(())
+}

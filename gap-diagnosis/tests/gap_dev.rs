@@ -1,0 +1,239 @@
+//! Development harness (ignored): re-diagnose kept self-test folders with the replays cached
+//! on disk (`caseNNN_cache.json` beside each folder), so the statistics can be iterated on
+//! in seconds instead of re-running the physics.
+//! `GAP_DEV_DIR=/tmp/s1 cargo test --release -p recordings --test gap_dev -- --ignored --nocapture`
+//! (`GAP_DEV_DIR` is a `--keep` folder of `arthrosim gap selftest`; `GAP_DEV_CASES=case005,…`
+//! restricts `rediagnose_kept_cases`; `phase_table` prints the held-out RMSE per phase).
+use gap_diagnosis::model::{ForceModel, ProbePath, Variant};
+use gap_diagnosis::{self as gap, GapError, SimForceModel};
+use std::collections::HashMap;
+use std::hash::{Hash, Hasher};
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+
+struct Cached<'a> {
+    inner: &'a dyn ForceModel,
+    map: Mutex<HashMap<u64, Vec<[f64; 3]>>>,
+    dirty: Mutex<bool>,
+}
+
+fn key(v: &Variant, p: &ProbePath) -> u64 {
+    let mut h = std::collections::hash_map::DefaultHasher::new();
+    format!("{v:?}").hash(&mut h);
+    p.t0.to_bits().hash(&mut h);
+    p.dt.to_bits().hash(&mut h);
+    for q in &p.poses {
+        for x in q.position.iter().chain(q.orientation.iter()) {
+            x.to_bits().hash(&mut h);
+        }
+    }
+    h.finish()
+}
+
+impl ForceModel for Cached<'_> {
+    fn replay_untilted(&self, v: &Variant, p: &ProbePath) -> Result<Vec<[f64; 3]>, GapError> {
+        let k = key(v, p);
+        if let Some(f) = self.map.lock().unwrap().get(&k) {
+            return Ok(f.clone());
+        }
+        let f = self.inner.replay_untilted(v, p)?;
+        self.map.lock().unwrap().insert(k, f.clone());
+        *self.dirty.lock().unwrap() = true;
+        Ok(f)
+    }
+    fn describe(&self) -> String {
+        self.inner.describe()
+    }
+    fn has_refinement(&self) -> bool {
+        self.inner.has_refinement()
+    }
+}
+
+fn load_cache(p: &Path) -> HashMap<u64, Vec<[f64; 3]>> {
+    std::fs::read_to_string(p)
+        .ok()
+        .and_then(|s| serde_json::from_str::<Vec<(u64, Vec<[f64; 3]>)>>(&s).ok())
+        .map(|v| v.into_iter().collect())
+        .unwrap_or_default()
+}
+
+/// The kept case folders under `root`, sorted.
+fn case_dirs(root: &std::path::Path) -> Vec<PathBuf> {
+    let mut dirs: Vec<PathBuf> = std::fs::read_dir(root)
+        .unwrap()
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| p.is_dir())
+        .collect();
+    dirs.sort();
+    dirs
+}
+
+#[test]
+#[ignore]
+fn rediagnose_kept_cases() {
+    let root = PathBuf::from(std::env::var("GAP_DEV_DIR").expect("GAP_DEV_DIR"));
+    let only: Option<Vec<String>> = std::env::var("GAP_DEV_CASES")
+        .ok()
+        .map(|s| s.split(',').map(|x| x.to_string()).collect());
+    let dirs = case_dirs(&root);
+    let data = gap::data_dir();
+    let (mut ok, mut n, mut shrink, mut neff) = (0, 0, 0.0, 0);
+    let t_all = std::time::Instant::now();
+    for dir in dirs {
+        let name = dir.file_name().unwrap().to_string_lossy().to_string();
+        if let Some(o) = &only {
+            if !o.iter().any(|x| name.ends_with(x.as_str())) {
+                continue;
+            }
+        }
+        let truth: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(root.join(format!("{name}_truth.json"))).unwrap(),
+        )
+        .unwrap();
+        let label = truth["label"].as_str().unwrap().to_string();
+        let exp = gap::load_experiment(&dir, &data).unwrap();
+        let sim = SimForceModel::for_experiment(&exp, &data).unwrap();
+        let cache_file = root.join(format!("{name}_cache.json"));
+        let model = Cached {
+            inner: &sim,
+            map: Mutex::new(load_cache(&cache_file)),
+            dirty: Mutex::new(false),
+        };
+        let t0 = std::time::Instant::now();
+        let r = gap::diagnose(&exp, &model, &gap::Options::default()).unwrap();
+        let el = t0.elapsed().as_secs_f64();
+        if *model.dirty.lock().unwrap() {
+            let v: Vec<(u64, Vec<[f64; 3]>)> =
+                model.map.into_inner().unwrap().into_iter().collect();
+            std::fs::write(&cache_file, serde_json::to_string(&v).unwrap()).unwrap();
+        }
+        n += 1;
+        let good = r.verdict.effect == label;
+        ok += good as usize;
+        if label != "none" {
+            shrink += r.verdict.heldout_shrink;
+            neff += 1;
+        }
+        eprintln!(
+            "{name} truth {label:20} found {:20} {} shrink {:5.1}% noise {:.4} r0 {:.4} ({el:.1} s)\n    {}",
+            r.verdict.effect,
+            if good { "ok  " } else { "MISS" },
+            100.0 * r.verdict.heldout_shrink,
+            r.noise_sigma,
+            r.heldout.baseline_rmse,
+            r.verdict.reason
+        );
+        if !r.diverged_replays.is_empty() {
+            eprintln!("    diverged: {:?}", r.diverged_replays);
+        }
+        eprintln!(
+            "    truth params: {}",
+            truth["spec"]["injected"].to_string()
+        );
+        for c in r.ranking.iter().take(10) {
+            eprintln!(
+                "    {:24} held {:.4} shrink {:6.1}% w {:.4} {:6.1}% dBIC {:9.1} score {:9.1} {}",
+                c.effect,
+                c.heldout_rmse,
+                100.0 * c.heldout_shrink,
+                c.heldout_weighted_rmse,
+                100.0 * c.heldout_weighted_shrink,
+                c.delta_bic,
+                c.score,
+                c.params
+                    .iter()
+                    .map(|p| format!("{}={:.3}", p.name, p.value))
+                    .collect::<Vec<_>>()
+                    .join(" ")
+            );
+        }
+    }
+    eprintln!(
+        "{ok}/{n} correct, mean shrink {:.1}% ({:.1} s)",
+        100.0 * shrink / neff.max(1) as f64,
+        t_all.elapsed().as_secs_f64()
+    );
+}
+
+/// Per-phase held-out RMSE of the ranked candidates (pair-rule design).
+#[test]
+#[ignore]
+fn phase_table() {
+    use gap_diagnosis::dataset::{build, BuildOptions};
+    use gap_diagnosis::effects::Effect;
+    use gap_diagnosis::metrics::Phase;
+    let root = PathBuf::from(std::env::var("GAP_DEV_DIR").expect("GAP_DEV_DIR"));
+    let dirs = case_dirs(&root);
+    let data = gap::data_dir();
+    for dir in dirs {
+        let name = dir.file_name().unwrap().to_string_lossy().to_string();
+        let truth: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(root.join(format!("{name}_truth.json"))).unwrap(),
+        )
+        .unwrap();
+        let exp = gap::load_experiment(&dir, &data).unwrap();
+        let sim = SimForceModel::for_experiment(&exp, &data).unwrap();
+        let cache_file = root.join(format!("{name}_cache.json"));
+        let model = Cached {
+            inner: &sim,
+            map: Mutex::new(load_cache(&cache_file)),
+            dirty: Mutex::new(false),
+        };
+        let effects = Effect::ALL.to_vec();
+        let td = build(
+            &exp,
+            &model,
+            &effects,
+            &BuildOptions {
+                dt: 0.02,
+                progress: false,
+            },
+        )
+        .unwrap();
+        let r = gap::diagnose_data(
+            name.clone(),
+            String::new(),
+            &td,
+            &effects,
+            &gap::Options::default(),
+            std::time::Instant::now(),
+        )
+        .unwrap();
+        eprintln!(
+            "{name} truth {} found {}",
+            truth["label"].as_str().unwrap(),
+            r.verdict.effect
+        );
+        let row = |label: &str, pred: &dyn Fn(usize) -> Vec<[f64; 3]>| {
+            let mut s = vec![(0.0, 0usize); 5];
+            for (i, d) in td.iter().enumerate() {
+                let p = pred(i);
+                for j in 0..d.t.len() {
+                    let g = Phase::ALL.iter().position(|x| *x == d.phase[j]).unwrap();
+                    for k in 0..3 {
+                        s[g].0 += (p[j][k] - d.f[j][k]).powi(2);
+                        s[g].1 += 1;
+                    }
+                }
+            }
+            eprintln!(
+                "    {label:24} {}",
+                s.iter()
+                    .zip(Phase::ALL)
+                    .map(|((a, n), ph)| format!(
+                        "{}:{:8.4}({:4})",
+                        &ph.name()[..4],
+                        (a / (*n).max(1) as f64).sqrt(),
+                        n
+                    ))
+                    .collect::<Vec<_>>()
+                    .join(" ")
+            );
+        };
+        row("baseline", &|i| td[i].base_at_t.clone());
+        for c in r.ranking.iter().take(8) {
+            row(&c.effect, &|i| c.heldout_pred[i].clone());
+        }
+    }
+}

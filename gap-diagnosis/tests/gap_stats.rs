@@ -1,0 +1,150 @@
+//! Statistics of the gap diagnosis against an analytic stand-in force model (Hertz contact on
+//! the tangent plane of the nearest probing site). The stand-in exists only here, to test
+//! fitting, cross-validation and the verdict independently of the FE model.
+use gap_diagnosis::model::{ForceModel, ProbePath, Variant};
+use gap_diagnosis::reality::Site;
+use gap_diagnosis::selftest::{selftest_with, SelftestOptions};
+use gap_diagnosis::{Experiment, GapError, Region};
+
+struct Hertz {
+    sites: Vec<Site>,
+    e: f64,
+}
+
+fn sites() -> Vec<Site> {
+    let mut v = Vec::new();
+    for (ri, r) in Region::ALL.into_iter().enumerate() {
+        for j in 0..5 {
+            let a = 0.6 + 1.0 * ri as f64 + 0.12 * j as f64;
+            let (x, y) = (0.016 * a.cos(), 0.016 * a.sin());
+            let tilt = 0.25 * (j as f64 - 2.0) / 2.0;
+            let n = [tilt * a.cos(), tilt * a.sin(), 1.0];
+            let m = (n[0] * n[0] + n[1] * n[1] + 1.0).sqrt();
+            v.push(Site {
+                region: r,
+                point: [x, y, 0.005 + 0.001 * j as f64],
+                normal: [n[0] / m, n[1] / m, n[2] / m],
+            });
+        }
+    }
+    v
+}
+
+impl Hertz {
+    fn normal_force(&self, v: &Variant, delta: f64) -> f64 {
+        let r: f64 = 1.5e-3;
+        let es = self.e * v.modulus_scale / (1.0 - 0.29f64 * 0.29);
+        let hertz = |d: f64| {
+            if d <= 0.0 {
+                return 0.0;
+            }
+            let mut f = 4.0 / 3.0 * es * r.sqrt() * d.powf(1.5);
+            if v.neo_hookean {
+                f *= 1.0 + 0.1 * d * 1e3;
+            }
+            if v.fine_mesh {
+                f *= 0.9 * (1.0 + 0.05 * d * 1e3);
+            }
+            f
+        };
+        if v.support_stiffness > 0.0 {
+            // series compliance of ~6 supporting nodes: solve F = hertz(δ − F c) by bisection
+            let c = 1.0 / (6.0 * v.support_stiffness);
+            let (mut lo, mut hi) = (0.0, hertz(delta));
+            for _ in 0..60 {
+                let mid = 0.5 * (lo + hi);
+                if hertz(delta - mid * c) > mid {
+                    lo = mid
+                } else {
+                    hi = mid
+                }
+            }
+            0.5 * (lo + hi)
+        } else {
+            hertz(delta)
+        }
+    }
+}
+
+impl ForceModel for Hertz {
+    fn replay_untilted(&self, v: &Variant, path: &ProbePath) -> Result<Vec<[f64; 3]>, GapError> {
+        let mut out = Vec::with_capacity(path.poses.len());
+        for (k, pose) in path.poses.iter().enumerate() {
+            let p = pose.position;
+            let s = self
+                .sites
+                .iter()
+                .min_by(|a, b| {
+                    let da = (a.point[0] - p[0]).powi(2) + (a.point[1] - p[1]).powi(2);
+                    let db = (b.point[0] - p[0]).powi(2) + (b.point[1] - p[1]).powi(2);
+                    da.total_cmp(&db)
+                })
+                .unwrap();
+            let n = s.normal;
+            let d = -((p[0] - s.point[0]) * n[0]
+                + (p[1] - s.point[1]) * n[1]
+                + (p[2] - s.point[2]) * n[2]);
+            let fnorm = self.normal_force(v, d);
+            let mut f = [fnorm * n[0], fnorm * n[1], fnorm * n[2]];
+            if v.friction > 0.0 && fnorm > 0.0 && k > 0 {
+                let q = path.poses[k - 1].position;
+                let mut vel = [
+                    (p[0] - q[0]) / path.dt,
+                    (p[1] - q[1]) / path.dt,
+                    (p[2] - q[2]) / path.dt,
+                ];
+                let vn = vel[0] * n[0] + vel[1] * n[1] + vel[2] * n[2];
+                for i in 0..3 {
+                    vel[i] -= vn * n[i];
+                }
+                let vt = (vel[0] * vel[0] + vel[1] * vel[1] + vel[2] * vel[2]).sqrt();
+                if vt > 1e-9 {
+                    let g = v.friction * fnorm * (vt / 5e-4).tanh() / vt;
+                    for i in 0..3 {
+                        f[i] -= g * vel[i];
+                    }
+                }
+            }
+            out.push(f);
+        }
+        Ok(out)
+    }
+    fn describe(&self) -> String {
+        "analytic Hertz stand-in (tests only)".into()
+    }
+}
+
+fn run(cases: usize, seed: u64, verbose: bool) -> gap_diagnosis::selftest::SelftestResult {
+    let model = Hertz {
+        sites: sites(),
+        e: 3.5e6,
+    };
+    let opts = SelftestOptions {
+        verbose,
+        ..Default::default()
+    };
+    let s = model.sites.clone();
+    let factory = |_: &Experiment| -> Result<Box<dyn ForceModel>, GapError> {
+        Ok(Box::new(Hertz {
+            sites: sites(),
+            e: 3.5e6,
+        }))
+    };
+    selftest_with(cases, seed, &opts, &model, &s, &factory).unwrap()
+}
+
+#[test]
+fn statistics_identify_effects_on_analytic_stand_in() {
+    let r = run(14, 3, true);
+    eprintln!("{}", r.table());
+    let s = r.summary();
+    // reached: 12/14 (viscoelastic+tilt and hardening+friction are taken for tilt and
+    // modulus+friction: the stand-in's tilt interpolation error hides the relaxation, its
+    // weak hardening is a modulus), mean held-out shrink 75%
+    assert!(s.accuracy >= 0.85, "accuracy {}", s.accuracy);
+    assert!(
+        s.heldout_shrink_mean >= 0.7,
+        "shrink {}",
+        s.heldout_shrink_mean
+    );
+}

@@ -1,0 +1,1028 @@
+//! The launcher: starts each enabled node as its own process, waits for `READY <node>`,
+//! shows live status, restarts crashed nodes under the `[launcher]` restart policy, stops
+//! everything in order (haptic first so the force goes to zero, recorder last so the file is
+//! closed) on Ctrl-C / SIGTERM / the end of a timed run, and writes the session summary.
+//!
+//! Children live in their own process groups, so a terminal Ctrl-C reaches only the launcher,
+//! which forwards SIGTERM in the stop order. Each child also gets `PR_SET_PDEATHSIG`, so a
+//! launcher that is itself killed never leaves a node running.
+
+use crate::status::StatusMonitor;
+use indicatif::{ProgressBar, ProgressStyle};
+use launch_config::{LaunchFile, LauncherConfig, RestartPolicy};
+use serde::Serialize;
+use session_metrics::summary::{summarize, SessionRecord, SessionSummary};
+use std::io::{BufRead, BufReader, IsTerminal, Write};
+use std::os::unix::process::{CommandExt, ExitStatusExt};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::sync::atomic::Ordering;
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+/// The node processes of a session.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum NodeKind {
+    Physics,
+    Haptic,
+    Bridge,
+    Recorder,
+}
+
+impl NodeKind {
+    /// Physics first (the others read its streams), the recorder before the haptic node so
+    /// it sees every tick, haptic last.
+    pub const START_ORDER: [NodeKind; 4] = [
+        NodeKind::Physics,
+        NodeKind::Recorder,
+        NodeKind::Bridge,
+        NodeKind::Haptic,
+    ];
+    /// Haptic first (force ramps to zero while physics still answers), recorder last (it
+    /// records the stop and closes its file).
+    pub const STOP_ORDER: [NodeKind; 4] = [
+        NodeKind::Haptic,
+        NodeKind::Bridge,
+        NodeKind::Physics,
+        NodeKind::Recorder,
+    ];
+
+    /// The name used by `arthrosim node <name>` and in `READY <name>`.
+    pub fn name(self) -> &'static str {
+        match self {
+            NodeKind::Physics => "physics",
+            NodeKind::Haptic => "haptic",
+            NodeKind::Bridge => "bridge",
+            NodeKind::Recorder => "recorder",
+        }
+    }
+
+    pub fn from_name(name: &str) -> Option<NodeKind> {
+        Self::START_ORDER.into_iter().find(|k| k.name() == name)
+    }
+
+    /// Whether the launch file enables this node.
+    pub fn enabled_in(self, file: &LaunchFile) -> bool {
+        match self {
+            NodeKind::Physics => file.nodes.physics,
+            NodeKind::Haptic => file.nodes.haptic,
+            NodeKind::Bridge => file.nodes.bridge,
+            NodeKind::Recorder => file.nodes.recorder && file.recording.enabled,
+        }
+    }
+}
+
+/// What to do when a node process exits on its own.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum ExitDecision {
+    /// Start it again after this wait.
+    Restart { after: Duration },
+    /// End the session: `failed` when the node failed and may not be restarted.
+    EndSession { failed: bool },
+}
+
+/// The restart policy as a pure function: a node that exits 0 has finished (e.g. the
+/// protocol ended) and ends the session normally; a failing node is restarted with doubling
+/// backoff while the policy and its restart budget allow.
+pub fn decide_on_exit(
+    config: &LauncherConfig,
+    success: bool,
+    restarts_so_far: u32,
+) -> ExitDecision {
+    if success {
+        return ExitDecision::EndSession { failed: false };
+    }
+    match config.restart {
+        RestartPolicy::OnFailure if restarts_so_far < config.max_restarts => {
+            let factor = 2f64.powi(restarts_so_far.min(16) as i32);
+            let secs = (config.restart_backoff_s * factor).clamp(0.0, 60.0);
+            ExitDecision::Restart {
+                after: Duration::from_secs_f64(secs),
+            }
+        }
+        _ => ExitDecision::EndSession { failed: true },
+    }
+}
+
+/// How the live status is shown.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LiveMode {
+    /// Progress bar on a terminal, plain lines otherwise.
+    Auto,
+    /// Plain status lines.
+    Plain,
+    /// No live status (node output still goes to the log files).
+    Quiet,
+}
+
+/// Everything a session run needs.
+#[derive(Debug, Clone)]
+pub struct RunOptions {
+    /// The launch file, paths already resolved (see [`launch_config::load`]).
+    pub launch: LaunchFile,
+    /// Where the launch file came from (for messages and the summary).
+    pub origin: String,
+    /// iceoryx2 session prefix.
+    pub session: String,
+    /// Session folder: resolved launch file, summary.json, node logs, recordings.
+    pub out_dir: PathBuf,
+    /// Bounded length, s; `None` runs until Ctrl-C or a node finishes.
+    pub seconds: Option<f64>,
+    /// Executable started for each node, and the arguments before the node name
+    /// (`arthrosim` + `["node"]`).
+    pub program: PathBuf,
+    pub program_args: Vec<String>,
+    pub live: LiveMode,
+}
+
+impl RunOptions {
+    /// Options that start the nodes through this executable's hidden `node` subcommand.
+    pub fn for_current_exe(
+        launch: LaunchFile,
+        origin: String,
+        session: String,
+        out_dir: PathBuf,
+        seconds: Option<f64>,
+    ) -> Result<RunOptions, LauncherError> {
+        let program = std::env::current_exe().map_err(|e| LauncherError::Io {
+            what: "locate the current executable".into(),
+            source: e,
+        })?;
+        Ok(RunOptions {
+            launch,
+            origin,
+            session,
+            out_dir,
+            seconds,
+            program,
+            program_args: vec!["node".into()],
+            live: LiveMode::Auto,
+        })
+    }
+}
+
+/// Failures of the launcher itself (a node failing is reported in [`SessionReport`]).
+#[derive(Debug, thiserror::Error)]
+pub enum LauncherError {
+    #[error("cannot {what}: {source}")]
+    Io {
+        what: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("no node is enabled in {0}")]
+    NothingToStart(String),
+    #[error("cannot start node {node}: {source}")]
+    Spawn {
+        node: &'static str,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("node {node} did not print `READY {node}` within {timeout_s} s (log: {log})")]
+    ReadyTimeout {
+        node: &'static str,
+        timeout_s: f64,
+        log: String,
+    },
+    #[error("node {node} exited during start-up ({status}) before it was ready (log: {log})")]
+    DiedBeforeReady {
+        node: &'static str,
+        status: String,
+        log: String,
+    },
+    #[error("interrupted while starting node {0}")]
+    InterruptedDuringStart(&'static str),
+    #[error("cannot subscribe to the session's streams: {0}")]
+    Link(#[from] msgs::ipc::LinkError),
+}
+
+/// Per-node outcome.
+#[derive(Debug, Clone, Serialize)]
+pub struct NodeReport {
+    pub node: NodeKind,
+    pub restarts: u32,
+    /// Final exit: `exit 0`, `exit N`, `signal N`.
+    pub exit: String,
+    /// True when it had to be killed after the stop grace period.
+    pub killed: bool,
+    /// True when it stopped with exit 0 after SIGTERM (or finished on its own with 0).
+    pub clean_stop: bool,
+    pub log: String,
+}
+
+/// Why the session ended.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(tag = "kind", rename_all = "kebab-case")]
+pub enum EndReason {
+    /// The `--seconds` bound was reached.
+    Completed,
+    /// Ctrl-C / SIGTERM.
+    Interrupted,
+    /// A node exited 0 on its own (its work was done).
+    NodeFinished { node: NodeKind },
+    /// A node failed and the restart policy gave up.
+    NodeFailed { node: NodeKind, exit: String },
+}
+
+/// What `arthrosim run` writes to `summary.json` and prints.
+#[derive(Debug, Clone, Serialize)]
+pub struct SessionReport {
+    pub session: String,
+    pub launch_origin: String,
+    pub out_dir: String,
+    pub started_unix_s: f64,
+    /// From the nodes being ready to the last one stopped, s.
+    pub wall_seconds: f64,
+    /// From the launcher's start until every node was ready, s.
+    pub startup_seconds: f64,
+    pub requested_seconds: Option<f64>,
+    pub end: EndReason,
+    pub nodes: Vec<NodeReport>,
+    /// Physics steps the launcher missed because it fell behind (summary is then partial).
+    pub frames_missed: u64,
+    pub summary: SessionSummary,
+}
+
+impl SessionReport {
+    /// True when no node failed and every node stopped cleanly.
+    pub fn success(&self) -> bool {
+        !matches!(self.end, EndReason::NodeFailed { .. }) && self.nodes.iter().all(|n| n.clean_stop)
+    }
+}
+
+enum Event {
+    Ready { node: NodeKind, generation: u32 },
+    Line { node: NodeKind, line: String },
+}
+
+struct Running {
+    kind: NodeKind,
+    child: Option<Child>,
+    generation: u32,
+    restarts: u32,
+    ready: bool,
+    started: Instant,
+    restart_at: Option<Instant>,
+    exit: Option<ExitStatus>,
+    killed: bool,
+    stopped_by_us: bool,
+    log: PathBuf,
+}
+
+fn describe(status: &ExitStatus) -> String {
+    match (status.code(), status.signal()) {
+        (Some(c), _) => format!("exit {c}"),
+        (None, Some(s)) => format!("signal {s}"),
+        _ => "unknown".into(),
+    }
+}
+
+/// The printer for node output and status: through the progress bar when one is shown.
+struct Display {
+    bar: Option<ProgressBar>,
+    plain: bool,
+    last_plain: Instant,
+    total_s: Option<f64>,
+}
+
+impl Display {
+    fn new(live: LiveMode, seconds: Option<f64>) -> Display {
+        let tty = std::io::stdout().is_terminal();
+        let bar = match (live, tty) {
+            (LiveMode::Auto, true) => {
+                let bar = match seconds {
+                    Some(s) => {
+                        let bar = ProgressBar::new((s * 10.0).round().max(1.0) as u64);
+                        bar.set_style(
+                            ProgressStyle::with_template(
+                                "{bar:30.cyan/blue} {elapsed:>4}/{len_s} {msg}",
+                            )
+                            .unwrap_or_else(|_| ProgressStyle::default_bar())
+                            .with_key(
+                                "len_s",
+                                move |_: &indicatif::ProgressState, w: &mut dyn std::fmt::Write| {
+                                    let _ = write!(w, "{s:.0}s");
+                                },
+                            )
+                            .progress_chars("=> "),
+                        );
+                        bar
+                    }
+                    None => {
+                        let bar = ProgressBar::new_spinner();
+                        bar.set_style(
+                            ProgressStyle::with_template("{spinner} {elapsed:>4} {msg}")
+                                .unwrap_or_else(|_| ProgressStyle::default_spinner()),
+                        );
+                        bar
+                    }
+                };
+                Some(bar)
+            }
+            _ => None,
+        };
+        Display {
+            plain: live != LiveMode::Quiet && bar.is_none(),
+            bar,
+            last_plain: Instant::now(),
+            total_s: seconds,
+        }
+    }
+
+    fn line(&self, text: &str) {
+        match &self.bar {
+            Some(bar) => bar.println(text),
+            None => eprintln!("{text}"),
+        }
+    }
+
+    fn status(&mut self, elapsed: Duration, status: &str) {
+        if let Some(bar) = &self.bar {
+            if self.total_s.is_some() {
+                bar.set_position((elapsed.as_secs_f64() * 10.0) as u64);
+            } else {
+                bar.tick();
+            }
+            bar.set_message(status.to_string());
+        } else if self.plain && self.last_plain.elapsed() >= Duration::from_secs(1) {
+            self.last_plain = Instant::now();
+            let mut out = std::io::stdout().lock();
+            let _ = match self.total_s {
+                Some(t) => writeln!(out, "[{:>5.1}/{t:.0} s] {status}", elapsed.as_secs_f64()),
+                None => writeln!(out, "[{:>5.1} s] {status}", elapsed.as_secs_f64()),
+            };
+            let _ = out.flush();
+        }
+    }
+
+    /// The session proper starts now (the nodes are ready): the bar counts from here.
+    fn start(&mut self) {
+        if let Some(bar) = &self.bar {
+            bar.reset_elapsed();
+            bar.set_position(0);
+        }
+        self.last_plain = Instant::now() - Duration::from_secs(1);
+    }
+
+    fn finish(&self) {
+        if let Some(bar) = &self.bar {
+            bar.finish_and_clear();
+        }
+    }
+}
+
+/// A session in progress.
+struct Session<'a> {
+    opts: &'a RunOptions,
+    launch_path: PathBuf,
+    nodes: Vec<Running>,
+    events_tx: mpsc::Sender<Event>,
+    events_rx: mpsc::Receiver<Event>,
+    readers: Vec<std::thread::JoinHandle<()>>,
+    display: Display,
+}
+
+impl Session<'_> {
+    fn spawn(&mut self, index: usize) -> Result<(), LauncherError> {
+        let opts = self.opts;
+        let kind = self.nodes[index].kind;
+        let mut cmd = Command::new(&opts.program);
+        cmd.args(&opts.program_args)
+            .arg(kind.name())
+            .arg("--launch")
+            .arg(&self.launch_path)
+            .arg("--session")
+            .arg(&opts.session)
+            .arg("--out")
+            .arg(&opts.out_dir)
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            // Plain text in the logs and through the launcher's pipes.
+            .env("NO_COLOR", "1")
+            .process_group(0);
+
+        let parent = std::process::id() as libc::pid_t;
+        // SAFETY: only async-signal-safe calls (prctl, getppid, _exit) between fork and exec.
+        unsafe {
+            cmd.pre_exec(move || {
+                libc::prctl(
+                    libc::PR_SET_PDEATHSIG,
+                    libc::SIGTERM as libc::c_ulong,
+                    0,
+                    0,
+                    0,
+                );
+                if libc::getppid() != parent {
+                    libc::_exit(1); // the launcher died before the death signal was armed
+                }
+                Ok(())
+            });
+        }
+        let mut child = cmd.spawn().map_err(|source| LauncherError::Spawn {
+            node: kind.name(),
+            source,
+        })?;
+        let node = &mut self.nodes[index];
+        node.generation += 1;
+        node.ready = false;
+        node.started = Instant::now();
+        node.restart_at = None;
+        node.exit = None;
+        let log = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(&node.log)
+            .map_err(|source| LauncherError::Io {
+                what: format!("open log {}", node.log.display()),
+                source,
+            })?;
+        let generation = node.generation;
+        if let Some(out) = child.stdout.take() {
+            let log = log.try_clone().ok();
+            self.readers.push(forward_lines(
+                out,
+                kind,
+                generation,
+                log,
+                self.events_tx.clone(),
+                true,
+            ));
+        }
+        if let Some(err) = child.stderr.take() {
+            self.readers.push(forward_lines(
+                err,
+                kind,
+                generation,
+                Some(log),
+                self.events_tx.clone(),
+                false,
+            ));
+        }
+        node.child = Some(child);
+        Ok(())
+    }
+
+    /// Prints node output and marks nodes ready; returns when the channel is empty.
+    fn pump_events(&mut self, wait: Duration) {
+        let mut first = true;
+        loop {
+            let event = if first {
+                first = false;
+                match self.events_rx.recv_timeout(wait) {
+                    Ok(e) => e,
+                    Err(_) => return,
+                }
+            } else {
+                match self.events_rx.try_recv() {
+                    Ok(e) => e,
+                    Err(_) => return,
+                }
+            };
+            match event {
+                Event::Ready { node, generation } => {
+                    if let Some(n) = self.nodes.iter_mut().find(|n| n.kind == node) {
+                        if n.generation == generation {
+                            n.ready = true;
+                        }
+                    }
+                }
+                Event::Line { node, line } => {
+                    if self.opts.live != LiveMode::Quiet && !is_iceoryx_config_notice(&line) {
+                        self.display.line(&format!("[{}] {line}", node.name()));
+                    }
+                }
+            }
+        }
+    }
+
+    /// Starts node `index` and waits for its READY line, applying the restart policy to a
+    /// node that dies while starting.
+    fn start_and_wait(
+        &mut self,
+        index: usize,
+        drain: &mut dyn FnMut(),
+    ) -> Result<(), LauncherError> {
+        let stop = msgs::lifecycle::stop_flag();
+        let cfg = &self.opts.launch.launcher;
+        self.spawn(index)?;
+        loop {
+            if stop.load(Ordering::SeqCst) {
+                return Err(LauncherError::InterruptedDuringStart(
+                    self.nodes[index].kind.name(),
+                ));
+            }
+            self.pump_events(Duration::from_millis(20));
+            drain();
+            let node = &mut self.nodes[index];
+            if node.ready {
+                return Ok(());
+            }
+            let kind = node.kind;
+            if let Some(child) = node.child.as_mut() {
+                if let Ok(Some(status)) = child.try_wait() {
+                    node.child = None;
+                    node.exit = Some(status);
+                    // Collect the rest of its output before deciding.
+                    self.pump_events(Duration::from_millis(100));
+                    let node = &mut self.nodes[index];
+                    match decide_on_exit(cfg, false, node.restarts) {
+                        ExitDecision::Restart { after } => {
+                            node.restarts += 1;
+                            self.display.line(&format!(
+                                "launcher: {} exited during start-up ({}); restart {}/{} in {:.1} s",
+                                kind.name(),
+                                describe(&status),
+                                node.restarts,
+                                cfg.max_restarts,
+                                after.as_secs_f64()
+                            ));
+                            std::thread::sleep(after);
+                            self.spawn(index)?;
+                            continue;
+                        }
+                        ExitDecision::EndSession { .. } => {
+                            return Err(LauncherError::DiedBeforeReady {
+                                node: kind.name(),
+                                status: describe(&status),
+                                log: node.log.display().to_string(),
+                            });
+                        }
+                    }
+                }
+            }
+            let node = &self.nodes[index];
+            if node.started.elapsed().as_secs_f64() > cfg.ready_timeout_s {
+                return Err(LauncherError::ReadyTimeout {
+                    node: kind.name(),
+                    timeout_s: cfg.ready_timeout_s,
+                    log: node.log.display().to_string(),
+                });
+            }
+        }
+    }
+
+    /// SIGTERM, wait up to the grace period (draining the streams meanwhile), then SIGKILL
+    /// the node's process group.
+    fn stop_node(&mut self, index: usize, mut drain: impl FnMut()) {
+        let grace = Duration::from_secs_f64(self.opts.launch.launcher.stop_grace_s);
+        let node = &mut self.nodes[index];
+        node.restart_at = None;
+        let Some(child) = node.child.as_mut() else {
+            return;
+        };
+        node.stopped_by_us = true;
+        let pid = child.id() as libc::pid_t;
+        // SAFETY: signalling our own child by pid.
+        unsafe { libc::kill(pid, libc::SIGTERM) };
+        let deadline = Instant::now() + grace;
+        loop {
+            match child.try_wait() {
+                Ok(Some(status)) => {
+                    node.exit = Some(status);
+                    break;
+                }
+                Ok(None) if Instant::now() < deadline => {
+                    drain();
+                    std::thread::sleep(Duration::from_millis(10));
+                }
+                _ => {
+                    // SAFETY: the child leads its own process group (process_group(0)).
+                    unsafe { libc::kill(-pid, libc::SIGKILL) };
+                    let _ = child.kill();
+                    node.exit = child.wait().ok();
+                    node.killed = true;
+                    break;
+                }
+            }
+        }
+        // Grandchildren (if a node forked) go with the group.
+        // SAFETY: as above; ESRCH when the group is already gone.
+        unsafe { libc::kill(-pid, libc::SIGKILL) };
+        node.child = None;
+    }
+}
+
+/// iceoryx2 prints a warning when it runs without a config file, which is how arthrosim runs
+/// it; the launcher keeps it in the logs but not on the terminal.
+fn is_iceoryx_config_notice(line: &str) -> bool {
+    line.contains("\"Config::global_config()\"") || line.contains("No config file was loaded")
+}
+
+/// Loads iceoryx2's global config with warnings muted, so the launcher's own terminal does
+/// not start with the config notice (unless the user asked for a log level).
+fn load_iceoryx_config_quietly() {
+    use iceoryx2::prelude::{set_log_level, Config, LogLevel};
+    if std::env::var_os("IOX2_LOG_LEVEL").is_none() {
+        set_log_level(LogLevel::Error);
+        let _ = Config::global_config();
+    }
+}
+
+fn forward_lines(
+    stream: impl std::io::Read + Send + 'static,
+    node: NodeKind,
+    generation: u32,
+    mut log: Option<std::fs::File>,
+    tx: mpsc::Sender<Event>,
+    watch_ready: bool,
+) -> std::thread::JoinHandle<()> {
+    std::thread::spawn(move || {
+        let ready_line = format!("READY {}", node.name());
+        for line in BufReader::new(stream).lines() {
+            let Ok(line) = line else { break };
+            if let Some(f) = log.as_mut() {
+                let _ = writeln!(f, "{line}");
+            }
+            if watch_ready && line.trim() == ready_line {
+                let _ = tx.send(Event::Ready { node, generation });
+            } else {
+                let _ = tx.send(Event::Line { node, line });
+            }
+        }
+    })
+}
+
+/// `sessions/<UTC timestamp>` relative to the working directory.
+pub fn default_out_dir() -> PathBuf {
+    let secs = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_secs())
+        .unwrap_or(0);
+    PathBuf::from("sessions").join(utc_stamp(secs))
+}
+
+/// `YYYYMMDD-HHMMSS` (UTC) of a Unix time.
+pub fn utc_stamp(unix_s: u64) -> String {
+    let days = (unix_s / 86_400) as i64;
+    let rem = unix_s % 86_400;
+    // Civil date from days since 1970-01-01 (Howard Hinnant's algorithm).
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 };
+    let y = yoe + era * 400 + if m <= 2 { 1 } else { 0 };
+    format!(
+        "{y:04}{m:02}{d:02}-{:02}{:02}{:02}",
+        rem / 3600,
+        (rem / 60) % 60,
+        rem % 60
+    )
+}
+
+/// Writes the resolved launch file into the session folder and returns its path.
+pub fn write_resolved_launch(
+    out_dir: &Path,
+    file: &LaunchFile,
+    origin: &str,
+) -> Result<PathBuf, LauncherError> {
+    let text = toml::to_string(file).map_err(|e| LauncherError::Io {
+        what: "serialise the resolved launch file".into(),
+        source: std::io::Error::other(e.to_string()),
+    })?;
+    let path = out_dir.join("launch.toml");
+    let header = format!(
+        "# Resolved launch file of this session (from {origin}); paths are absolute.\n\
+         # Re-run with: arthrosim run {}\n\n",
+        path.display()
+    );
+    std::fs::write(&path, header + &text).map_err(|source| LauncherError::Io {
+        what: format!("write {}", path.display()),
+        source,
+    })?;
+    Ok(path)
+}
+
+/// Runs a whole session and returns its report (also written to `summary.json`).
+pub fn run(opts: &RunOptions) -> Result<SessionReport, LauncherError> {
+    let kinds: Vec<NodeKind> = NodeKind::START_ORDER
+        .into_iter()
+        .filter(|k| k.enabled_in(&opts.launch))
+        .collect();
+    if kinds.is_empty() {
+        return Err(LauncherError::NothingToStart(opts.origin.clone()));
+    }
+    let logs = opts.out_dir.join("logs");
+    std::fs::create_dir_all(&logs).map_err(|source| LauncherError::Io {
+        what: format!("create session folder {}", logs.display()),
+        source,
+    })?;
+    // Absolute, so nodes resolve it regardless of their working directory.
+    let out_dir = std::path::absolute(&opts.out_dir).unwrap_or_else(|_| opts.out_dir.clone());
+    let launch_path = write_resolved_launch(&out_dir, &opts.launch, &opts.origin)?;
+    let opts = &RunOptions {
+        out_dir,
+        ..opts.clone()
+    };
+    let stop = msgs::lifecycle::install_stop_flag();
+    let started_unix_s = msgs::clock::realtime_ns() as f64 * 1e-9;
+    let started = Instant::now();
+
+    let (events_tx, events_rx) = mpsc::channel();
+    let mut session = Session {
+        opts,
+        launch_path,
+        nodes: kinds
+            .iter()
+            .map(|&kind| Running {
+                kind,
+                child: None,
+                generation: 0,
+                restarts: 0,
+                ready: false,
+                started: Instant::now(),
+                restart_at: None,
+                exit: None,
+                killed: false,
+                stopped_by_us: false,
+                log: opts
+                    .out_dir
+                    .join("logs")
+                    .join(format!("{}.log", kind.name())),
+            })
+            .collect(),
+        events_tx,
+        events_rx,
+        readers: Vec::new(),
+        display: Display::new(opts.live, opts.seconds),
+    };
+
+    load_iceoryx_config_quietly();
+    // Subscribe before any node starts, so the summary sees the first step.
+    let mut monitor = StatusMonitor::new(&opts.session)?;
+    let mut record = SessionRecord::default();
+
+    let mut start_error = None;
+    for index in 0..session.nodes.len() {
+        // Keep reading the streams of the nodes already running while the next one starts.
+        let mut drain = || {
+            let _ = monitor.poll(&mut record);
+        };
+        if let Err(e) = session.start_and_wait(index, &mut drain) {
+            start_error = Some(e);
+            break;
+        }
+    }
+
+    let mut end = EndReason::Completed;
+    let mut session_start = Instant::now();
+    if start_error.is_none() {
+        if opts.live != LiveMode::Quiet {
+            session.display.line(&format!(
+                "launcher: session {:?} running ({}), folder {}",
+                opts.session,
+                kinds
+                    .iter()
+                    .map(|k| k.name())
+                    .collect::<Vec<_>>()
+                    .join(", "),
+                opts.out_dir.display()
+            ));
+        }
+        session_start = Instant::now();
+        session.display.start();
+        let deadline = opts
+            .seconds
+            .map(|s| session_start + Duration::from_secs_f64(s));
+        let cfg = &opts.launch.launcher;
+        let period = Duration::from_secs_f64(cfg.status_period_s.clamp(0.02, 5.0));
+        let mut next_status = Instant::now();
+        'session: loop {
+            if stop.load(Ordering::SeqCst) {
+                end = EndReason::Interrupted;
+                break;
+            }
+            if deadline.is_some_and(|d| Instant::now() >= d) {
+                end = EndReason::Completed;
+                break;
+            }
+            session.pump_events(Duration::from_millis(20));
+            for index in 0..session.nodes.len() {
+                let node = &mut session.nodes[index];
+                let kind = node.kind;
+                if let Some(at) = node.restart_at {
+                    if Instant::now() >= at {
+                        if let Err(e) = session.spawn(index) {
+                            session.display.line(&format!("launcher: {e}"));
+                            end = EndReason::NodeFailed {
+                                node: kind,
+                                exit: "restart failed".into(),
+                            };
+                            break 'session;
+                        }
+                    }
+                    continue;
+                }
+                let Some(child) = node.child.as_mut() else {
+                    continue;
+                };
+                let Ok(Some(status)) = child.try_wait() else {
+                    if !node.ready && node.started.elapsed().as_secs_f64() > cfg.ready_timeout_s {
+                        session.display.line(&format!(
+                            "launcher: restarted {} not ready within {} s",
+                            kind.name(),
+                            cfg.ready_timeout_s
+                        ));
+                        end = EndReason::NodeFailed {
+                            node: kind,
+                            exit: "not ready after restart".into(),
+                        };
+                        break 'session;
+                    }
+                    continue;
+                };
+                node.child = None;
+                node.exit = Some(status);
+                match decide_on_exit(cfg, status.success(), node.restarts) {
+                    ExitDecision::Restart { after } => {
+                        node.restarts += 1;
+                        node.restart_at = Some(Instant::now() + after);
+                        let line = format!(
+                            "launcher: {} crashed ({}); restart {}/{} in {:.1} s",
+                            kind.name(),
+                            describe(&status),
+                            node.restarts,
+                            cfg.max_restarts,
+                            after.as_secs_f64()
+                        );
+                        session.display.line(&line);
+                    }
+                    ExitDecision::EndSession { failed } => {
+                        end = if failed {
+                            EndReason::NodeFailed {
+                                node: kind,
+                                exit: describe(&status),
+                            }
+                        } else {
+                            EndReason::NodeFinished { node: kind }
+                        };
+                        let line = format!(
+                            "launcher: {} {} ({}); ending the session",
+                            kind.name(),
+                            if failed { "failed" } else { "finished" },
+                            describe(&status)
+                        );
+                        session.display.line(&line);
+                        break 'session;
+                    }
+                }
+            }
+            if Instant::now() >= next_status {
+                next_status = Instant::now() + period;
+                match monitor.poll(&mut record) {
+                    Ok(status) => {
+                        let text = status.to_string();
+                        session.display.status(session_start.elapsed(), &text);
+                    }
+                    Err(e) => session.display.line(&format!("launcher: status: {e}")),
+                }
+            }
+        }
+    }
+
+    // Stop in order, draining the streams meanwhile so the summary sees the last steps.
+    for kind in NodeKind::STOP_ORDER {
+        if let Some(index) = session.nodes.iter().position(|n| n.kind == kind) {
+            let mut drain = || {
+                let _ = monitor.poll(&mut record);
+            };
+            session.stop_node(index, &mut drain);
+        }
+    }
+    let _ = monitor.poll(&mut record);
+    session.display.finish();
+    // Readers end at EOF of their pipes, now that every child is gone.
+    drop(session.events_tx);
+    for reader in session.readers.drain(..) {
+        let _ = reader.join();
+    }
+    while let Ok(event) = session.events_rx.try_recv() {
+        if let (Event::Line { node, line }, false) = (event, opts.live == LiveMode::Quiet) {
+            if !is_iceoryx_config_notice(&line) {
+                eprintln!("[{}] {line}", node.name());
+            }
+        }
+    }
+
+    if let Some(e) = start_error {
+        return Err(e);
+    }
+
+    let nodes: Vec<NodeReport> = session
+        .nodes
+        .iter()
+        .map(|n| {
+            let exit = n
+                .exit
+                .as_ref()
+                .map(describe)
+                .unwrap_or_else(|| "not started".into());
+            let clean_stop = !n.killed && n.exit.as_ref().is_some_and(|s| s.success());
+            NodeReport {
+                node: n.kind,
+                restarts: n.restarts,
+                exit,
+                killed: n.killed,
+                clean_stop,
+                log: n.log.display().to_string(),
+            }
+        })
+        .collect();
+    let report = SessionReport {
+        session: opts.session.clone(),
+        launch_origin: opts.origin.clone(),
+        out_dir: opts.out_dir.display().to_string(),
+        started_unix_s,
+        wall_seconds: session_start.elapsed().as_secs_f64(),
+        startup_seconds: session_start
+            .saturating_duration_since(started)
+            .as_secs_f64(),
+        requested_seconds: opts.seconds,
+        end,
+        nodes,
+        frames_missed: monitor.frames_missed,
+        summary: summarize(&record),
+    };
+    let json = serde_json::to_string_pretty(&report).map_err(|e| LauncherError::Io {
+        what: "serialise summary.json".into(),
+        source: std::io::Error::other(e.to_string()),
+    })?;
+    let path = opts.out_dir.join("summary.json");
+    std::fs::write(&path, json + "\n").map_err(|source| LauncherError::Io {
+        what: format!("write {}", path.display()),
+        source,
+    })?;
+    Ok(report)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cfg(policy: RestartPolicy, max: u32) -> LauncherConfig {
+        LauncherConfig {
+            restart: policy,
+            max_restarts: max,
+            restart_backoff_s: 0.5,
+            ..LauncherConfig::default()
+        }
+    }
+
+    #[test]
+    fn restart_policy_on_failure_backs_off_then_gives_up() {
+        let c = cfg(RestartPolicy::OnFailure, 2);
+        assert_eq!(
+            decide_on_exit(&c, false, 0),
+            ExitDecision::Restart {
+                after: Duration::from_millis(500)
+            }
+        );
+        assert_eq!(
+            decide_on_exit(&c, false, 1),
+            ExitDecision::Restart {
+                after: Duration::from_millis(1000)
+            }
+        );
+        assert_eq!(
+            decide_on_exit(&c, false, 2),
+            ExitDecision::EndSession { failed: true }
+        );
+    }
+
+    #[test]
+    fn restart_policy_never_and_clean_exit_end_the_session() {
+        let never = cfg(RestartPolicy::Never, 5);
+        assert_eq!(
+            decide_on_exit(&never, false, 0),
+            ExitDecision::EndSession { failed: true }
+        );
+        let on = cfg(RestartPolicy::OnFailure, 5);
+        assert_eq!(
+            decide_on_exit(&on, true, 0),
+            ExitDecision::EndSession { failed: false }
+        );
+    }
+
+    #[test]
+    fn stop_order_is_haptic_first_recorder_last() {
+        assert_eq!(NodeKind::STOP_ORDER[0], NodeKind::Haptic);
+        assert_eq!(NodeKind::STOP_ORDER[3], NodeKind::Recorder);
+        assert_eq!(NodeKind::START_ORDER[0], NodeKind::Physics);
+        for k in NodeKind::START_ORDER {
+            assert_eq!(NodeKind::from_name(k.name()), Some(k));
+        }
+    }
+
+    #[test]
+    fn utc_stamps_are_civil_dates() {
+        assert_eq!(utc_stamp(0), "19700101-000000");
+        // 2026-11-22 03:04:05 UTC
+        assert_eq!(utc_stamp(1_795_316_645), "20261122-030405");
+        assert_eq!(utc_stamp(951_782_400), "20000229-000000");
+    }
+}

@@ -286,7 +286,7 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
         };
         match ipc::take_newest(&frames, &mut incoming) {
             Ok(0) => {}
-            Ok(_) => renderer.accept_frame(&mut incoming),
+            Ok(_) => renderer.accept_frame(&mut incoming, now),
             Err(e) => {
                 if !logged_link {
                     tracing::warn!("contact frame link (logged once): {e}");

@@ -946,7 +946,13 @@ pub fn run(opts: &RunOptions) -> Result<SessionReport, LauncherError> {
         end,
         nodes,
         frames_missed: monitor.frames_missed,
-        summary: summarize(&record),
+        summary: {
+            let mut s = summarize(&record);
+            if opts.launch.nodes.haptic {
+                s.rendering = Some(opts.launch.device.rendering());
+            }
+            s
+        },
     };
     let json = serde_json::to_string_pretty(&report).map_err(|e| LauncherError::Io {
         what: "serialise summary.json".into(),

@@ -92,7 +92,8 @@ pub fn open(
         "touch" => Ok(Box::new(touch::Touch::open(config)?)),
         "emulated" => Ok(Box::new(emulated::EmulatedTouch::new(
             &config.emulated,
-            operator::Protocol::new(&config.emulated, sites)?,
+            operator::Protocol::new(&config.emulated, sites)?
+                .with_felt_target(config.emulated.press_force_n * config.rendering().force_scale),
             start_ns,
         )?)),
         "replay" => Ok(Box::new(replay::Replay::open(&config.replay, start_ns)?)),

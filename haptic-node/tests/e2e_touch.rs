@@ -444,13 +444,17 @@ fn in_process_libhd(report: &Path) -> std::sync::MutexGuard<'static, ()> {
 fn touch_servo_holds_the_last_force_while_the_shared_state_is_contended() {
     // In this process: the test is the node loop. It commands 1 N, then holds the lock on
     // the shared state for 6 ms at a time (below the 10 ms watchdog): the servo callback's
-    // try-lock fails on those ticks, which must keep writing 1 N, not 0 N.
+    // try-lock fails on those ticks, which must keep writing 1 N, not 0 N (before, they
+    // wrote 0 N: a 1 ms drop and back that bypassed the rate limit).
     let dir = temp_dir("touch-contended");
     let report = dir.join("libhd-report.txt");
     let _one = in_process_libhd(&report);
     let mut config = launch_config::DeviceConfig::default();
     config.backend = "touch".into();
     config.touch.library = fake_libhd().display().to_string();
+    // The longest watchdog allowed: on a loaded machine this thread's 1 ms sleeps can last
+    // tens of ms, which the watchdog rightly fades out; the contention is what is tested.
+    config.touch.servo_watchdog_s = launch_config::device::SERVO_WATCHDOG_RANGE_S.1;
     let mut touch = haptic_node::device::touch::Touch::open(&config).expect("open");
     use haptic_node::device::Device;
     let command = |touch: &mut haptic_node::device::touch::Touch| {

@@ -29,6 +29,8 @@ pub struct Limits {
     pub coupling_compliance_m_per_n: f64,
     /// That bound, N/m.
     pub felt_stiffness_limit_n_per_m: f64,
+    /// Per-axis play of the rendered stylus position, m.
+    pub position_hysteresis_m: f64,
     pub peak_force_n: f64,
     pub continuous_force_n: f64,
     pub continuous_window_s: f64,
@@ -130,6 +132,17 @@ impl Limits {
             force_scale: rendering.force_scale,
             coupling_compliance_m_per_n: 1.0 / rendering.coupling_stiffness_n_per_m,
             felt_stiffness_limit_n_per_m: rendering.felt_stiffness_limit_n_per_m,
+            position_hysteresis_m: {
+                let h = c.position_hysteresis_m;
+                if !(h.is_finite() && (0.0..=1e-3).contains(&h)) {
+                    return Err(ConfigError::Field {
+                        field: "position_hysteresis_m",
+                        value: h.to_string(),
+                        problem: "must be within 0..=0.001 m",
+                    });
+                }
+                h
+            },
             peak_force_n: positive("peak_force_n", c.peak_force_n)?,
             continuous_force_n: positive("continuous_force_n", c.continuous_force_n)?,
             continuous_window_s: window,

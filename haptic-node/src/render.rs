@@ -319,6 +319,9 @@ pub struct Renderer {
     pub invalid_frames: u64,
     /// Faults raised on frame acceptance, reported with the next tick.
     pending_faults: u32,
+    /// The stylus position the force is rendered for: the reading with per-axis play
+    /// (`position_hysteresis_m`); None until a finite reading.
+    played: Option<[f64; 3]>,
 }
 
 /// A zeroed boxed frame without a large stack temporary.
@@ -343,6 +346,7 @@ impl Renderer {
             restarts: 0,
             invalid_frames: 0,
             pending_faults: 0,
+            played: None,
         }
     }
 
@@ -438,6 +442,7 @@ impl Renderer {
             ..TickOutput::default()
         };
         if !proxy.is_finite() || !velocity_finite {
+            self.played = None;
             out.faults |= fault::NONFINITE_DEVICE;
             if self.logged.first(fault::NONFINITE_DEVICE) {
                 tracing::warn!("non-finite device position quarantined: zero force (logged once)");
@@ -451,6 +456,18 @@ impl Renderer {
             out.faults |= faults;
             return out;
         }
+        // Play: a reading that reverses by less than the hysteresis (one encoder quantum)
+        // leaves the rendered position where it was; larger moves drag it along.
+        let h = self.limits.position_hysteresis_m;
+        let mut played = self.played.unwrap_or(proxy.position);
+        for (p, m) in played.iter_mut().zip(proxy.position) {
+            *p = p.clamp(m - h, m + h);
+        }
+        self.played = Some(played);
+        let proxy = &Pose {
+            position: played,
+            orientation: proxy.orientation,
+        };
         let frame = &*self.current;
         out.frame_age_ns = now_ns.saturating_sub(frame.publish_ns);
         out.frame_sequence = frame.sequence;
@@ -581,17 +598,25 @@ mod tests {
 
     const MS: u64 = 1_000_000;
 
+    /// Default limits without the position play (these tests compare exact forces at
+    /// exact positions; the play has a test of its own).
     fn limits() -> Limits {
-        Limits::from_config(&launch_config::DeviceConfig::default()).unwrap()
+        Limits {
+            position_hysteresis_m: 0.0,
+            ..Limits::from_config(&launch_config::DeviceConfig::default()).unwrap()
+        }
     }
 
     /// Limits with an explicit force scale (the coupling follows: k_c = limit / scale).
     fn scaled(force_scale: f64) -> Limits {
-        Limits::from_config(&launch_config::DeviceConfig {
-            force_scale,
-            ..launch_config::DeviceConfig::default()
-        })
-        .unwrap()
+        Limits {
+            position_hysteresis_m: 0.0,
+            ..Limits::from_config(&launch_config::DeviceConfig {
+                force_scale,
+                ..launch_config::DeviceConfig::default()
+            })
+            .unwrap()
+        }
     }
 
     /// Closed form: the half-space spring k in series with the coupling k_c, pressed `depth`,
@@ -968,6 +993,39 @@ mod tests {
         );
         r.accept_frame(&mut f, 2 * MS);
         assert_eq!(r.frame().sequence, 20);
+    }
+
+    /// A reading dithering between two neighbouring quanta renders one force; a move of
+    /// two quanta is followed (less the play).
+    #[test]
+    fn position_play_absorbs_a_one_quantum_dither() {
+        let l = Limits::from_config(&launch_config::DeviceConfig::default()).unwrap();
+        let q = 0.055e-3;
+        assert!(l.position_hysteresis_m > q / 2.0 && l.position_hysteresis_m < q);
+        let mut r = Renderer::new(l.clone());
+        let mut f = boxed_frame();
+        halfspace_frame(&mut f, 57e3, -1e-3, 0, 7, 1);
+        r.accept_frame(&mut f, 0);
+        let z0 = -1e-3;
+        let mut forces = Vec::new();
+        for i in 0..16u64 {
+            let z = if i % 2 == 0 { z0 } else { z0 - q };
+            forces.push(r.tick((i + 1) * MS, &at(z), true).commanded[2]);
+        }
+        // The first reversal settles the played position inside the band; from then on the
+        // dither between the two quanta changes nothing.
+        assert!(
+            forces[1..].windows(2).all(|p| p[0] == p[1]),
+            "one force while dithering: {forces:?}"
+        );
+        // Two quanta deeper: followed, less the play.
+        let o = r.tick(17 * MS, &at(z0 - 2.0 * q), true);
+        let want = felt(&l, 57e3, -(z0 - 2.0 * q) - l.position_hysteresis_m);
+        assert!(
+            (o.commanded[2] - want).abs() < 1e-9,
+            "{} vs {want}",
+            o.commanded[2]
+        );
     }
 
     #[test]

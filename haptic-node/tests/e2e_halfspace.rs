@@ -30,7 +30,9 @@ fn haptic(session: &str, trajectory: &std::path::Path) -> Proc {
     let launch = trajectory.with_extension("toml");
     std::fs::write(
         &launch,
-        format!("[device]\nforce_scale = 1.0\nmax_stiffness_n_per_m = {COUPLING}\n"),
+        format!(
+            "[device]\nforce_scale = 1.0\nmax_stiffness_n_per_m = {COUPLING}\nposition_hysteresis_m = 0.0\n"
+        ),
     )
     .unwrap();
     Proc::start(

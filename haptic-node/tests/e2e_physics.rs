@@ -24,7 +24,12 @@ fn physics(session: &str) -> Proc {
 /// 1000 N/m / force_scale (tissue side) in series with the contact compliance.
 fn haptic(session: &str, trajectory: &std::path::Path, force_scale: f64) -> Proc {
     let launch = trajectory.with_extension("toml");
-    std::fs::write(&launch, format!("[device]\nforce_scale = {force_scale}\n")).unwrap();
+    // No position play: the comparisons are at the exact proxy of a frame.
+    std::fs::write(
+        &launch,
+        format!("[device]\nforce_scale = {force_scale}\nposition_hysteresis_m = 0.0\n"),
+    )
+    .unwrap();
     Proc::start(
         "haptic-node",
         &haptic_exe(),

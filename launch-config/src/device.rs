@@ -25,6 +25,12 @@ pub struct DeviceConfig {
     /// compliance). Touch: 1000 N/m by default; the datasheet's smallest axis figure (z,
     /// 1.02 N/mm) is the device limit, because the bound holds in every direction.
     pub max_stiffness_n_per_m: f64,
+    /// Play of the stylus position the renderer uses, per axis, m: it follows the device's
+    /// reading only once that moved more than this away, so a reading dithering between two
+    /// neighbouring encoder quanta (an arm at rest on a quantum boundary) renders one force,
+    /// not a chatter of two. Just over half the Touch's 0.055 mm resolution absorbs a
+    /// one-quantum reversal; 0 renders every reading.
+    pub position_hysteresis_m: f64,
     /// Tissue force range the device's continuous force should represent with the automatic
     /// force scale, N: the cadaver probing table's 7.51 N − 0.31 N offset over 7.6 mm of
     /// probe displacement (`empirical/cadaver_probing_force_displacement.csv`).
@@ -82,6 +88,7 @@ impl Default for DeviceConfig {
             peak_force_n: TOUCH_LIMITS.peak_force_n,
             continuous_force_n: TOUCH_LIMITS.continuous_force_n,
             max_stiffness_n_per_m: 1000.0,
+            position_hysteresis_m: 0.6 * 0.055e-3,
             tissue_force_range_n: CADAVER_FORCE_RANGE_N,
             tissue_stiffness_n_per_m: CADAVER_MAX_STIFFNESS_N_PER_M,
             continuous_window_s: 1.0,

@@ -307,6 +307,15 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
         d.max_stiffness_n_per_m,
         "N/m (Touch: 1000)",
     );
+    if !(d.position_hysteresis_m.is_finite() && (0.0..=1e-3).contains(&d.position_hysteresis_m)) {
+        v.push(
+            "device.position_hysteresis_m",
+            format!(
+                "{} m is out of range; allowed: 0 ≤ position_hysteresis_m ≤ 0.001 m (Touch: 3.3e-5)",
+                d.position_hysteresis_m
+            ),
+        );
+    }
     // Device limits are invariants: lowering is allowed, raising never.
     for raise in d.limit_raises() {
         v.push(raise.key, raise.to_string());

@@ -11,6 +11,7 @@
 pub mod clock;
 pub mod ipc;
 pub mod lifecycle;
+pub mod protocol;
 pub mod ros;
 
 use iceoryx2::prelude::ZeroCopySend;

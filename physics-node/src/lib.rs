@@ -5,9 +5,10 @@ pub mod compliance;
 pub mod contact;
 pub mod error;
 pub mod fem;
-pub mod geometry;
-pub mod mesh;
 pub mod node;
 pub mod probe;
 pub mod sim;
-pub mod visual;
+
+// Meshes, probing sites and the visual mapping live below the physics (the haptic node's
+// emulated operator needs the sites without the FEM); re-exported under their old paths.
+pub use scene_geometry::{geometry, mesh, visual};

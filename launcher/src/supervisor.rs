@@ -8,10 +8,10 @@
 //! launcher that is itself killed never leaves a node running.
 
 use crate::status::StatusMonitor;
-use crate::summary::{summarize, SessionRecord, SessionSummary};
-use crate::{LaunchFile, LauncherConfig, RestartPolicy};
 use indicatif::{ProgressBar, ProgressStyle};
+use launch_config::{LaunchFile, LauncherConfig, RestartPolicy};
 use serde::Serialize;
+use session_metrics::summary::{summarize, SessionRecord, SessionSummary};
 use std::io::{BufRead, BufReader, IsTerminal, Write};
 use std::os::unix::process::{CommandExt, ExitStatusExt};
 use std::path::{Path, PathBuf};
@@ -119,7 +119,7 @@ pub enum LiveMode {
 /// Everything a session run needs.
 #[derive(Debug, Clone)]
 pub struct RunOptions {
-    /// The launch file, paths already resolved (see [`crate::load`]).
+    /// The launch file, paths already resolved (see [`launch_config::load`]).
     pub launch: LaunchFile,
     /// Where the launch file came from (for messages and the summary).
     pub origin: String,
@@ -949,7 +949,13 @@ pub fn run(opts: &RunOptions) -> Result<SessionReport, LauncherError> {
         summary: {
             let mut s = summarize(&record);
             if opts.launch.nodes.haptic {
-                s.rendering = Some(opts.launch.device.rendering());
+                let r = opts.launch.device.rendering();
+                s.rendering = Some(session_metrics::summary::RenderingSummary {
+                    force_scale: r.force_scale,
+                    automatic: r.automatic,
+                    coupling_stiffness_n_per_m: r.coupling_stiffness_n_per_m,
+                    felt_stiffness_limit_n_per_m: r.felt_stiffness_limit_n_per_m,
+                });
             }
             s
         },

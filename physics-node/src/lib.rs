@@ -4,6 +4,7 @@
 pub mod compliance;
 pub mod contact;
 pub mod error;
+pub mod faults;
 pub mod fem;
 pub mod geometry;
 pub mod mesh;

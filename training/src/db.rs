@@ -605,7 +605,7 @@ mod tests {
         assert_eq!(std::fs::read(&newer).unwrap(), before);
 
         let corrupt = dir.join("corrupt.sqlite");
-        let garbage: Vec<u8> = (0..8192u32).map(|i| (i * 2654435761u32 >> 24) as u8).collect();
+        let garbage: Vec<u8> = (0..8192u32).map(|i| (i.wrapping_mul(2654435761) >> 24) as u8).collect();
         std::fs::write(&corrupt, &garbage).unwrap();
         let err = Db::open(&corrupt).err().unwrap().to_string();
         assert!(err.contains("not a usable SQLite database") && err.contains("untouched"), "{err}");

@@ -11,7 +11,10 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 
 fn workspace() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap().to_path_buf()
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .unwrap()
+        .to_path_buf()
 }
 
 fn in_ci() -> bool {
@@ -48,7 +51,15 @@ fn train_six_cases_with_the_emulated_operator_then_report() {
     let db = dir.join("data/trainees.sqlite");
     let session = format!("train-e2e-{}", std::process::id());
     let out = Command::new(env!("CARGO_BIN_EXE_arthrosim"))
-        .args(["train", "--trainee", "CI operator", "--cases", "6", "--seed", "3"])
+        .args([
+            "train",
+            "--trainee",
+            "CI operator",
+            "--cases",
+            "6",
+            "--seed",
+            "3",
+        ])
         .args(["--db", db.to_str().unwrap(), "--session", &session])
         .args(["--out", dir.join("session").to_str().unwrap()])
         .arg(&launch)
@@ -57,7 +68,10 @@ fn train_six_cases_with_the_emulated_operator_then_report() {
     let text = common::text(&out);
     eprintln!("{text}");
     assert!(out.status.success(), "train failed:\n{text}");
-    assert!(text.contains("confusion") && text.contains("accuracy"), "{text}");
+    assert!(
+        text.contains("confusion") && text.contains("accuracy"),
+        "{text}"
+    );
 
     // What an outside check reads, with Python's sqlite3.
     let rows = python(
@@ -71,7 +85,11 @@ fn train_six_cases_with_the_emulated_operator_then_report() {
     assert_eq!(rows.len(), 6, "{rows:?}");
     let truths: Vec<u32> = rows.iter().map(|r| r.1).collect();
     for g in 0..3 {
-        assert_eq!(truths.iter().filter(|&&t| t == g).count(), 2, "balanced: {truths:?}");
+        assert_eq!(
+            truths.iter().filter(|&&t| t == g).count(),
+            2,
+            "balanced: {truths:?}"
+        );
     }
     for r in &rows {
         assert!(r.2 <= 2, "{r:?}");
@@ -85,7 +103,13 @@ fn train_six_cases_with_the_emulated_operator_then_report() {
 
     let report_dir = dir.join("report");
     let out = Command::new(env!("CARGO_BIN_EXE_arthrosim"))
-        .args(["trainees", "report", "CI operator", "--db", db.to_str().unwrap()])
+        .args([
+            "trainees",
+            "report",
+            "CI operator",
+            "--db",
+            db.to_str().unwrap(),
+        ])
         .args(["--out", report_dir.to_str().unwrap()])
         .output()
         .unwrap();
@@ -93,9 +117,12 @@ fn train_six_cases_with_the_emulated_operator_then_report() {
     let page = report_dir.join("index.html");
     assert!(page.is_file());
 
-    let has_chromium = ["chromium-headless-shell", "chromium"]
-        .iter()
-        .any(|c| Command::new("which").arg(c).output().is_ok_and(|o| o.status.success()));
+    let has_chromium = ["chromium-headless-shell", "chromium"].iter().any(|c| {
+        Command::new("which")
+            .arg(c)
+            .output()
+            .is_ok_and(|o| o.status.success())
+    });
     let has_ws = Command::new("python3")
         .args(["-c", "import websockets"])
         .stderr(Stdio::null())
@@ -115,7 +142,11 @@ fn train_six_cases_with_the_emulated_operator_then_report() {
         .output()
         .unwrap();
     let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(out.status.success(), "{stdout}{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let v: serde_json::Value = serde_json::from_str(stdout.lines().last().unwrap()).unwrap();
     let r = &v["report"];
     assert_eq!(r["trainee"], "CI operator", "{v}");
@@ -179,6 +210,9 @@ fn bad_names_corrupt_and_newer_databases_are_refused_untouched() {
     ]);
     let text = common::text(&out);
     assert!(!out.status.success());
-    assert!(text.contains("newer arthrosim") && text.contains("7"), "{text}");
+    assert!(
+        text.contains("newer arthrosim") && text.contains("7"),
+        "{text}"
+    );
     assert_eq!(std::fs::read(&newer).unwrap(), before);
 }

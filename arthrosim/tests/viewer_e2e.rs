@@ -15,7 +15,10 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 fn workspace() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap().to_path_buf()
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .unwrap()
+        .to_path_buf()
 }
 
 fn in_ci() -> bool {
@@ -31,9 +34,12 @@ fn tools_present(need_chromium: bool) -> bool {
         .status()
         .is_ok_and(|s| s.success());
     let chromium = !need_chromium
-        || ["chromium-headless-shell", "chromium"]
-            .iter()
-            .any(|c| Command::new("which").arg(c).output().is_ok_and(|o| o.status.success()));
+        || ["chromium-headless-shell", "chromium"].iter().any(|c| {
+            Command::new("which")
+                .arg(c)
+                .output()
+                .is_ok_and(|o| o.status.success())
+        });
     if py && chromium {
         return true;
     }
@@ -82,12 +88,16 @@ fn viewer_urls(out: &Path, timeout: Duration) -> (String, String) {
 
 fn json_of(out: &std::process::Output) -> serde_json::Value {
     let stdout = String::from_utf8_lossy(&out.stdout);
-    let line = stdout.lines().rev().find(|l| l.starts_with('{')).unwrap_or_else(|| {
-        panic!(
-            "no JSON line; stdout {stdout}\nstderr {}",
-            String::from_utf8_lossy(&out.stderr)
-        )
-    });
+    let line = stdout
+        .lines()
+        .rev()
+        .find(|l| l.starts_with('{'))
+        .unwrap_or_else(|| {
+            panic!(
+                "no JSON line; stdout {stdout}\nstderr {}",
+                String::from_utf8_lossy(&out.stderr)
+            )
+        });
     serde_json::from_str(line).unwrap()
 }
 
@@ -108,20 +118,36 @@ fn foxglove_client_and_chromium_watch_a_default_session() {
     let out = dir.join("session");
     let session = format!("viewer-e2e-{}", std::process::id());
     let mut run = Command::new(env!("CARGO_BIN_EXE_arthrosim"))
-        .args(["run", launch.to_str().unwrap(), "--seconds", "16", "--quiet"])
+        .args([
+            "run",
+            launch.to_str().unwrap(),
+            "--seconds",
+            "16",
+            "--quiet",
+        ])
         .args(["--out", out.to_str().unwrap(), "--session", &session])
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
     let (http, ws) = viewer_urls(&out, Duration::from_secs(180));
-    assert!(http.starts_with("http://127.0.0.1:"), "loopback by default: {http}");
+    assert!(
+        http.starts_with("http://127.0.0.1:"),
+        "loopback by default: {http}"
+    );
     assert!(ws.starts_with("ws://127.0.0.1:"), "{ws}");
 
     let py = workspace().join("viewer/tests/py");
     let fox = Command::new("python3")
         .arg(py.join("foxglove_check.py"))
-        .args(["--ws", &ws, "--seconds", "5", "--session-dir", out.to_str().unwrap()])
+        .args([
+            "--ws",
+            &ws,
+            "--seconds",
+            "5",
+            "--session-dir",
+            out.to_str().unwrap(),
+        ])
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
@@ -129,7 +155,14 @@ fn foxglove_client_and_chromium_watch_a_default_session() {
     let shot = dir.join("viewer.png");
     let page = Command::new("python3")
         .arg(py.join("page_check.py"))
-        .args(["--url", &http, "--seconds", "7", "--screenshot", shot.to_str().unwrap()])
+        .args([
+            "--url",
+            &http,
+            "--seconds",
+            "7",
+            "--screenshot",
+            shot.to_str().unwrap(),
+        ])
         .output()
         .unwrap();
     let fox = fox.wait_with_output().unwrap();
@@ -147,7 +180,10 @@ fn foxglove_client_and_chromium_watch_a_default_session() {
     eprintln!("foxglove: {fj}");
     assert!(fox.status.success(), "foxglove check failed: {fj}");
     assert!(fj["matched"]["wrench"].as_u64().unwrap() >= 20, "{fj}");
-    assert!(fj["peak_force_n"].as_f64().unwrap() > 0.1, "the probe touched: {fj}");
+    assert!(
+        fj["peak_force_n"].as_f64().unwrap() > 0.1,
+        "the probe touched: {fj}"
+    );
 
     // Chromium: frames, mesh, force, canvas, layout.
     let pj = json_of(&page);
@@ -161,10 +197,19 @@ fn foxglove_client_and_chromium_watch_a_default_session() {
     assert!(force.is_finite() && (0.0..200.0).contains(&force), "{pj}");
     assert!(f(&status["painted"]) >= 20.0, "canvas not blank: {pj}");
     let layout = &pj["layout"];
-    assert!(f(&layout["scene"]["meniscus"]) > 0.01, "meniscus in the 3D view: {layout}");
-    assert!(f(&layout["scene"]["background"]) > 0.3, "3D background: {layout}");
+    assert!(
+        f(&layout["scene"]["meniscus"]) > 0.01,
+        "meniscus in the 3D view: {layout}"
+    );
+    assert!(
+        f(&layout["scene"]["background"]) > 0.3,
+        "3D background: {layout}"
+    );
     assert!(f(&layout["plot"]["background"]) > 0.5, "plot: {layout}");
-    assert!(f(&layout["side"]["background"]) > 0.5, "side panel: {layout}");
+    assert!(
+        f(&layout["side"]["background"]) > 0.5,
+        "side panel: {layout}"
+    );
     assert!(shot.is_file());
 
     // The 1 kHz loop kept its rate with both watchers connected.

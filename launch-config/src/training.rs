@@ -94,7 +94,11 @@ impl TrainingConfig {
         }
         for (key, value, what) in [
             ("settle_s", self.settle_s, "must be in [0, 10] s"),
-            ("case_timeout_s", self.case_timeout_s, "must be in (0, 3600] s"),
+            (
+                "case_timeout_s",
+                self.case_timeout_s,
+                "must be in (0, 3600] s",
+            ),
         ] {
             let ok = value.is_finite()
                 && value >= 0.0

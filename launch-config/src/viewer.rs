@@ -70,7 +70,10 @@ impl ViewerConfig {
         if self.http_port == self.ws_port && self.http_port != 0 {
             return Err(ViewerConfigError::SamePort(self.http_port));
         }
-        for (key, value) in [("rate_hz", self.rate_hz), ("mesh_rate_hz", self.mesh_rate_hz)] {
+        for (key, value) in [
+            ("rate_hz", self.rate_hz),
+            ("mesh_rate_hz", self.mesh_rate_hz),
+        ] {
             if !(value.is_finite() && value > 0.0 && value <= 1000.0) {
                 return Err(ViewerConfigError::Rate { key, value });
             }
@@ -100,7 +103,11 @@ mod tests {
             bind: "lan".into(),
             ..Default::default()
         };
-        assert!(c.validate().unwrap_err().to_string().contains("viewer.bind"));
+        assert!(c
+            .validate()
+            .unwrap_err()
+            .to_string()
+            .contains("viewer.bind"));
         let c = ViewerConfig {
             ws_port: 8080,
             ..Default::default()

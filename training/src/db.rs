@@ -271,7 +271,8 @@ impl Db {
             if version == SCHEMA_VERSION {
                 return Ok(());
             }
-            tx.execute_batch(MIGRATIONS[version as usize]).map_err(sql)?;
+            tx.execute_batch(MIGRATIONS[version as usize])
+                .map_err(sql)?;
             tx.execute_batch(&format!(
                 "PRAGMA user_version = {}; PRAGMA application_id = {APPLICATION_ID};",
                 version + 1
@@ -569,11 +570,17 @@ mod tests {
             })
             .unwrap();
         db.add_case(s, &case(1, 2, 2)).unwrap();
-        assert!(db.add_case(s, &case(1, 0, 0)).is_err(), "a case is stored once");
+        assert!(
+            db.add_case(s, &case(1, 0, 0)).is_err(),
+            "a case is stored once"
+        );
         db.finish_session(s, "2026-01-01T00:01:00Z").unwrap();
         db.finish_session(s, "2027").unwrap();
         let rows = db.sessions_of("Dr. Ada").unwrap();
-        assert_eq!(rows[0].finished_utc.as_deref(), Some("2026-01-01T00:01:00Z"));
+        assert_eq!(
+            rows[0].finished_utc.as_deref(),
+            Some("2026-01-01T00:01:00Z")
+        );
         assert_eq!(rows[0].cases, vec![case(1, 2, 2)]);
         drop(db);
         // What outside checks read.
@@ -601,14 +608,22 @@ mod tests {
         }
         let before = std::fs::read(&newer).unwrap();
         let err = Db::open(&newer).err().unwrap().to_string();
-        assert!(err.contains("newer arthrosim") && err.contains("99"), "{err}");
+        assert!(
+            err.contains("newer arthrosim") && err.contains("99"),
+            "{err}"
+        );
         assert_eq!(std::fs::read(&newer).unwrap(), before);
 
         let corrupt = dir.join("corrupt.sqlite");
-        let garbage: Vec<u8> = (0..8192u32).map(|i| (i.wrapping_mul(2654435761) >> 24) as u8).collect();
+        let garbage: Vec<u8> = (0..8192u32)
+            .map(|i| (i.wrapping_mul(2654435761) >> 24) as u8)
+            .collect();
         std::fs::write(&corrupt, &garbage).unwrap();
         let err = Db::open(&corrupt).err().unwrap().to_string();
-        assert!(err.contains("not a usable SQLite database") && err.contains("untouched"), "{err}");
+        assert!(
+            err.contains("not a usable SQLite database") && err.contains("untouched"),
+            "{err}"
+        );
         assert_eq!(std::fs::read(&corrupt).unwrap(), garbage);
         assert!(!dir.join("corrupt.sqlite-wal").exists());
 
@@ -642,7 +657,16 @@ mod tests {
 
     #[test]
     fn names_with_separators_or_control_characters_are_refused() {
-        for bad in ["a/b", "a\\b", "x\ny", "tab\there", "", " pad", "..", "\u{1b}[31m"] {
+        for bad in [
+            "a/b",
+            "a\\b",
+            "x\ny",
+            "tab\there",
+            "",
+            " pad",
+            "..",
+            "\u{1b}[31m",
+        ] {
             assert!(check_trainee_name(bad).is_err(), "{bad:?}");
         }
         for good in ["Ada", "Dr. Müller", "trainee-07", "李"] {

@@ -116,7 +116,11 @@ pub fn train(
 }
 
 /// Writes `index.html` of a trainee's report into `dir`.
-pub fn write_report(trainee: &str, sessions: &[db::SessionRow], dir: &Path) -> anyhow::Result<PathBuf> {
+pub fn write_report(
+    trainee: &str,
+    sessions: &[db::SessionRow],
+    dir: &Path,
+) -> anyhow::Result<PathBuf> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     let path = dir.join("index.html");
     std::fs::write(&path, report::html(trainee, sessions, &utc_now()))

@@ -21,7 +21,11 @@ pub fn confusion<'a>(cases: impl IntoIterator<Item = &'a CaseRow>, grades: usize
 }
 
 fn grades_of(sessions: &[SessionRow]) -> usize {
-    let from_scales = sessions.iter().map(|s| s.grade_scales.len()).max().unwrap_or(0);
+    let from_scales = sessions
+        .iter()
+        .map(|s| s.grade_scales.len())
+        .max()
+        .unwrap_or(0);
     let from_cases = sessions
         .iter()
         .flat_map(|s| &s.cases)
@@ -86,7 +90,11 @@ fn file_link(path: &str, label: &str) -> String {
     if Path::new(path).exists() {
         format!("<a href=\"file://{}\">{}</a>", esc(path), esc(label))
     } else {
-        format!("<span title=\"{}\">{} (missing)</span>", esc(path), esc(label))
+        format!(
+            "<span title=\"{}\">{} (missing)</span>",
+            esc(path),
+            esc(label)
+        )
     }
 }
 
@@ -95,7 +103,8 @@ fn mean_sd(v: &[f64]) -> Option<(f64, f64)> {
         return None;
     }
     let m = v.iter().sum::<f64>() / v.len() as f64;
-    let var = v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / v.len().max(2).saturating_sub(1) as f64;
+    let var =
+        v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / v.len().max(2).saturating_sub(1) as f64;
     Some((m, var.sqrt()))
 }
 
@@ -167,7 +176,10 @@ pub fn html(trainee: &str, sessions: &[SessionRow], generated_utc: &str) -> Stri
     let all: Vec<&CaseRow> = sessions.iter().flat_map(|s| &s.cases).collect();
     let m = confusion(all.iter().copied(), grades);
     let total = all.len();
-    let correct = all.iter().filter(|c| c.true_grade == c.answered_grade).count();
+    let correct = all
+        .iter()
+        .filter(|c| c.true_grade == c.answered_grade)
+        .count();
     let mut h = String::new();
     let _ = write!(
         h,
@@ -198,7 +210,11 @@ pub fn html(trainee: &str, sessions: &[SessionRow], generated_utc: &str) -> Stri
     for (t, row) in m.iter().enumerate() {
         let _ = write!(h, "<tr><th class=\"l\">grade {t}</th>");
         for (a, v) in row.iter().enumerate() {
-            let _ = write!(h, "<td{}>{v}</td>", if a == t { " class=\"diag\"" } else { "" });
+            let _ = write!(
+                h,
+                "<td{}>{v}</td>",
+                if a == t { " class=\"diag\"" } else { "" }
+            );
         }
         h.push_str("</tr>");
     }
@@ -254,7 +270,11 @@ pub fn html(trainee: &str, sessions: &[SessionRow], generated_utc: &str) -> Stri
                     format!(
                         "<code title=\"not made yet\">arthrosim gap {} --out {}</code>",
                         esc(s.recording_path.as_deref().unwrap_or("?")),
-                        esc(Path::new(p).parent().map(|d| d.display().to_string()).unwrap_or_default().as_str())
+                        esc(Path::new(p)
+                            .parent()
+                            .map(|d| d.display().to_string())
+                            .unwrap_or_default()
+                            .as_str())
                     )
                 }
             })
@@ -326,7 +346,10 @@ mod tests {
 
     #[test]
     fn html_is_escaped_and_complete() {
-        let sessions = vec![session(vec![row(0, 0)]), session(vec![row(1, 2), row(2, 2)])];
+        let sessions = vec![
+            session(vec![row(0, 0)]),
+            session(vec![row(1, 2), row(2, 2)]),
+        ];
         let page = html("Ada <b>", &sessions, "now");
         assert!(page.contains("Ada &lt;b&gt;") && !page.contains("Ada <b>"));
         assert!(page.contains("id=\"learning-curve\"") && page.contains("<polyline"));

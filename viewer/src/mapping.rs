@@ -162,7 +162,9 @@ pub fn contact_messages(
 ) {
     let world = frames.world.as_str();
     out.push(RosOut::ProbePose(convert::probe_pose(frame, clock, world)));
-    out.push(RosOut::ProbeWrench(convert::probe_wrench(frame, clock, world)));
+    out.push(RosOut::ProbeWrench(convert::probe_wrench(
+        frame, clock, world,
+    )));
     out.push(RosOut::Contacts(convert::contact_markers(
         frame, clock, world,
     )));

@@ -130,8 +130,8 @@ pub fn run(
                 if instance != f.instance_id {
                     rate_window = (Instant::now(), f.sequence, f.instance_id);
                 } else if start.elapsed() >= Duration::from_secs(1) {
-                    status.physics_hz = f.sequence.saturating_sub(first) as f64
-                        / start.elapsed().as_secs_f64();
+                    status.physics_hz =
+                        f.sequence.saturating_sub(first) as f64 / start.elapsed().as_secs_f64();
                     rate_window = (Instant::now(), f.sequence, f.instance_id);
                 }
             }

@@ -105,8 +105,15 @@ pub enum RecordingsCommand {
         #[arg(long)]
         json: bool,
     },
-    /// Export the study's CSV (time, contact force, contact flag, probe pose; per region and
-    /// per probing).
+    /// The study's per-region summary of a recording (mean normal force in contact, probe
+    /// displacement, probings): the same numbers the live session summary computes.
+    Summary {
+        file: PathBuf,
+        #[arg(long)]
+        json: bool,
+    },
+    /// Export the study's CSV (time, contact force, contact flag, normal force, probe pose;
+    /// per region and per probing).
     Export {
         file: PathBuf,
         /// Folder for the CSV files.
@@ -172,6 +179,13 @@ pub struct GapArgs {
 
 #[derive(Debug, Subcommand)]
 pub enum GapCommand {
+    /// The trials the diagnosis takes from a session recording (one per probing with
+    /// contact), with their region, contact steps and mean normal force; no re-simulation.
+    Trials {
+        file: PathBuf,
+        #[arg(long)]
+        json: bool,
+    },
     /// Diagnose N generated cases blind (each effect alone, some pairs, none) and print the
     /// confusion matrix and the mean held-out shrink.
     Selftest {

@@ -5,8 +5,8 @@ use crate::cli::{
     RunArgs, TrainArgs, TraineesCommand, ValidateArgs,
 };
 use anyhow::{bail, Context, Result};
-use launch_config::launcher::{self, EndReason, LiveMode, RunOptions};
-use recordings::gap;
+use gap_diagnosis as gap;
+use launcher::{self, EndReason, LiveMode, RunOptions};
 use std::path::{Path, PathBuf};
 
 pub fn dispatch(cli: Cli) -> Result<i32> {
@@ -176,7 +176,7 @@ fn node_name(n: &launcher::NodeKind) -> &'static str {
 
 /// `arthrosim replay FILE`.
 fn replay(args: ReplayArgs) -> Result<i32> {
-    let options = recordings::replay::ReplayOptions {
+    let options = gap_diagnosis::replay::ReplayOptions {
         out: args.out.clone(),
         realtime: args.realtime,
         data_dir: None,
@@ -185,7 +185,7 @@ fn replay(args: ReplayArgs) -> Result<i32> {
         max_steps: args.max_steps,
         recording: launch_config::RecordingConfig::default(),
     };
-    let report = recordings::replay::replay(&args.file, &options)
+    let report = gap_diagnosis::replay::replay(&args.file, &options)
         .with_context(|| format!("replaying {}", args.file.display()))?;
     if args.json {
         println!("{}", serde_json::to_string(&report)?);
@@ -217,7 +217,7 @@ fn replay(args: ReplayArgs) -> Result<i32> {
     Ok(0)
 }
 
-/// `arthrosim recordings info|export|repair`.
+/// `arthrosim recordings info|summary|export|repair`.
 fn recordings(cmd: RecordingsCommand) -> Result<i32> {
     match cmd {
         RecordingsCommand::Info { file, json } => {
@@ -226,6 +226,14 @@ fn recordings(cmd: RecordingsCommand) -> Result<i32> {
                 println!("{}", serde_json::to_string_pretty(&info)?);
             } else {
                 println!("{info}");
+            }
+        }
+        RecordingsCommand::Summary { file, json } => {
+            let summary = recordings::session_summary(&file)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&summary)?);
+            } else {
+                println!("{summary}");
             }
         }
         RecordingsCommand::Export { file, csv } => {
@@ -269,6 +277,30 @@ fn repaired_name(file: &Path) -> PathBuf {
 
 /// `arthrosim gap …`.
 fn gap_command(args: GapArgs) -> Result<i32> {
+    if let Some(GapCommand::Trials { file, json }) = &args.command {
+        let recording = gap::session::read_session(file)?;
+        let trials = gap::session::trial_contacts(&recording)?;
+        if *json {
+            println!("{}", serde_json::to_string_pretty(&trials)?);
+        } else {
+            println!(
+                "{:<28} {:>10} {:>8} {:>14} {:>14}",
+                "trial", "region", "probing", "contact steps", "mean F_n [N]"
+            );
+            for t in &trials {
+                println!(
+                    "{:<28} {:>10} {:>8} {:>14} {:>14}",
+                    t.name,
+                    t.region.map_or(msgs::protocol::UNLABELLED, |r| r.name()),
+                    t.probing_index,
+                    t.contact_steps,
+                    t.mean_normal_force_n
+                        .map_or("–".into(), |f| format!("{f:.3}"))
+                );
+            }
+        }
+        return Ok(0);
+    }
     if let Some(GapCommand::Selftest {
         cases,
         seed,

@@ -3,6 +3,9 @@
 //! `gap` and `reality` work on recordings and experiments, and the hidden `node` subcommand
 //! runs one node in this process (the launcher starts each node that way, so a session needs
 //! only this executable).
+//!
+//! Data comes in from launch files, recordings and experiment folders; the command only wires
+//! the library crates (`launcher`, `recordings`, `gap-diagnosis`, the nodes).
 
 mod cli;
 mod commands;

@@ -1,4 +1,7 @@
 //! The frictional contact LCP in constraint space, solved by projected block Gauss–Seidel.
+//! Below both the physics node (which solves each step's contacts) and the haptic node
+//! (which re-solves the newest step's problem for the stylus's position every tick): the
+//! problem comes in as W, δ_free and μ, the impulses λ go out.
 //!
 //! Problem (one block of 3 rows per contact: normal n, tangents t1, t2):
 //!

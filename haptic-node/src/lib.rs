@@ -3,6 +3,11 @@
 //! (Peterlik et al. 2011; SOFA's LCPForceFeedback), renders the force within the device's
 //! limits, and publishes the device state back to the physics node.
 //!
+//! Data comes in from the device (or its emulator, whose operator probes the sites that
+//! `scene-geometry` places; the FEM is not linked here) and from the physics node's contact
+//! frames; it goes out as motor forces and as device states to the physics node, the bridge,
+//! the recorder and the launcher.
+//!
 //! Safety: a stale frame ramps the force to zero; a restarted physics node is resumed under
 //! the rate limit; non-finite device positions, frames and forces are quarantined.
 

@@ -17,25 +17,35 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 
 /// Probing sites for the emulator's operator model, as the `[device.emulated] sites` setting
-/// asks: the physics library's sites on the `[scene]` meniscus, or a plane.
+/// asks: the scene geometry's sites on the `[scene]` meniscus, or a plane.
 pub fn resolve_sites(
     config: &launch_config::DeviceConfig,
     launch: Option<&Path>,
 ) -> anyhow::Result<Vec<operator::Site>> {
     let e = &config.emulated;
-    #[cfg(not(feature = "scene-sites"))]
-    let _ = launch;
     match e.sites.as_str() {
-        "plane" => Ok(operator::plane_sites(e.plane_height_m, e.probings_per_region)),
-        #[cfg(feature = "scene-sites")]
+        "plane" => Ok(operator::plane_sites(
+            e.plane_height_m,
+            e.probings_per_region,
+        )),
         "scene" => {
             let scene = match launch {
-                Some(p) => launch_config::load(p).with_context(|| format!("loading launch file {}", p.display()))?.scene,
+                Some(p) => {
+                    launch_config::load(p)
+                        .with_context(|| format!("loading launch file {}", p.display()))?
+                        .scene
+                }
                 None => launch_config::SceneConfig::default(),
             };
             let data = launch_config::data_dir();
-            let m = physics_node::mesh::load_scene_mesh(&scene.meniscus, &data)
-                .with_context(|| format!("loading the scene meniscus {:?} for the probing sites", scene.meniscus.mesh))?;
+            let m = scene_geometry::mesh::load_scene_mesh(&scene.meniscus, &data).with_context(
+                || {
+                    format!(
+                        "loading the scene meniscus {:?} for the probing sites",
+                        scene.meniscus.mesh
+                    )
+                },
+            )?;
             Ok(m.probing_sites
                 .iter()
                 .map(|s| operator::Site {
@@ -45,10 +55,6 @@ pub fn resolve_sites(
                 })
                 .collect())
         }
-        #[cfg(not(feature = "scene-sites"))]
-        "scene" => anyhow::bail!(
-            "[device.emulated] sites = \"scene\" needs the physics library (build haptic-node with feature `scene-sites`)"
-        ),
         other => anyhow::bail!("[device.emulated] sites = {other:?}: expected `scene` or `plane`"),
     }
 }

@@ -1,7 +1,6 @@
 //! End-to-end against the real `physics-node` binary (built by the test with
 //! `cargo build -p physics-node --bins` if needed): default scene (parametric lateral
 //! meniscus), the haptic node replaying a probing of a protocol site, over real shared memory.
-#![cfg(feature = "scene-sites")]
 
 mod common;
 use common::*;

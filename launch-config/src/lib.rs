@@ -1,7 +1,7 @@
 //! Launch files: one TOML document that names the nodes of a session and configures each of
 //! them. Every section type lives in its own module and is owned by the node it configures;
-//! this crate only composes, loads, validates ([`load`], [`validate`]) and runs them
-//! ([`launcher`]).
+//! this crate only composes, loads and validates them ([`load`], [`validate`]). The
+//! `launcher` crate runs them.
 //!
 //! Unknown keys are errors (`deny_unknown_fields` everywhere); every field has a default, so
 //! the smallest launch file is empty. Every error names the file, the line and column, the
@@ -13,12 +13,9 @@
 
 pub mod bridge;
 pub mod device;
-pub mod launcher;
 pub mod load;
 pub mod recording;
 pub mod scene;
-pub mod status;
-pub mod summary;
 pub mod training;
 pub mod validate;
 pub mod viewer;

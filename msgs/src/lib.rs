@@ -6,11 +6,17 @@
 //! `type_name`, so every process that links this crate opens the same iceoryx2 service.
 //! Modules are named by direction of flow.
 //!
+//! Data flows physics → haptic (`physics_to_haptic`: contact frames), haptic → physics
+//! (`haptic_to_physics`: device states), physics → viewers (`physics_to_viz`: the deformed
+//! surface) and haptic → monitor (`haptic_to_monitor`: loop statistics); [`protocol`] defines
+//! the probing protocol's region and phase codes; [`ros`] the ROS 2 messages.
+//!
 //! Units: SI (m, s, N, kg), world frame z-up (REP-103). Quaternions are `[x, y, z, w]`.
 
 pub mod clock;
 pub mod ipc;
 pub mod lifecycle;
+pub mod protocol;
 pub mod ros;
 
 use iceoryx2::prelude::ZeroCopySend;

@@ -15,6 +15,7 @@
 
 use msgs::ros::{self, Header, MsgDef, RosMessage};
 use serde::{Deserialize, Serialize};
+use session_metrics::ContactSample;
 
 pub const PROFILE: &str = "ros2";
 pub const MESSAGE_ENCODING: &str = "cdr";
@@ -73,6 +74,10 @@ geometry_msgs/Pose probe_pose
 # eq. (1): f = H^T lambda / dt on the probe, world frame, N
 geometry_msgs/Vector3 contact_force
 geometry_msgs/Vector3 contact_torque
+# some constraint carries a normal impulse (session-metrics' definition of contact)
+bool touching
+# impulse-weighted outward tissue normal (zero without contact)
+geometry_msgs/Vector3 contact_normal
 # the contact problem below is recorded when [recording] contact_problem = true, else empty
 # contact points on the tissue, world m: 3 per contact
 float64[] contact_points
@@ -161,6 +166,8 @@ pub struct ContactStep {
     pub probe_pose: ros::Pose,
     pub contact_force: ros::Vector3,
     pub contact_torque: ros::Vector3,
+    pub touching: bool,
+    pub contact_normal: ros::Vector3,
     pub contact_points: Vec<f64>,
     pub constraint_directions: Vec<f64>,
     pub free_violation: Vec<f64>,
@@ -206,6 +213,9 @@ impl ContactStep {
         self.probe_pose = (&f.probe_pose).into();
         self.contact_force = f.contact_force.into();
         self.contact_torque = f.contact_torque.into();
+        let sample = ContactSample::from_frame(f);
+        self.touching = sample.touching;
+        self.contact_normal = sample.normal.into();
         self.contact_points.clear();
         for p in &f.contact_points[..contacts] {
             self.contact_points.extend_from_slice(p);
@@ -225,6 +235,38 @@ impl ContactStep {
         }
         self.lambda.clear();
         self.lambda.extend_from_slice(&f.lambda[..rows]);
+    }
+}
+
+impl ContactStep {
+    /// The session-metrics view of this step (contact, normal force, the tick it used).
+    pub fn sample(&self) -> ContactSample {
+        ContactSample {
+            instance_id: self.instance_id,
+            sequence: self.sequence,
+            publish_ns: self.publish_ns,
+            sim_time_s: self.sim_time,
+            dt_s: self.dt,
+            step_duration_ns: self.step_duration_ns,
+            contact_count: self.contact_count.min(msgs::MAX_CONTACTS as u32),
+            device_sequence_used: self.device_sequence_used,
+            normal: [
+                self.contact_normal.x,
+                self.contact_normal.y,
+                self.contact_normal.z,
+            ],
+            touching: self.touching,
+            contact_force: [
+                self.contact_force.x,
+                self.contact_force.y,
+                self.contact_force.z,
+            ],
+            probe_position: [
+                self.probe_pose.position.x,
+                self.probe_pose.position.y,
+                self.probe_pose.position.z,
+            ],
+        }
     }
 }
 

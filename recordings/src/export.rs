@@ -5,12 +5,14 @@ use crate::channels::*;
 use crate::error::RecordingError;
 use crate::read::{check_schema, decode, scan, ChannelInfo, Event};
 use mcap::records::MessageHeader;
+use msgs::protocol::Region;
 use serde::Serialize;
+use session_metrics::{Annotations, SessionRecord, SessionSummary};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
 /// Header of the study CSV.
-pub const STUDY_CSV_HEADER: &str = "time_s,force_x_n,force_y_n,force_z_n,contact,probe_px_m,probe_py_m,probe_pz_m,probe_qx,probe_qy,probe_qz,probe_qw,region,probing,phase";
+pub const STUDY_CSV_HEADER: &str = "time_s,force_x_n,force_y_n,force_z_n,contact,normal_force_n,probe_px_m,probe_py_m,probe_pz_m,probe_qx,probe_qy,probe_qz,probe_qw,region,probing,phase";
 /// Header of the haptic node's replay CSV.
 pub const REPLAY_CSV_HEADER: &str = "t_s,px_m,py_m,pz_m,qx,qy,qz,qw";
 
@@ -19,21 +21,14 @@ pub const REPLAY_CSV_HEADER: &str = "t_s,px_m,py_m,pz_m,qx,qy,qz,qw";
 pub struct StudyRow {
     pub time_s: f64,
     pub force: [f64; 3],
+    /// In contact, as `session_metrics::ContactSample::in_contact` defines it.
     pub contact: bool,
+    /// F_n = −f·n (negative in compression), 0 out of contact.
+    pub normal_force_n: f64,
     pub probe: msgs::Pose,
     pub region: u32,
     pub probing: u32,
     pub phase: u32,
-}
-
-/// Region names by code (as in `DeviceState.region`).
-pub fn region_name(code: u32) -> &'static str {
-    match code {
-        1 => "posterior",
-        2 => "mid",
-        3 => "anterior",
-        _ => "none",
-    }
 }
 
 /// One written file and its row count.
@@ -54,7 +49,7 @@ pub struct ExportSummary {
 /// The lossless channels of a recording as they are scanned: every ContactStep and DeviceTick
 /// in file order, each channel's schema checked once.
 #[derive(Default)]
-pub(crate) struct LosslessChannels {
+pub struct LosslessChannels {
     checked: std::collections::BTreeSet<u16>,
     pub steps: Vec<ContactStep>,
     pub ticks: Vec<DeviceTick>,
@@ -103,8 +98,17 @@ pub fn read_lossless(path: &Path) -> Result<(Vec<ContactStep>, Vec<DeviceTick>),
     Ok((lossless.steps, lossless.ticks))
 }
 
+/// The annotations of a recording's device ticks.
+fn annotations(ticks: &[DeviceTick]) -> Annotations {
+    let mut a = Annotations::default();
+    for t in ticks {
+        a.push(t.sequence, t.region, t.probing_index, t.phase);
+    }
+    a
+}
+
 /// Study rows of a recording: one per physics step, annotated with the protocol state of
-/// the device tick each step consumed.
+/// the device tick each step consumed (`session_metrics::matching`).
 pub fn study_rows(path: &Path) -> Result<(Vec<StudyRow>, usize), RecordingError> {
     let (steps, ticks) = read_lossless(path)?;
     if steps.is_empty() {
@@ -114,40 +118,50 @@ pub fn study_rows(path: &Path) -> Result<(Vec<StudyRow>, usize), RecordingError>
             why: "the study CSV is built from the physics steps".into(),
         });
     }
-    // Device ticks by sequence (the recorder writes them in order; sort in case a file was
-    // merged or repaired out of order).
-    let mut annotations: Vec<(u64, u32, u32, u32)> = ticks
-        .iter()
-        .map(|t| (t.sequence, t.region, t.probing_index, t.phase))
-        .collect();
-    annotations.sort_by_key(|a| a.0);
+    let annotations = annotations(&ticks);
     let mut unannotated = 0;
     let rows = steps
         .iter()
         .map(|s| {
-            let (region, probing, phase) = if s.device_sequence_used == 0 {
-                (0, 0, 0)
-            } else {
-                match annotations.binary_search_by_key(&s.device_sequence_used, |a| a.0) {
-                    Ok(i) => (annotations[i].1, annotations[i].2, annotations[i].3),
-                    Err(_) => {
-                        unannotated += 1;
-                        (0, 0, 0)
-                    }
-                }
-            };
+            let a = annotations.of_step(s.device_sequence_used);
+            if a.is_none() && s.device_sequence_used != 0 {
+                unannotated += 1;
+            }
+            let a = a.unwrap_or_default();
+            let sample = s.sample();
+            let contact = sample.in_contact();
             StudyRow {
                 time_s: s.sim_time,
-                force: [s.contact_force.x, s.contact_force.y, s.contact_force.z],
-                contact: s.contact_count > 0,
+                force: sample.contact_force,
+                contact,
+                normal_force_n: if contact { sample.normal_force() } else { 0.0 },
                 probe: (&s.probe_pose).into(),
-                region,
-                probing,
-                phase,
+                region: a.region,
+                probing: a.probing_index,
+                phase: a.phase,
             }
         })
         .collect();
     Ok((rows, unannotated))
+}
+
+/// The study's per-region summary of a recording, from its lossless channels: the same
+/// function the launcher applies to the live streams.
+pub fn session_summary(path: &Path) -> Result<SessionSummary, RecordingError> {
+    let (steps, ticks) = read_lossless(path)?;
+    let mut record = SessionRecord::default();
+    record.contacts = steps.iter().map(ContactStep::sample).collect();
+    for t in &ticks {
+        record.push_device(
+            t.instance_id,
+            t.sequence,
+            t.publish_ns,
+            t.region,
+            t.probing_index,
+            t.phase,
+        );
+    }
+    Ok(session_metrics::summarize(&record))
 }
 
 fn write_rows<'a>(
@@ -165,12 +179,13 @@ fn write_rows<'a>(
         // `{}` on f64 prints the shortest text that parses back to the same bits.
         writeln!(
             w,
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
             r.time_s,
             r.force[0],
             r.force[1],
             r.force[2],
             r.contact as u8,
+            r.normal_force_n,
             p[0],
             p[1],
             p[2],
@@ -200,7 +215,7 @@ pub fn export_csv(path: &Path, dir: &Path) -> Result<ExportSummary, RecordingErr
     files.push(ExportedFile { path: all, rows: n });
     for code in 1..=3u32 {
         if rows.iter().any(|r| r.region == code) {
-            let p = dir.join(format!("region_{}.csv", region_name(code)));
+            let p = dir.join(format!("region_{}.csv", Region::name_of_code(code)));
             let n = write_rows(&p, rows.iter().filter(|r| r.region == code))?;
             files.push(ExportedFile { path: p, rows: n });
         }
@@ -213,7 +228,10 @@ pub fn export_csv(path: &Path, dir: &Path) -> Result<ExportSummary, RecordingErr
     probings.sort_unstable();
     probings.dedup_by_key(|p| p.0);
     for (index, region) in probings {
-        let p = dir.join(format!("probing_{index:03}_{}.csv", region_name(region)));
+        let p = dir.join(format!(
+            "probing_{index:03}_{}.csv",
+            Region::name_of_code(region)
+        ));
         let n = write_rows(&p, rows.iter().filter(|r| r.probing == index))?;
         files.push(ExportedFile { path: p, rows: n });
     }

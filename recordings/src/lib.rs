@@ -1,8 +1,13 @@
 //! Recordings: every arthrosim session to one MCAP file with the ROS 2 profile (what
 //! rosbag2 writes: `cdr` messages, `ros2msg` schemas, `offered_qos_profiles` channel
 //! metadata, a `rosbag2` metadata record, optionally `metadata.yaml` beside it), so
-//! `ros2 bag`, Foxglove and Python readers open it without arthrosim code; plus replay,
-//! export and repair.
+//! `ros2 bag`, Foxglove and Python readers open it without arthrosim code; plus export and
+//! repair. MCAP input and output only: the physics is not linked here (offline re-simulation
+//! and the gap diagnosis read recordings through this crate from `gap-diagnosis`).
+//!
+//! Data comes in from the physics and haptic nodes over shared memory (the `recorder`
+//! process) and goes out to files that ROS 2 tools, `arthrosim recordings` and the gap
+//! diagnosis read.
 //!
 //! # Library functions (wired by the `arthrosim` CLI)
 //! ```text
@@ -18,8 +23,6 @@
 //!     // device trajectory in the haptic node's replay format t_s,px_m,py_m,pz_m,qx,qy,qz,qw
 //! // arthrosim recordings repair FILE [--out OUT]
 //! recordings::repair(path: &Path, out: &Path) -> Result<RepairReport, RecordingError>
-//! // arthrosim replay FILE
-//! recordings::replay::replay(path: &Path, options: &ReplayOptions) -> Result<ReplayReport, RecordingError>
 //! ```
 //!
 //! # What a recording contains
@@ -48,13 +51,11 @@ pub mod export;
 pub mod read;
 pub mod recorder;
 pub mod repair;
-pub mod replay;
 pub mod rosbag2;
 pub mod writer;
 
 pub use error::RecordingError;
-pub use export::{export_csv, export_replay_csv, ExportSummary};
+pub use export::{export_csv, export_replay_csv, session_summary, ExportSummary};
 pub use read::{info, RecordingInfo};
 pub use repair::{repair, RepairReport};
 pub use writer::{SessionInfo, SessionWriter};
-pub mod gap;

@@ -183,14 +183,25 @@ fn info_export_and_python_readers_agree_with_what_was_written() {
                 "{line}"
             );
         }
+        // The synthetic contacts carry impulse along +z: touching, F_n = −f_z.
         assert_eq!(v[4], if f.contact_count > 0 { "1" } else { "0" });
+        let f_n = if f.contact_count > 0 {
+            -f.contact_force[2]
+        } else {
+            0.0
+        };
         assert_eq!(
-            v[6].parse::<f64>().unwrap().to_bits(),
+            v[5].parse::<f64>().unwrap().to_bits(),
+            f_n.to_bits(),
+            "{line}"
+        );
+        assert_eq!(
+            v[7].parse::<f64>().unwrap().to_bits(),
             f.probe_pose.position[1].to_bits()
         );
         let (region, probing, phase) = annotation(f.device_sequence_used);
         assert_eq!(
-            v[12..15],
+            v[13..16],
             [region.to_string(), probing.to_string(), phase.to_string()]
         );
     }

@@ -6,31 +6,9 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-fn workspace_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .parent()
-        .unwrap()
-        .to_path_buf()
-}
-
 /// The `arthrosim` binary of this test's profile, built (or brought up to date) first.
 fn arthrosim_binary() -> PathBuf {
-    // target/<profile>/deps/session_e2e-… → target/<profile>
-    let exe = std::env::current_exe().unwrap();
-    let profile_dir = exe.parent().and_then(Path::parent).unwrap().to_path_buf();
-    let release = profile_dir.file_name().is_some_and(|n| n == "release");
-    let mut build = Command::new(env!("CARGO"));
-    build
-        .current_dir(workspace_root())
-        .args(["build", "-p", "arthrosim"]);
-    if release {
-        build.arg("--release");
-    }
-    let status = build.status().expect("run cargo build -p arthrosim");
-    assert!(status.success(), "cargo build -p arthrosim failed");
-    let bin = profile_dir.join("arthrosim");
-    assert!(bin.is_file(), "{} not found after the build", bin.display());
-    bin
+    tests::workspace_binary("arthrosim", "arthrosim")
 }
 
 /// Processes whose command line names this session (the launcher passes `--session NAME`
@@ -160,6 +138,8 @@ fn bounded_default_session_covers_three_regions_and_leaves_nothing_running() {
     let recording = out.join("session.mcap");
     assert!(recording.is_file(), "no session.mcap in {}", out.display());
 
+    one_definition_of_the_study_metrics(&bin, &recording, &out.join("export"));
+
     // The recording drives a new session: replay device fed from the MCAP itself.
     let replay_out = out.with_extension("replay");
     let _ = std::fs::remove_dir_all(&replay_out);
@@ -211,4 +191,143 @@ fn bounded_default_session_covers_three_regions_and_leaves_nothing_running() {
     );
     let _ = std::fs::remove_dir_all(&replay_out);
     let _ = std::fs::remove_dir_all(&out);
+}
+
+/// `arthrosim` with `args`, its stdout; panics with its output when it fails.
+fn arthrosim_output(bin: &Path, args: &[&std::ffi::OsStr]) -> String {
+    let o = Command::new(bin)
+        .args(args)
+        .stdin(Stdio::null())
+        .output()
+        .expect("start arthrosim");
+    let text = String::from_utf8_lossy(&o.stdout).into_owned();
+    assert!(
+        o.status.success(),
+        "arthrosim {args:?}: {}\n{text}\n{}",
+        o.status,
+        String::from_utf8_lossy(&o.stderr)
+    );
+    text
+}
+
+/// The per-region study metrics of one recording computed three ways — the session summary
+/// (`recordings summary`, the launcher's function), the study CSV (`recordings export`,
+/// recomputed here from its columns) and the gap diagnosis's trials (`gap trials`) — are the
+/// same numbers: contact, probing, region and the step↔tick matching are defined once.
+fn one_definition_of_the_study_metrics(bin: &Path, recording: &Path, export_dir: &Path) {
+    let os = |s: &str| std::ffi::OsString::from(s);
+    let summary: serde_json::Value = serde_json::from_str(&arthrosim_output(
+        bin,
+        &[
+            &os("recordings"),
+            &os("summary"),
+            recording.as_os_str(),
+            &os("--json"),
+        ],
+    ))
+    .expect("summary JSON");
+    arthrosim_output(
+        bin,
+        &[
+            &os("recordings"),
+            &os("export"),
+            recording.as_os_str(),
+            &os("--csv"),
+            export_dir.as_os_str(),
+        ],
+    );
+    let trials: serde_json::Value = serde_json::from_str(&arthrosim_output(
+        bin,
+        &[
+            &os("gap"),
+            &os("trials"),
+            recording.as_os_str(),
+            &os("--json"),
+        ],
+    ))
+    .expect("trials JSON");
+
+    let csv = std::fs::read_to_string(export_dir.join("session.csv")).expect("session.csv");
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let col = |name: &str| {
+        header
+            .iter()
+            .position(|h| *h == name)
+            .unwrap_or_else(|| panic!("no {name} column"))
+    };
+    let (c_contact, c_fn, c_region, c_probing) = (
+        col("contact"),
+        col("normal_force_n"),
+        col("region"),
+        col("probing"),
+    );
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+
+    for (code, name) in [(1, "posterior"), (2, "mid"), (3, "anterior")] {
+        let region = summary["regions"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|r| r["region"] == name)
+            .unwrap_or_else(|| panic!("{name} missing from {summary:#}"));
+        // The study CSV, recomputed from its columns.
+        let contact_rows: Vec<&Vec<&str>> = rows
+            .iter()
+            .filter(|r| r[c_contact] == "1" && r[c_region] == code.to_string())
+            .collect();
+        let csv_steps = contact_rows.len() as u64;
+        let csv_mean = contact_rows
+            .iter()
+            .map(|r| r[c_fn].parse::<f64>().unwrap())
+            .sum::<f64>()
+            / csv_steps.max(1) as f64;
+        // A probing: a run of one probing index (a repeated protocol counts its indices again).
+        let mut csv_probings: Vec<&str> = contact_rows.iter().map(|r| r[c_probing]).collect();
+        csv_probings.dedup();
+        // The gap's trials of this region.
+        let gap: Vec<&serde_json::Value> = trials
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|t| t["region"] == name)
+            .collect();
+        let gap_steps: u64 = gap
+            .iter()
+            .map(|t| t["contact_steps"].as_u64().unwrap())
+            .sum();
+        let gap_mean = gap
+            .iter()
+            .map(|t| {
+                t["mean_normal_force_n"].as_f64().unwrap_or(0.0)
+                    * t["contact_steps"].as_u64().unwrap() as f64
+            })
+            .sum::<f64>()
+            / gap_steps.max(1) as f64;
+
+        let steps = region["contact_steps"].as_u64().unwrap();
+        let mean = region["mean_normal_force_n"].as_f64().unwrap();
+        let probings = region["probings"].as_u64().unwrap();
+        assert!(steps > 0, "no contact in {name}");
+        assert_eq!(csv_steps, steps, "{name}: contact steps, CSV vs summary");
+        assert_eq!(gap_steps, steps, "{name}: contact steps, gap vs summary");
+        assert!(
+            (csv_mean - mean).abs() <= 1e-9 * mean.abs().max(1.0),
+            "{name}: mean F_n CSV {csv_mean} vs summary {mean}"
+        );
+        assert!(
+            (gap_mean - mean).abs() <= 1e-9 * mean.abs().max(1.0),
+            "{name}: mean F_n gap {gap_mean} vs summary {mean}"
+        );
+        assert_eq!(
+            csv_probings.len() as u64,
+            probings,
+            "{name}: probings, CSV vs summary"
+        );
+        assert_eq!(
+            gap.len() as u64,
+            probings,
+            "{name}: probings, gap vs summary"
+        );
+    }
 }

@@ -13,7 +13,6 @@ use std::mem::MaybeUninit;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use launch_config::summary::ContactSample;
 use launch_config::TrainingConfig;
 use msgs::bridge_to_physics::MaterialCommand;
 use msgs::haptic_to_physics::DeviceState;
@@ -21,6 +20,7 @@ use msgs::ipc::{self, IpcPublisher, IpcSubscriber, LinkError, Queue};
 use msgs::physics_to_haptic::ContactFrame;
 use msgs::training::{state, TrainingAnswer, TrainingPrompt};
 use msgs::Topic;
+use session_metrics::ContactSample;
 
 use crate::db::CaseRow;
 
@@ -561,8 +561,7 @@ impl Driver<'_> {
                 });
                 return Ok((measure, answer.map(Answer::Policy)));
             }
-            if live.prompt.probings != measure.probings() || last_prompt.elapsed().as_secs() >= 1
-            {
+            if live.prompt.probings != measure.probings() || last_prompt.elapsed().as_secs() >= 1 {
                 live.prompt.probings = measure.probings();
                 live.publish_prompt()?;
                 last_prompt = Instant::now();
@@ -602,12 +601,18 @@ mod tests {
     fn sample(t_ms: u64, z: f64, force: f64) -> ContactSample {
         ContactSample {
             instance_id: 1,
+            sequence: t_ms / 10,
+            device_sequence_used: 0,
             publish_ns: t_ms * 1_000_000,
             sim_time_s: t_ms as f64 / 1e3,
             dt_s: 0.01,
             step_duration_ns: 0,
             contact_count: if force > 0.0 { 1 } else { 0 },
-            normal: if force > 0.0 { [0.0, 0.0, 1.0] } else { [0.0; 3] },
+            normal: if force > 0.0 {
+                [0.0, 0.0, 1.0]
+            } else {
+                [0.0; 3]
+            },
             touching: force > 0.0,
             contact_force: [0.0, 0.0, force],
             probe_position: [0.0, 0.0, z],

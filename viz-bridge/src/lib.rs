@@ -1,5 +1,7 @@
 //! viz-bridge: puts an arthrosim session on ROS 2 (pure Rust DDS through ros2-client), so
 //! RViz2, Foxglove or any ROS 2 node on the lab network sees it and can drive the probe.
+//! Data comes in from the physics and haptic nodes' shared-memory streams and goes out as
+//! ROS 2 topics on the lab network (and, inbound, as commands to the physics node).
 //!
 //! Topics (namespace from `[bridge] namespace`, default `/arthrosim`):
 //! out `probe/pose` (PoseStamped), `probe/wrench` (WrenchStamped, contact force on the probe,

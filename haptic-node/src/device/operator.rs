@@ -5,20 +5,7 @@
 use super::DeviceError;
 use launch_config::device::EmulatedConfig;
 
-/// Protocol phase codes as published in `DeviceState.phase`.
-#[repr(u32)]
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Phase {
-    Idle = 0,
-    /// Moving to the site's hover point and down to the surface.
-    Approach = 1,
-    /// Pushing past the undeformed surface.
-    Press = 2,
-    /// Holding the pressed position.
-    Hold = 3,
-    /// Withdrawing to the hover point.
-    Release = 4,
-}
+pub use msgs::protocol::Phase;
 
 /// A probing site: a point on the superior surface with its outward normal (scene frame).
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -100,57 +100,9 @@ pub fn halfspace_exe() -> PathBuf {
     PathBuf::from(env!("CARGO_BIN_EXE_halfspace-physics"))
 }
 
-/// The physics-node binary next to ours (same profile directory), built first with
-/// `cargo build -p physics-node --bins` (bounded). Panics with instructions if it cannot be
-/// had.
+/// The physics-node binary of this profile, built first if needed.
 pub fn physics_exe() -> PathBuf {
-    let dir = haptic_exe().parent().unwrap().to_path_buf();
-    let exe = dir.join("physics-node");
-    let workspace = Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap();
-    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-    let mut build = Command::new(cargo);
-    build
-        .current_dir(workspace)
-        .args(["build", "-p", "physics-node", "--bins"]);
-    if dir.ends_with("release") {
-        build.arg("--release");
-    }
-    let ok = match build.stdout(Stdio::null()).stderr(Stdio::null()).spawn() {
-        Ok(mut c) => {
-            let t0 = Instant::now();
-            loop {
-                match c.try_wait() {
-                    Ok(Some(s)) => break s.success(),
-                    Ok(None) if t0.elapsed() < Duration::from_secs(900) => {
-                        std::thread::sleep(Duration::from_millis(200))
-                    }
-                    _ => {
-                        let _ = c.kill();
-                        let _ = c.wait();
-                        break false;
-                    }
-                }
-            }
-        }
-        Err(_) => false,
-    };
-    assert!(
-        exe.exists(),
-        "physics-node binary missing at {} (cargo build -p physics-node --bins {})",
-        exe.display(),
-        if ok {
-            "succeeded but produced no binary"
-        } else {
-            "failed"
-        }
-    );
-    if !ok {
-        eprintln!(
-            "warning: cargo build -p physics-node failed; using the existing {}",
-            exe.display()
-        );
-    }
-    exe
+    tests::workspace_binary("physics-node", "physics-node")
 }
 
 /// What the test saw of a frame (the frame itself is ~80 kB).

@@ -170,7 +170,12 @@ pub struct Recorder {
 
 impl Recorder {
     pub fn start(session: &str, out: &Path) -> Recorder {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_recorder"))
+        // Cargo names the binary only to this package's own tests; the gap crate's tests
+        // (which include this file) build it.
+        let exe = option_env!("CARGO_BIN_EXE_recorder")
+            .map(PathBuf::from)
+            .unwrap_or_else(|| tests::workspace_binary("recordings", "recorder"));
+        let mut child = Command::new(exe)
             .args(["--session", session, "--out"])
             .arg(out)
             .stdout(Stdio::piped())

@@ -14,106 +14,25 @@
 //!   tissue along the normal `n₀` of the probing's first touching step, from its position `x₀`
 //!   then; the maximum over the probing's contact steps.
 //! - Regions and probings come from the haptic node's `DeviceState.region` /
-//!   `probing_index` annotations (the emulated or replayed protocol), matched to each physics
-//!   step by monotonic time. Without a probing index, each contact episode counts as one
-//!   probing.
+//!   `probing_index` annotations (the emulated or replayed protocol) of the device tick each
+//!   physics step used ([`crate::matching`]). Without a probing index, each contact episode
+//!   counts as one probing.
 
+use crate::contact::{dot, ContactSample};
+use crate::matching::Annotations;
 use msgs::physics_to_haptic::ContactFrame;
+use msgs::protocol::{Region, UNLABELLED};
 use serde::Serialize;
 use std::fmt;
 
-/// Region codes as in `DeviceState.region`.
-pub const REGION_NAMES: [&str; 4] = ["unlabelled", "posterior", "mid", "anterior"];
-
-/// The part of one physics step the summary needs.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ContactSample {
-    pub instance_id: u64,
-    pub publish_ns: u64,
-    pub sim_time_s: f64,
-    pub dt_s: f64,
-    pub step_duration_ns: u64,
-    pub contact_count: u32,
-    /// Unit outward tissue normal (zero without contact).
-    pub normal: [f64; 3],
-    /// Some constraint carries a normal impulse (the probe touches, not just near).
-    pub touching: bool,
-    /// Eq. (1) contact force on the probe, world frame, N.
-    pub contact_force: [f64; 3],
-    /// Probe position after contact correction, m.
-    pub probe_position: [f64; 3],
-}
-
-impl ContactSample {
-    /// Extracts the summary's view of a published frame.
-    pub fn from_frame(frame: &ContactFrame) -> ContactSample {
-        let contacts = (frame.contact_count as usize).min(msgs::MAX_CONTACTS);
-        let mut weighted = [0.0f64; 3];
-        for k in 0..contacts {
-            let row = k * msgs::ROWS_PER_CONTACT;
-            let w = frame.lambda[row].max(0.0);
-            for (a, n) in weighted
-                .iter_mut()
-                .zip(&frame.constraint_directions[row][..3])
-            {
-                *a += w * n;
-            }
-        }
-        let mut normal = unit(weighted);
-        let touching = normal != [0.0; 3];
-        if !touching && contacts > 0 {
-            // No impulse (near, not touching): first constraint's normal, for viewers.
-            let r = &frame.constraint_directions[0];
-            normal = unit([r[0], r[1], r[2]]);
-        }
-        ContactSample {
-            instance_id: frame.instance_id,
-            publish_ns: frame.publish_ns,
-            sim_time_s: frame.sim_time_s,
-            dt_s: frame.dt_s,
-            step_duration_ns: frame.step_duration_ns,
-            contact_count: contacts as u32,
-            normal,
-            touching,
-            contact_force: frame.contact_force,
-            probe_position: frame.probe_pose.position,
-        }
-    }
-
-    fn in_contact(&self) -> bool {
-        // `touching` implies a non-zero (impulse-weighted) normal.
-        self.contact_count > 0 && self.touching
-    }
-}
-
-fn unit(v: [f64; 3]) -> [f64; 3] {
-    let n = dot(v, v).sqrt();
-    if n.is_finite() && n > 1e-12 {
-        [v[0] / n, v[1] / n, v[2] / n]
-    } else {
-        [0.0; 3]
-    }
-}
-
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-/// A change of the protocol annotation in the device stream (region or probing index).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Annotation {
-    pub publish_ns: u64,
-    pub region: u32,
-    pub probing_index: u32,
-}
-
-/// Everything the launcher collected during a session.
+/// Everything a session summary is computed from: collected live by the launcher, or read
+/// back from a recording.
 #[derive(Debug, Clone, Default)]
 pub struct SessionRecord {
     /// Every physics step seen, in arrival order.
     pub contacts: Vec<ContactSample>,
-    /// Annotation change points, in time order.
-    pub annotations: Vec<Annotation>,
+    /// The device stream's protocol annotations by tick sequence.
+    pub annotations: Annotations,
     /// Device states seen and the span of their timestamps (per haptic instance summed).
     pub device_ticks: u64,
     pub device_span_ns: u64,
@@ -129,13 +48,15 @@ impl SessionRecord {
         self.contacts.push(ContactSample::from_frame(frame));
     }
 
-    /// Counts one device state and records its annotation when it changed.
+    /// Counts one device state and keeps its protocol annotation.
     pub fn push_device(
         &mut self,
         instance_id: u64,
+        sequence: u64,
         publish_ns: u64,
         region: u32,
         probing_index: u32,
+        phase: u32,
     ) {
         if instance_id != self.device_instance || self.device_ticks == 0 {
             self.device_span_ns += self.device_last_ns.saturating_sub(self.device_first_ns);
@@ -144,17 +65,8 @@ impl SessionRecord {
         }
         self.device_last_ns = publish_ns;
         self.device_ticks += 1;
-        let changed = self
-            .annotations
-            .last()
-            .is_none_or(|a| a.region != region || a.probing_index != probing_index);
-        if changed {
-            self.annotations.push(Annotation {
-                publish_ns,
-                region,
-                probing_index,
-            });
-        }
+        self.annotations
+            .push(sequence, region, probing_index, phase);
     }
 
     /// Device-time span including the current haptic instance.
@@ -226,7 +138,7 @@ impl SessionSummary {
     pub fn regions_with_contact(&self) -> Vec<&str> {
         self.regions
             .iter()
-            .filter(|r| r.region != REGION_NAMES[0] && r.contact_steps > 0)
+            .filter(|r| r.region != UNLABELLED && r.contact_steps > 0)
             .map(|r| r.region.as_str())
             .collect()
     }
@@ -247,32 +159,20 @@ struct RegionAccumulator {
 pub fn summarize(record: &SessionRecord) -> SessionSummary {
     let mut regions: [RegionAccumulator; 4] = Default::default();
 
-    // Walk contacts in time order alongside the annotation step function.
+    // Walk contacts in time order; each takes the annotation of the device tick it used.
     let mut order: Vec<usize> = (0..record.contacts.len()).collect();
     order.sort_by_key(|&i| record.contacts[i].publish_ns);
-    let mut next_annotation = 0usize;
-    let mut current = Annotation {
-        publish_ns: 0,
-        region: 0,
-        probing_index: 0,
-    };
     // The open probing: (region, probing index or episode marker, x0, n0, region slot index).
     let mut open: Option<(u32, u32, [f64; 3], [f64; 3], usize)> = None;
     let mut previous_in_contact = false;
 
     for &i in &order {
         let s = &record.contacts[i];
-        while next_annotation < record.annotations.len()
-            && record.annotations[next_annotation].publish_ns <= s.publish_ns
-        {
-            current = record.annotations[next_annotation];
-            next_annotation += 1;
-        }
-        let region = if (current.region as usize) < REGION_NAMES.len() {
-            current.region
-        } else {
-            0
-        };
+        let current = record
+            .annotations
+            .of_step(s.device_sequence_used)
+            .unwrap_or_default();
+        let region = Region::from_code(current.region).map_or(0, Region::code);
         if !s.in_contact() {
             previous_in_contact = false;
             if current.probing_index == 0 {
@@ -281,7 +181,7 @@ pub fn summarize(record: &SessionRecord) -> SessionSummary {
             continue;
         }
         let acc = &mut regions[region as usize];
-        let f_n = -dot(s.contact_force, s.normal);
+        let f_n = s.normal_force();
         acc.contact_steps += 1;
         acc.contact_time_s += if s.dt_s.is_finite() { s.dt_s } else { 0.0 };
         acc.normal_sum += f_n;
@@ -334,7 +234,7 @@ pub fn summarize(record: &SessionRecord) -> SessionSummary {
         let steps = acc.contact_steps as f64;
         let probings = acc.probing_max.len();
         let mut r = RegionSummary {
-            region: REGION_NAMES[code].to_string(),
+            region: Region::name_of_code(code as u32).to_string(),
             contact_steps: acc.contact_steps,
             contact_time_s: acc.contact_time_s,
             probings: probings as u32,
@@ -351,10 +251,7 @@ pub fn summarize(record: &SessionRecord) -> SessionSummary {
         out.push(r);
     }
     // Study order: posterior, mid, anterior, then unlabelled.
-    out.sort_by_key(|r| match r.region.as_str() {
-        "unlabelled" => 9,
-        name => REGION_NAMES.iter().position(|n| *n == name).unwrap_or(8),
-    });
+    out.sort_by_key(|r| Region::parse(&r.region).map_or(9, Region::code));
 
     // Rates per physics instance (a restart starts a new one), summed.
     let mut instances: Vec<(u64, u64, u64, f64, f64, u64)> = Vec::new(); // id, first, last, t0, t1, n
@@ -472,11 +369,14 @@ mod tests {
     fn sample(t_ms: u64, contact: bool, fz: f64, z: f64) -> ContactSample {
         ContactSample {
             instance_id: 7,
+            sequence: t_ms,
             publish_ns: t_ms * MS,
             sim_time_s: t_ms as f64 * 1e-3,
             dt_s: 0.01,
             step_duration_ns: 2 * MS,
             contact_count: contact as u32,
+            // The device ticks at 1 kHz with sequence = its time in ms.
+            device_sequence_used: t_ms,
             normal: if contact { [0.0, 0.0, 1.0] } else { [0.0; 3] },
             touching: contact,
             contact_force: [0.0, 0.0, fz],
@@ -488,9 +388,9 @@ mod tests {
         let mut rec = SessionRecord::default();
         // Device: region 1 probing 1 from 0 ms, region 2 probing 2 from 100 ms,
         // region 3 probing 3 from 200 ms; 1 kHz ticks.
-        for t in 0..300u64 {
+        for t in 1..300u64 {
             let (region, probing) = (1 + (t / 100) as u32, 1 + (t / 100) as u32);
-            rec.push_device(42, t * MS, region, probing);
+            rec.push_device(42, t, t * MS, region, probing, 2);
         }
         // Physics every 10 ms; contact in the middle of each 100 ms window, pressing down
         // (the probe moves −z into the tissue whose outward normal is +z).
@@ -537,7 +437,7 @@ mod tests {
         // 30 frames 10 ms apart: 29 intervals over 290 ms = 100 Hz.
         assert!((s.physics_hz.unwrap() - 100.0).abs() < 1e-9);
         assert!((s.haptic_hz.unwrap() - 1000.0).abs() < 1e-9);
-        assert_eq!(s.haptic_ticks, 300);
+        assert_eq!(s.haptic_ticks, 299);
         assert_eq!(s.physics_instances, 1);
     }
 

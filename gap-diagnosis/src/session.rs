@@ -12,15 +12,16 @@ use super::experiment::{
 };
 use super::signal::{interp, lag_by_xcorr, norm, sub};
 use super::GapError;
-use crate::channels::*;
-use crate::read::{scan, Event};
 use launch_config::{DeviceConfig, LaunchFile, SceneConfig};
 use msgs::Pose;
+use recordings::channels::*;
+use recordings::read::{scan, Event};
 use serde::{Deserialize, Serialize};
+use session_metrics::Annotations;
 use std::path::{Path, PathBuf};
 
-/// Force magnitude above which the probe touches the tissue (contacts within the alarm
-/// distance carry no force), N.
+/// Force magnitude above which a device tick counts in the rendering gap (model or device
+/// side), N. Whether the probe touches the tissue is session-metrics' definition instead.
 const CONTACT_FORCE_N: f64 = 1e-3;
 /// Contact runs closer than this are one probing (a probe chattering at the surface), s.
 const MERGE_GAP_S: f64 = 0.25;
@@ -100,7 +101,7 @@ pub fn session_file(path: &Path) -> Result<Option<PathBuf>, GapError> {
 
 /// Reads the lossless channels and the scene/launch attachments of a recording.
 pub fn read_session(path: &Path) -> Result<SessionRecording, GapError> {
-    let mut lossless = crate::export::LosslessChannels::default();
+    let mut lossless = recordings::export::LosslessChannels::default();
     let mut scene_text: Option<String> = None;
     let mut launch_text: Option<String> = None;
     let outcome = scan(path, &mut |event| {
@@ -123,13 +124,13 @@ pub fn read_session(path: &Path) -> Result<SessionRecording, GapError> {
         Ok(())
     })?;
     if outcome.profile != PROFILE {
-        return Err(crate::RecordingError::WrongProfile {
+        return Err(recordings::RecordingError::WrongProfile {
             path: path.to_path_buf(),
             found: outcome.profile,
         }
         .into());
     }
-    let crate::export::LosslessChannels { steps, ticks, .. } = lossless;
+    let recordings::export::LosslessChannels { steps, ticks, .. } = lossless;
     if steps.is_empty() {
         return Err(input_err(
             path,
@@ -200,24 +201,23 @@ fn main_instance(steps: &[ContactStep]) -> u64 {
         .unwrap_or(0)
 }
 
-/// Protocol annotations (region, probing, phase) of each tick, by tick sequence.
-fn annotations(ticks: &[DeviceTick]) -> Vec<(u64, u32, u32, u32)> {
-    let mut a: Vec<(u64, u32, u32, u32)> = ticks
-        .iter()
-        .map(|t| (t.sequence, t.region, t.probing_index, t.phase))
-        .collect();
-    a.sort_by_key(|x| x.0);
-    a.dedup_by_key(|x| x.0);
+/// Protocol annotations of the ticks, by tick sequence (`session_metrics::matching`).
+fn annotations(ticks: &[DeviceTick]) -> Annotations {
+    let mut a = Annotations::default();
+    for t in ticks {
+        a.push(t.sequence, t.region, t.probing_index, t.phase);
+    }
     a
 }
 
 fn region_of(code: u32) -> Option<Region> {
-    Region::ALL.into_iter().find(|r| r.code() == code)
+    Region::from_code(code)
 }
 
-/// Touching the tissue: a contact force, not merely contacts within the alarm distance.
+/// Touching the tissue, as `session_metrics::ContactSample::in_contact` defines it (some
+/// constraint carries a normal impulse), not merely contacts within the alarm distance.
 fn in_contact(s: &ContactStep) -> bool {
-    norm(v3(&s.contact_force)) > CONTACT_FORCE_N
+    s.sample().in_contact()
 }
 
 /// Index ranges of the steps forming each probing: runs of one annotated probing index, or,
@@ -284,8 +284,32 @@ fn probing_ranges(steps: &[&ContactStep], ann: &[(u32, u32, u32)]) -> Vec<(usize
     out
 }
 
+/// What a trial taken from a session holds of contact, in session-metrics' terms: the
+/// numbers a researcher checks against the session summary and the study CSV.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct TrialContact {
+    pub name: String,
+    pub region: Option<Region>,
+    pub probing_index: u32,
+    /// Physics steps of the trial in contact (`ContactSample::in_contact`).
+    pub contact_steps: u64,
+    /// Mean normal force F_n = −f·n over those steps, N (negative in compression).
+    pub mean_normal_force_n: Option<f64>,
+}
+
 /// The experiment a recording stands for (see the module docs).
 pub fn experiment_from_session(rec: &SessionRecording) -> Result<Experiment, GapError> {
+    Ok(trials_from_session(rec)?.0)
+}
+
+/// The trials the diagnosis takes from a recording, with their contact in session terms.
+pub fn trial_contacts(rec: &SessionRecording) -> Result<Vec<TrialContact>, GapError> {
+    Ok(trials_from_session(rec)?.1)
+}
+
+fn trials_from_session(
+    rec: &SessionRecording,
+) -> Result<(Experiment, Vec<TrialContact>), GapError> {
     let path = &rec.path;
     let instance = main_instance(&rec.steps);
     let mut steps: Vec<&ContactStep> = rec
@@ -299,15 +323,16 @@ pub fn experiment_from_session(rec: &SessionRecording) -> Result<Experiment, Gap
     let ann: Vec<(u32, u32, u32)> = steps
         .iter()
         .map(|s| {
-            ann_by_seq
-                .binary_search_by_key(&s.device_sequence_used, |a| a.0)
-                .map(|i| (ann_by_seq[i].1, ann_by_seq[i].2, ann_by_seq[i].3))
-                .unwrap_or((0, 0, 0))
+            let a = ann_by_seq
+                .of_step(s.device_sequence_used)
+                .unwrap_or_default();
+            (a.region, a.probing_index, a.phase)
         })
         .collect();
     let ranges = probing_ranges(&steps, &ann);
     let annotated = ann.iter().any(|a| a.1 > 0);
     let mut trials = Vec::new();
+    let mut contacts = Vec::new();
     let mut specs = Vec::new();
     let mut skipped_no_contact = 0;
     for (lo, hi) in ranges {
@@ -357,7 +382,9 @@ pub fn experiment_from_session(rec: &SessionRecording) -> Result<Experiment, Gap
         };
         let mut name = format!(
             "probing_{index:03}_{}",
-            region.map(|r| r.name()).unwrap_or("unlabelled")
+            region
+                .map(|r| r.name())
+                .unwrap_or(msgs::protocol::UNLABELLED)
         );
         // a protocol that runs again restarts its probing index: keep trial names unique
         let repeats = trials
@@ -367,6 +394,18 @@ pub fn experiment_from_session(rec: &SessionRecording) -> Result<Experiment, Gap
         if repeats > 0 {
             name = format!("{name}_{}", repeats + 1);
         }
+        let (mut contact_steps, mut normal_sum) = (0u64, 0.0);
+        for sample in run.iter().map(|s| s.sample()).filter(|s| s.in_contact()) {
+            contact_steps += 1;
+            normal_sum += sample.normal_force();
+        }
+        contacts.push(TrialContact {
+            name: name.clone(),
+            region,
+            probing_index: if annotated { ann[lo].1 } else { 0 },
+            contact_steps,
+            mean_normal_force_n: (contact_steps > 0).then(|| normal_sum / contact_steps as f64),
+        });
         specs.push(TrialSpec {
             file: format!("{}#{name}", path.display()),
             region: region.map(|r| r.name().to_string()),
@@ -418,12 +457,15 @@ pub fn experiment_from_session(rec: &SessionRecording) -> Result<Experiment, Gap
         },
         trials: specs,
     };
-    Ok(Experiment {
-        dir: path.clone(),
-        spec,
-        trials,
-        quasi_static: false,
-    })
+    Ok((
+        Experiment {
+            dir: path.clone(),
+            spec,
+            trials,
+            quasi_static: false,
+        },
+        contacts,
+    ))
 }
 
 /// Device limits the rendering gap is judged against.
@@ -662,7 +704,7 @@ pub fn rendering_gap(rec: &SessionRecording) -> Result<RenderingGap, GapError> {
         .map(|c| {
             let name = region_of(c as u32)
                 .map(|r| r.name())
-                .unwrap_or("unlabelled");
+                .unwrap_or(msgs::protocol::UNLABELLED);
             regions[c].summary(name.into())
         })
         .collect();
@@ -797,6 +839,12 @@ mod tests {
             ..Default::default()
         };
         s.contact_force.z = fz;
+        // Touching (session-metrics' definition) when the tissue pushes back along +z.
+        if fz > 0.0 {
+            s.contact_count = 1;
+            s.touching = true;
+            s.contact_normal.z = 1.0;
+        }
         s.probe_pose.orientation.w = 1.0;
         s.probe_pose.position.z = -fz * 1e-4;
         s

@@ -4,8 +4,8 @@
 //! `GAP_DEV_DIR=/tmp/s1 cargo test --release -p recordings --test gap_dev -- --ignored --nocapture`
 //! (`GAP_DEV_DIR` is a `--keep` folder of `arthrosim gap selftest`; `GAP_DEV_CASES=case005,…`
 //! restricts `rediagnose_kept_cases`; `phase_table` prints the held-out RMSE per phase).
-use recordings::gap::model::{ForceModel, ProbePath, Variant};
-use recordings::gap::{self, GapError, SimForceModel};
+use gap_diagnosis::model::{ForceModel, ProbePath, Variant};
+use gap_diagnosis::{self as gap, GapError, SimForceModel};
 use std::collections::HashMap;
 use std::hash::{Hash, Hasher};
 use std::path::{Path, PathBuf};
@@ -160,9 +160,9 @@ fn rediagnose_kept_cases() {
 #[test]
 #[ignore]
 fn phase_table() {
-    use recordings::gap::dataset::{build, BuildOptions};
-    use recordings::gap::effects::Effect;
-    use recordings::gap::metrics::Phase;
+    use gap_diagnosis::dataset::{build, BuildOptions};
+    use gap_diagnosis::effects::Effect;
+    use gap_diagnosis::metrics::Phase;
     let root = PathBuf::from(std::env::var("GAP_DEV_DIR").expect("GAP_DEV_DIR"));
     let dirs = case_dirs(&root);
     let data = gap::data_dir();

@@ -1,12 +1,12 @@
 //! The `viscoelastic` effect with one or two Prony terms: trials whose measured force is a
 //! known QLV response of the replayed force are fitted; the second term is used when, and
 //! only when, the data need it.
+use gap_diagnosis::dataset::{prepare, TrialData};
+use gap_diagnosis::effects::qlv_in_place;
+use gap_diagnosis::fit::{make_folds, score_candidate, Baseline, CandidateScore};
+use gap_diagnosis::model::ProbePath;
+use gap_diagnosis::{Candidate, Effect, Region, Trial};
 use msgs::Pose;
-use recordings::gap::dataset::{prepare, TrialData};
-use recordings::gap::effects::qlv_in_place;
-use recordings::gap::fit::{make_folds, score_candidate, Baseline, CandidateScore};
-use recordings::gap::model::ProbePath;
-use recordings::gap::{Candidate, Effect, Region, Trial};
 
 const DT: f64 = 0.02;
 
@@ -160,7 +160,7 @@ fn two_prony_terms_when_relaxation_has_two_time_scales() {
 /// RMSE of the best one-term QLV (second term held at 0) fitted on all of the two-term
 /// data: in-sample, so it flatters the one-term model.
 fn score_one_term(terms: &[(f64, f64)]) -> f64 {
-    use recordings::gap::fit::{default_free, fit};
+    use gap_diagnosis::fit::{default_free, fit};
     let data = dataset(terms);
     let c = Candidate::single(Effect::Viscoelastic);
     let all: Vec<Vec<bool>> = data.iter().map(|d| vec![true; d.t.len()]).collect();

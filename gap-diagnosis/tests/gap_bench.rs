@@ -6,8 +6,7 @@
 #[ignore]
 fn gap_diagnose_15_trials() {
     let effect = std::env::var("GAP_BENCH_EFFECT").unwrap_or_else(|_| "hardening".into());
-    let v =
-        recordings::gap::selftest::bench(&effect, 5, &recordings::gap::Options::default()).unwrap();
+    let v = gap_diagnosis::selftest::bench(&effect, 5, &gap_diagnosis::Options::default()).unwrap();
     println!("{v}");
 }
 
@@ -20,11 +19,11 @@ fn selftest_cycle() {
         .ok()
         .and_then(|v| v.parse().ok())
         .unwrap_or(14);
-    let opts = recordings::gap::selftest::SelftestOptions {
+    let opts = gap_diagnosis::selftest::SelftestOptions {
         verbose: true,
         ..Default::default()
     };
-    let r = recordings::gap::selftest::selftest(n, 21, &opts).unwrap();
+    let r = gap_diagnosis::selftest::selftest(n, 21, &opts).unwrap();
     print!("{}", r.table());
     println!("{}", serde_json::to_string(&r.summary()).unwrap());
 }

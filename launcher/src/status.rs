@@ -4,11 +4,11 @@
 //!
 //! The ports are not `Send`: create the [`StatusMonitor`] on the thread that polls it.
 
-use crate::summary::SessionRecord;
 use msgs::haptic_to_monitor::HapticStats;
 use msgs::haptic_to_physics::DeviceState;
 use msgs::ipc::{self, IpcNode, IpcSubscriber, LinkError, Queue};
 use msgs::physics_to_haptic::ContactFrame;
+use session_metrics::summary::SessionRecord;
 use std::fmt;
 
 /// What the live status line shows.
@@ -31,10 +31,7 @@ pub struct LiveStatus {
 impl fmt::Display for LiveStatus {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         let num = |v: Option<f64>, d: usize| v.map_or("–".to_string(), |x| format!("{x:.d$}"));
-        let region = crate::summary::REGION_NAMES
-            .get(self.region as usize)
-            .copied()
-            .unwrap_or("?");
+        let region = msgs::protocol::Region::name_of_code(self.region);
         write!(
             f,
             "physics {} Hz | haptic {} Hz | contact {} N ({}) | frame age {} ms | {} #{}",
@@ -116,7 +113,14 @@ impl StatusMonitor {
         let mut region = self.status.region;
         let mut probing = self.status.probing_index;
         ipc::drain_each(&self.devices, |d: &DeviceState| {
-            record.push_device(d.instance_id, d.publish_ns, d.region, d.probing_index);
+            record.push_device(
+                d.instance_id,
+                d.sequence,
+                d.publish_ns,
+                d.region,
+                d.probing_index,
+                d.phase,
+            );
             region = d.region;
             probing = d.probing_index;
             ticks += 1;

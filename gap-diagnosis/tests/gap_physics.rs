@@ -1,7 +1,7 @@
 //! The gap diagnosis through the real physics model (`physics_node::sim::Simulation`).
-use recordings::gap::model::{ForceModel, Variant};
-use recordings::gap::selftest::{selftest, SelftestOptions};
-use recordings::gap::{self, SimForceModel};
+use gap_diagnosis::model::{ForceModel, Variant};
+use gap_diagnosis::selftest::{selftest, SelftestOptions};
+use gap_diagnosis::{self as gap, SimForceModel};
 
 fn data_present() -> bool {
     let d = gap::data_dir();

@@ -4,14 +4,16 @@
 //! renderer with known scale, saturation and frame delay, read back, turned into an
 //! experiment, diagnosed, and its rendering gap measured against what was written.
 
+// The recordings crate's test helpers (synthetic ticks and steps, the recorder process).
+#[path = "../../recordings/tests/common/mod.rs"]
 mod common;
 
 use common::*;
+use gap_diagnosis::{self as gap, session, Effect, Region};
 use launch_config::{RecordingConfig, SceneConfig};
 use msgs::haptic_to_physics::{fault, DeviceState};
 use msgs::Pose;
 use physics_node::sim::Simulation;
-use recordings::gap::{self, session, Effect, Region};
 use recordings::{SessionInfo, SessionWriter};
 use std::path::{Path, PathBuf};
 

@@ -8,10 +8,10 @@
 //! launcher that is itself killed never leaves a node running.
 
 use crate::status::StatusMonitor;
-use crate::summary::{summarize, SessionRecord, SessionSummary};
-use crate::{LaunchFile, LauncherConfig, RestartPolicy};
 use indicatif::{ProgressBar, ProgressStyle};
+use launch_config::{LaunchFile, LauncherConfig, RestartPolicy};
 use serde::Serialize;
+use session_metrics::summary::{summarize, SessionRecord, SessionSummary};
 use std::io::{BufRead, BufReader, IsTerminal, Write};
 use std::os::unix::process::{CommandExt, ExitStatusExt};
 use std::path::{Path, PathBuf};
@@ -124,7 +124,7 @@ pub enum LiveMode {
 /// Everything a session run needs.
 #[derive(Debug, Clone)]
 pub struct RunOptions {
-    /// The launch file, paths already resolved (see [`crate::load`]).
+    /// The launch file, paths already resolved (see [`launch_config::load`]).
     pub launch: LaunchFile,
     /// Where the launch file came from (for messages and the summary).
     pub origin: String,

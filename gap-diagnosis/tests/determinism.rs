@@ -3,13 +3,15 @@
 //! fresh Simulation, and compare contact forces bit for bit. A replay with a different
 //! material must not match (the comparison can fail).
 
+// The recordings crate's test helpers (synthetic ticks and steps, the recorder process).
+#[path = "../../recordings/tests/common/mod.rs"]
 mod common;
 
 use common::*;
+use gap_diagnosis::replay::{replay, ReplayOptions};
 use launch_config::{RecordingConfig, SceneConfig};
 use msgs::haptic_to_physics::DeviceState;
 use physics_node::sim::Simulation;
-use recordings::replay::{replay, ReplayOptions};
 use recordings::{SessionInfo, SessionWriter};
 use std::collections::BTreeMap;
 

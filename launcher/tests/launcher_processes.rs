@@ -2,8 +2,8 @@
 //! contract: `READY <node>` on stdout, clean exit on SIGTERM), so start order, readiness,
 //! restarts, stop order and straggler handling are tested without the real nodes.
 
-use launch_config::launcher::{self, EndReason, LauncherError, LiveMode, NodeKind, RunOptions};
 use launch_config::{LaunchFile, RestartPolicy};
+use launcher::{self, EndReason, LauncherError, LiveMode, NodeKind, RunOptions};
 use std::path::{Path, PathBuf};
 
 /// A well-behaved node: records its pid, prints READY, stops on SIGTERM and notes the order.

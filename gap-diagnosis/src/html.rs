@@ -489,7 +489,9 @@ pub fn render(r: &Report) -> String {
             h,
             "<h3>{} ({})</h3><div class=\"trial\">",
             esc(&t.name),
-            t.region.map(|r| r.name()).unwrap_or("unlabelled")
+            t.region
+                .map(|r| r.name())
+                .unwrap_or(msgs::protocol::UNLABELLED)
         );
         for (k, axis) in ["fx", "fy", "fz"].iter().enumerate() {
             let s = &t.series;

@@ -272,7 +272,7 @@ impl Acc {
 }
 
 pub fn region_label(r: Option<Region>) -> &'static str {
-    r.map(|r| r.name()).unwrap_or("unlabelled")
+    r.map(|r| r.name()).unwrap_or(msgs::protocol::UNLABELLED)
 }
 
 #[cfg(test)]

@@ -10,11 +10,6 @@
 //! recording, and a recording that starts after physics step 1 cannot be reproduced
 //! exactly (both are reported, not hidden).
 
-use crate::channels::*;
-use crate::error::RecordingError;
-use crate::export::read_lossless;
-use crate::read::{scan, Event};
-use crate::writer::{SessionInfo, SessionWriter, WriteSummary};
 use launch_config::{RecordingConfig, SceneConfig};
 use msgs::haptic_to_physics::DeviceState;
 use msgs::ipc;
@@ -22,6 +17,11 @@ use msgs::physics_to_haptic::ContactFrame;
 use msgs::physics_to_viz::SurfaceFrame;
 use msgs::Topic;
 use physics_node::sim::Simulation;
+use recordings::channels::*;
+use recordings::export::read_lossless;
+use recordings::read::{scan, Event};
+use recordings::writer::{SessionInfo, SessionWriter, WriteSummary};
+use recordings::RecordingError;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};

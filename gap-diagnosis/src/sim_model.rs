@@ -82,7 +82,7 @@ impl SimForceModel {
             file: rec.path.clone(),
             msg: format!(
                 "specimen of the {} attachment: {e}",
-                crate::channels::ATTACHMENT_SCENE
+                recordings::channels::ATTACHMENT_SCENE
             ),
         })?;
         Ok(SimForceModel::from_scene(rec.scene.clone(), data_dir))

@@ -1,28 +1,35 @@
-//! Sim-to-real gap diagnosis (issue 6): where the simulated and measured probe forces differ,
-//! which unmodelled effect explains it, and how far the gap shrinks on held-out trials.
+//! Sim-to-real gap diagnosis and offline re-simulation: where the simulated and measured
+//! probe forces differ, which unmodelled effect explains it, and how far the gap shrinks on
+//! held-out trials.
+//!
+//! Data comes in from experiment folders (`experiment.toml` + trial CSVs), force–displacement
+//! tables and session recordings (read through `recordings`); it is replayed through the
+//! physics node's `Simulation` driven kinematically ([`SimForceModel`], [`replay`]) and goes out
+//! as `report.json` + `report.html`. This is the last stage of the data path
+//! physics → haptic → bridge / recorder → gap.
 //!
 //! # API the CLI wires (no clap types here; every function returns `Result<_, GapError>`)
 //! ```text
 //! arthrosim gap EXPERIMENT_DIR --out REPORT_DIR [--dt S]
-//!     let report = gap::diagnose_dir(dir, &gap::Options { progress: true, ..Default::default() })?;
-//!     gap::write_report(&report, out_dir)?;            // report.json + report.html
+//!     let report = gap_diagnosis::diagnose_dir(dir, &gap_diagnosis::Options { progress: true, ..Default::default() })?;
+//!     gap_diagnosis::write_report(&report, out_dir)?;            // report.json + report.html
 //!     println!("{}", report.verdict.effect);
 //! arthrosim gap SESSION.mcap --out REPORT_DIR     (or a folder holding one .mcap, no experiment.toml)
-//!     let report = gap::diagnose_dir(path, &opts)?;     // → diagnose_session: probings as trials,
+//!     let report = gap_diagnosis::diagnose_dir(path, &opts)?;     // → diagnose_session: probings as trials,
 //!                                                       //   report.rendering_gap from the device ticks
 //! arthrosim gap EXPERIMENT_DIR --session SESSION.mcap --out REPORT_DIR
-//!     report.rendering_gap = Some(gap::session_rendering_gap(mcap)?);  // checked before the replays
+//!     report.rendering_gap = Some(gap_diagnosis::session_rendering_gap(mcap)?);  // checked before the replays
 //! arthrosim gap --force-displacement FILE.csv --out REPORT_DIR
-//!     let report = gap::diagnose_force_displacement(file, &opts)?; gap::write_report(&report, out)?;
+//!     let report = gap_diagnosis::diagnose_force_displacement(file, &opts)?; gap_diagnosis::write_report(&report, out)?;
 //! arthrosim gap selftest --cases N --seed S [--json]
-//!     let r = gap::selftest::selftest(n, seed, &gap::selftest::SelftestOptions { verbose: true, ..Default::default() })?;
+//!     let r = gap_diagnosis::selftest::selftest(n, seed, &gap_diagnosis::selftest::SelftestOptions { verbose: true, ..Default::default() })?;
 //!     print!("{}", r.table());                          // per-case lines + confusion matrix
 //!     if json { println!("{}", serde_json::to_string(&r.summary())?) }  // cases, correct, accuracy, heldout_shrink_mean
 //! arthrosim gap bench [--effect NAME] [--seed S]       // one JSON line with diagnose_s
-//!     println!("{}", gap::selftest::bench("hardening", seed, &gap::Options::default())?);
+//!     println!("{}", gap_diagnosis::selftest::bench("hardening", seed, &gap_diagnosis::Options::default())?);
 //! arthrosim reality --effect NAME[=STRENGTH] [--effect ...] --seed S --out DIR --truth FILE
-//!     let spec = gap::reality::RealitySpec::from_effects(&["friction=0.3", "sensor"], seed)?;
-//!     gap::reality::write_experiment(&spec, dir, truth_file)?;   // truth file must lie outside DIR
+//!     let spec = gap_diagnosis::reality::RealitySpec::from_effects(&["friction=0.3", "sensor"], seed)?;
+//!     gap_diagnosis::reality::write_experiment(&spec, dir, truth_file)?;   // truth file must lie outside DIR
 //! ```
 //! Lower level: `load_experiment(dir, &data_dir())`, `SimForceModel::for_experiment(&exp, &data_dir())`,
 //! `diagnose(&exp, &model, &opts)` with any [`ForceModel`].
@@ -38,6 +45,7 @@ pub mod html;
 pub mod metrics;
 pub mod model;
 pub mod reality;
+pub mod replay;
 pub mod selftest;
 pub mod session;
 pub mod signal;
@@ -75,7 +83,7 @@ pub enum GapError {
     Sim(String),
     /// Reading a session recording (the error names the file).
     #[error(transparent)]
-    Recording(#[from] crate::error::RecordingError),
+    Recording(#[from] recordings::RecordingError),
     #[error("{0}")]
     Other(String),
 }

@@ -1,6 +1,6 @@
 //! Experiment input: strict parsing with errors naming file and line.
-use recordings::gap::experiment::{load_experiment, parse_trial_csv, read_force_displacement};
-use recordings::gap::{GapError, Region};
+use gap_diagnosis::experiment::{load_experiment, parse_trial_csv, read_force_displacement};
+use gap_diagnosis::{GapError, Region};
 use std::path::{Path, PathBuf};
 
 const HEADER: &str = "t_s,fx_N,fy_N,fz_N,px_m,py_m,pz_m,qx,qy,qz,qw";
@@ -103,7 +103,7 @@ fn short_row_and_zero_quaternion() {
 
 #[test]
 fn experiment_folder_errors_name_toml_line() {
-    let data = recordings::gap::data_dir();
+    let data = gap_diagnosis::data_dir();
     // unknown region
     let d = dir("region");
     std::fs::write(d.join("a.csv"), rows(6)).unwrap();
@@ -195,7 +195,7 @@ fn force_displacement_table() {
         .to_string()
         .contains("fd.csv:3"));
     let cadaver =
-        recordings::gap::data_dir().join("empirical/cadaver_probing_force_displacement.csv");
+        gap_diagnosis::data_dir().join("empirical/cadaver_probing_force_displacement.csv");
     if cadaver.is_file() || std::env::var("CI").is_ok() {
         let t = read_force_displacement(&cadaver).unwrap();
         assert_eq!(t.displacement_mm.len(), 9);

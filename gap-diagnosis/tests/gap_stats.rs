@@ -1,10 +1,10 @@
 //! Statistics of the gap diagnosis against an analytic stand-in force model (Hertz contact on
 //! the tangent plane of the nearest probing site). The stand-in exists only here, to test
 //! fitting, cross-validation and the verdict independently of the FE model.
-use recordings::gap::model::{ForceModel, ProbePath, Variant};
-use recordings::gap::reality::Site;
-use recordings::gap::selftest::{selftest_with, SelftestOptions};
-use recordings::gap::{Experiment, GapError, Region};
+use gap_diagnosis::model::{ForceModel, ProbePath, Variant};
+use gap_diagnosis::reality::Site;
+use gap_diagnosis::selftest::{selftest_with, SelftestOptions};
+use gap_diagnosis::{Experiment, GapError, Region};
 
 struct Hertz {
     sites: Vec<Site>,
@@ -114,7 +114,7 @@ impl ForceModel for Hertz {
     }
 }
 
-fn run(cases: usize, seed: u64, verbose: bool) -> recordings::gap::selftest::SelftestResult {
+fn run(cases: usize, seed: u64, verbose: bool) -> gap_diagnosis::selftest::SelftestResult {
     let model = Hertz {
         sites: sites(),
         e: 3.5e6,

@@ -27,36 +27,7 @@ use msgs::Pose;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
-/// Probing region, codes as in `msgs::haptic_to_physics::DeviceState.region`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Region {
-    Posterior = 1,
-    Mid = 2,
-    Anterior = 3,
-}
-
-impl Region {
-    pub const ALL: [Region; 3] = [Region::Posterior, Region::Mid, Region::Anterior];
-    pub fn parse(s: &str) -> Option<Region> {
-        match s.trim().to_ascii_lowercase().as_str() {
-            "posterior" => Some(Region::Posterior),
-            "mid" => Some(Region::Mid),
-            "anterior" => Some(Region::Anterior),
-            _ => None,
-        }
-    }
-    pub fn name(self) -> &'static str {
-        match self {
-            Region::Posterior => "posterior",
-            Region::Mid => "mid",
-            Region::Anterior => "anterior",
-        }
-    }
-    pub fn code(self) -> u32 {
-        self as u32
-    }
-}
+pub use msgs::protocol::Region;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

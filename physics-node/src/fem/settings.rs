@@ -1,0 +1,233 @@
+//! FEM settings: the linear solver, CG preconditioner and matrix precision, and the
+//! element rotation method, from a launch file's `[scene.solver]`.
+
+use super::*;
+
+/// CG preconditioner.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Preconditioner {
+    /// Plain CG (SOFA's CGLinearSolver).
+    None,
+    /// Inverse of each node's 3×3 diagonal block.
+    BlockJacobi,
+    /// The rest-state system A0 factored once (refactored only if dt changes).
+    RestCholesky,
+    /// R A0⁻¹ Rᵀ with the per-node rotations (SOFA's WarpPreconditioner).
+    WarpedRestCholesky,
+}
+
+/// How the corotational element finds its rotation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RotationMethod {
+    /// SOFA's "large": Q of the QR decomposition of F (closed form, SOFA's default).
+    Qr,
+    /// Polar decomposition (nearest rotation, iterative, warm-started; rotation-invariant
+    /// under shear).
+    Polar,
+}
+
+impl RotationMethod {
+    pub fn parse(s: &str) -> Option<RotationMethod> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "qr" | "large" => Some(RotationMethod::Qr),
+            "polar" => Some(RotationMethod::Polar),
+            _ => None,
+        }
+    }
+}
+
+/// Linear solver of the implicit step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum LinearSolver {
+    Cg {
+        max_iterations: usize,
+        tolerance: f64,
+        preconditioner: Preconditioner,
+    },
+    /// faer sparse Cholesky, numeric refactorization every step.
+    Direct,
+}
+
+impl LinearSolver {
+    /// SOFA's CG defaults: 25 iterations, tolerance 1e-9, no preconditioner.
+    pub fn sofa_cg() -> Self {
+        LinearSolver::Cg {
+            max_iterations: 25,
+            tolerance: 1e-9,
+            preconditioner: Preconditioner::None,
+        }
+    }
+}
+
+/// Precision of the system matrix the CG products read.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CgMatrix {
+    /// Upper triangle packed in f32 (products accumulate in f64): half the memory the 26
+    /// products of a step stream, so they run from L2 on the default meshes. Entries keep 7
+    /// digits: right for SOFA's truncated CG, not for a CG asked to converge below ~1e-6.
+    F32,
+    /// Upper triangle in f64, for CG solves that must converge tightly.
+    F64,
+}
+
+impl CgMatrix {
+    pub fn parse(s: &str) -> Option<CgMatrix> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "f32" => Some(CgMatrix::F32),
+            "f64" => Some(CgMatrix::F64),
+            _ => None,
+        }
+    }
+}
+
+/// Settings of a [`FemModel`] besides mesh, material and fixed set.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FemSettings {
+    /// Nominal time step, s (used for the preconditioner factor; other dt refactor it).
+    pub dt: f64,
+    /// Gravity, m/s².
+    pub gravity: Vector3<f64>,
+    /// Rayleigh damping C = α M + β K: α (1/s), β (s).
+    pub rayleigh_mass: f64,
+    pub rayleigh_stiffness: f64,
+    pub solver: LinearSolver,
+    /// 0: fixed nodes held in place. > 0: fixed nodes attached by springs, N/m per node.
+    pub support_stiffness: f64,
+    /// Stable neo-Hookean: project the element Hessian to PSD (true) or use the consistent
+    /// tangent (false; may be indefinite, use the direct solver then).
+    pub project_tangent: bool,
+    /// Rotation of the corotational elements (and of the per-node warp).
+    pub rotation: RotationMethod,
+    /// Precision of the matrix the CG solver multiplies with (unused by the direct solver).
+    pub cg_matrix: CgMatrix,
+    /// With the f32 CG matrix and corotational elements: an element's stiffness blocks are
+    /// re-rotated only once its rotation has moved by more than this (max entry of R − R_K,
+    /// ≈ rad) since they were built; 0 re-rotates every element every step (SOFA). Elastic
+    /// forces always use the current rotation; only the implicit step's Jacobian lags.
+    pub stiffness_rotation_tolerance: f64,
+}
+
+impl Default for FemSettings {
+    fn default() -> Self {
+        FemSettings {
+            dt: 0.01,
+            gravity: Vector3::new(0.0, 0.0, -9.81),
+            rayleigh_mass: 0.0,
+            rayleigh_stiffness: 0.0,
+            solver: LinearSolver::sofa_cg(),
+            support_stiffness: 0.0,
+            project_tangent: true,
+            rotation: RotationMethod::Qr,
+            cg_matrix: CgMatrix::F32,
+            stiffness_rotation_tolerance: 0.0,
+        }
+    }
+}
+
+impl FemSettings {
+    /// Settings from a scene (`dt`, `gravity`, Rayleigh from `[material]`, `[solver]`,
+    /// `support_stiffness` from `[meniscus]`).
+    pub fn from_scene(scene: &SceneConfig) -> Result<Self, FemError> {
+        let solver = match scene.solver.kind.trim().to_ascii_lowercase().as_str() {
+            "cg" => LinearSolver::Cg {
+                max_iterations: scene.solver.cg_iterations as usize,
+                tolerance: scene.solver.cg_tolerance,
+                preconditioner: Preconditioner::None,
+            },
+            "cg-jacobi" => LinearSolver::Cg {
+                max_iterations: scene.solver.cg_iterations as usize,
+                tolerance: scene.solver.cg_tolerance,
+                preconditioner: Preconditioner::BlockJacobi,
+            },
+            "cg-cholesky" | "cg-rest-cholesky" => LinearSolver::Cg {
+                max_iterations: scene.solver.cg_iterations as usize,
+                tolerance: scene.solver.cg_tolerance,
+                preconditioner: Preconditioner::RestCholesky,
+            },
+            "cg-warped-cholesky" => LinearSolver::Cg {
+                max_iterations: scene.solver.cg_iterations as usize,
+                tolerance: scene.solver.cg_tolerance,
+                preconditioner: Preconditioner::WarpedRestCholesky,
+            },
+            "direct" => LinearSolver::Direct,
+            other => {
+                return Err(FemError::Input(format!(
+                    "unknown solver kind `{other}` (expected `cg`, `cg-jacobi`, `cg-cholesky`, \
+                     `cg-warped-cholesky` or `direct`)"
+                )))
+            }
+        };
+        let s = FemSettings {
+            dt: scene.dt,
+            gravity: Vector3::from(scene.gravity),
+            rayleigh_mass: scene.material.rayleigh_mass,
+            rayleigh_stiffness: scene.material.rayleigh_stiffness,
+            solver,
+            support_stiffness: scene.meniscus.support_stiffness,
+            project_tangent: true,
+            rotation: RotationMethod::parse(&scene.solver.rotation).ok_or_else(|| {
+                FemError::Input(format!(
+                    "unknown rotation `{}` (expected `qr` or `polar`)",
+                    scene.solver.rotation
+                ))
+            })?,
+            cg_matrix: CgMatrix::parse(&scene.solver.cg_matrix).ok_or_else(|| {
+                FemError::Input(format!(
+                    "unknown CG matrix precision `{}` (expected `f32` or `f64`)",
+                    scene.solver.cg_matrix
+                ))
+            })?,
+            stiffness_rotation_tolerance: scene.solver.stiffness_rotation_tolerance,
+        };
+        s.validate()?;
+        Ok(s)
+    }
+
+    pub(super) fn validate(&self) -> Result<(), FemError> {
+        if !(self.dt.is_finite() && self.dt > 0.0) {
+            return Err(FemError::Input(format!(
+                "dt must be > 0 s, got {}",
+                self.dt
+            )));
+        }
+        if !self.gravity.iter().all(|g| g.is_finite()) {
+            return Err(FemError::Input("gravity is not finite".into()));
+        }
+        for (name, v) in [
+            ("rayleigh_mass", self.rayleigh_mass),
+            ("rayleigh_stiffness", self.rayleigh_stiffness),
+            ("support_stiffness", self.support_stiffness),
+            (
+                "stiffness_rotation_tolerance",
+                self.stiffness_rotation_tolerance,
+            ),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(FemError::Input(format!("{name} must be ≥ 0, got {v}")));
+            }
+        }
+        if self.stiffness_rotation_tolerance
+            > launch_config::validate::MAX_STIFFNESS_ROTATION_TOLERANCE
+        {
+            return Err(FemError::Input(format!(
+                "stiffness_rotation_tolerance {} rad is above {} rad (a stiffness matrix that \
+                 never follows the rotations makes the implicit step diverge)",
+                self.stiffness_rotation_tolerance,
+                launch_config::validate::MAX_STIFFNESS_ROTATION_TOLERANCE
+            )));
+        }
+        if let LinearSolver::Cg {
+            max_iterations,
+            tolerance,
+            ..
+        } = self.solver
+        {
+            if max_iterations == 0 || !(tolerance.is_finite() && tolerance >= 0.0) {
+                return Err(FemError::Input(format!(
+                    "CG needs ≥ 1 iteration and a tolerance ≥ 0 (got {max_iterations}, {tolerance})"
+                )));
+            }
+        }
+        Ok(())
+    }
+}

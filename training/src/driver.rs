@@ -116,11 +116,21 @@ pub struct CaseMeasure {
     normal_force_sum: f64,
     peak_normal_force_n: f64,
     last_touch_ns: u64,
+    /// The probe already touched when measuring began (a probing in progress when the
+    /// specimen changed): that probing is left out, its start and depth are unknown.
+    skipping: Option<bool>,
 }
 
 impl CaseMeasure {
     /// Adds one physics step; `region` from the newest device state.
     fn add(&mut self, s: &ContactSample, region: u32) {
+        let skipping = self.skipping.get_or_insert(s.touching);
+        if *skipping {
+            if s.touching {
+                return;
+            }
+            *skipping = false;
+        }
         if s.touching {
             // Normal force: the probe pressing into the tissue, positive here (the summary's
             // F_n = −f·n is negative in compression).
@@ -641,6 +651,15 @@ mod tests {
         };
         let reference = probe(2000.0);
         assert_eq!(reference.probings(), 2);
+        // Measuring that begins mid-probing leaves that probing out.
+        let mut late = CaseMeasure::default();
+        late.add(&sample(0, -0.0005, 1.0), 1);
+        late.add(&sample(10, -0.0006, 1.2), 1);
+        for t in 2..40 {
+            late.add(&sample(t * 10, 0.005, 0.0), 1);
+        }
+        assert_eq!(late.probings(), 0);
+        assert_eq!(late.peak_normal_force_n(), None);
         let k = reference.stiffness_by_region()[&1];
         assert!((k - 2000.0).abs() < 1e-6, "{k}");
         let soft = probe(2000.0 * 0.59);

@@ -635,7 +635,8 @@ mod tests {
     fn probings_and_stiffness_from_a_linear_spring() {
         let probe = |k: f64| {
             let mut m = CaseMeasure::default();
-            let mut t = 0;
+            m.add(&sample(0, 0.005, 0.0), 1); // measuring starts with the probe free
+            let mut t = 10;
             for _ in 0..2 {
                 for i in 0..=20 {
                     let depth = 1e-3 * i as f64 / 20.0;

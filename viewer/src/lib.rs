@@ -60,6 +60,8 @@ pub fn load_config(path: Option<&Path>) -> anyhow::Result<(ViewerConfig, BridgeC
 
 /// Foxglove channels of one server, indexed by [`Channel`].
 struct FoxgloveOut {
+    /// Owns the channels' registry: dropping it would close them.
+    _context: Arc<foxglove::Context>,
     _server: foxglove::WebSocketServerHandle,
     channels: Vec<Arc<foxglove::RawChannel>>,
 }
@@ -88,6 +90,7 @@ fn start_foxglove(
     let port = server.port();
     Ok((
         FoxgloveOut {
+            _context: context,
             _server: server,
             channels,
         },

@@ -5,7 +5,7 @@ what arrives against the session's own MCAP recording.
 
   foxglove_check.py --ws ws://127.0.0.1:8765 --seconds 4 --session-dir DIR
 
-1. Connects with subprotocol foxglove.websocket.v1, reads the advertised channels, subscribes
+1. Connects with subprotocol foxglove.sdk.v1 (the SDK's name of the protocol), reads the advertised channels, subscribes
    to every one, and collects messages for --seconds.
 2. Waits for the session to end (DIR/summary.json), opens DIR/session.mcap and matches each
    received probe wrench and pose to the recorded message with the nearest stamp: values must
@@ -44,7 +44,7 @@ async def collect(url, seconds):
     got = {}
     channels = {}
     decoders = {}
-    async with websockets.connect(url, subprotocols=["foxglove.websocket.v1"],
+    async with websockets.connect(url, subprotocols=["foxglove.sdk.v1", "foxglove.websocket.v1"],
                                   max_size=None, open_timeout=10) as ws:
         subscribed = False
         deadline = time.monotonic() + seconds

@@ -92,7 +92,8 @@ pub struct ReplayArgs {
 
 #[derive(Debug, Subcommand)]
 pub enum RecordingsCommand {
-    /// Topics, counts, rates, duration and gaps of a recording.
+    /// Topics, counts, rates, duration and gaps of a recording (FILE.mcap with its parts
+    /// FILE.1.mcap, … written by a restarted recorder, or a session folder).
     Info {
         file: PathBuf,
         #[arg(long)]

@@ -70,8 +70,13 @@ fn run(args: RunArgs) -> Result<i32> {
     let session = msgs::ipc::session_name(Some(&session))?;
     launch.session.name = session.clone();
     let seconds = match args.seconds {
-        Some(s) if !(s.is_finite() && s >= 0.0) => {
-            bail!("--seconds {s}: must be a finite number ≥ 0")
+        Some(s)
+            if !(s.is_finite() && (0.0..=launch_config::validate::MAX_SESSION_S).contains(&s)) =>
+        {
+            bail!(
+                "--seconds {s}: must be a finite number from 0 to {} (30 days; 0 runs until Ctrl-C)",
+                launch_config::validate::MAX_SESSION_S
+            )
         }
         Some(s) => s,
         None => launch.session.seconds,

@@ -357,6 +357,16 @@ pub fn check_mesh(s: &SpecimenSpec, dir: &Path, data_dir: &Path) -> Result<(), S
 type TrialColumns = (Vec<f64>, Vec<[f64; 3]>, Vec<Pose>);
 
 /// Strict CSV reader: every required column, finite numbers, strictly increasing time.
+/// Longest trial, s: each trial is re-simulated step by step (and several times over for
+/// the effect knots), so its span bounds the work and the memory of a diagnosis.
+pub const MAX_TRIAL_SPAN_S: f64 = 600.0;
+/// Largest |t| of a trial sample, s.
+pub const MAX_TRIAL_TIME_S: f64 = 1.0e7;
+/// Closest two samples may be, s (1 MHz; the study's sensor sampled at 38 Hz).
+pub const MIN_TRIAL_INTERVAL_S: f64 = 1.0e-6;
+/// Largest |coordinate| of a probe position, m (the specimen is centimetres across).
+pub const MAX_TRIAL_POSITION_M: f64 = 10.0;
+
 pub fn read_trial_csv(path: &Path) -> Result<TrialColumns, GapError> {
     let text = std::fs::read_to_string(path).map_err(|e| GapError::Io(path.to_path_buf(), e))?;
     parse_trial_csv(&text, path)
@@ -415,6 +425,15 @@ pub fn parse_trial_csv(text: &str, path: &Path) -> Result<TrialColumns, GapError
             }
             v[k] = x;
         }
+        if v[0].abs() > MAX_TRIAL_TIME_S {
+            return Err(err(
+                lineno,
+                format!(
+                    "column t_s: {} s is out of range; |t| ≤ {MAX_TRIAL_TIME_S} s",
+                    v[0]
+                ),
+            ));
+        }
         if let Some(&last) = t.last() {
             if v[0] <= last {
                 return Err(err(
@@ -422,6 +441,37 @@ pub fn parse_trial_csv(text: &str, path: &Path) -> Result<TrialColumns, GapError
                     format!("time not increasing: {} after {}", v[0], last),
                 ));
             }
+            if v[0] - last < MIN_TRIAL_INTERVAL_S {
+                return Err(err(
+                    lineno,
+                    format!(
+                        "column t_s: {} s after the previous sample; samples must be at least \
+                         {MIN_TRIAL_INTERVAL_S} s apart",
+                        v[0] - last
+                    ),
+                ));
+            }
+        }
+        if let Some(&first) = t.first() {
+            if v[0] - first > MAX_TRIAL_SPAN_S {
+                return Err(err(
+                    lineno,
+                    format!(
+                        "column t_s: the trial spans {} s up to here; at most {MAX_TRIAL_SPAN_S} s \
+                         (each trial is re-simulated step by step)",
+                        v[0] - first
+                    ),
+                ));
+            }
+        }
+        if v[4..7].iter().any(|x| x.abs() > MAX_TRIAL_POSITION_M) {
+            return Err(err(
+                lineno,
+                format!(
+                    "position ({}, {}, {}) m is out of range; |coordinate| ≤ {MAX_TRIAL_POSITION_M} m",
+                    v[4], v[5], v[6]
+                ),
+            ));
         }
         let qn = (v[7] * v[7] + v[8] * v[8] + v[9] * v[9] + v[10] * v[10]).sqrt();
         if qn < 1e-6 {

@@ -354,7 +354,164 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
         v.push_owned("recording", e.to_string());
     }
 
+    check_upper_bounds(&mut v, file);
     v.issues
+}
+
+/// Longest bounded session, s (30 days): longer runs use `seconds = 0` (until stopped).
+/// Durations beyond what a `Duration` or a lab day can hold never reach the launcher.
+pub const MAX_SESSION_S: f64 = 30.0 * 86_400.0;
+/// Largest physics step, s: above this the implicit step and the haptic transport (which
+/// re-solves the frame of the last step) are far outside what the model was built for.
+pub const MAX_DT_S: f64 = 0.1;
+/// Smallest physics step, s (the physics cannot keep real time below it on any mesh here).
+pub const MIN_DT_S: f64 = 1.0e-5;
+/// Largest launcher waits, s.
+pub const MAX_LAUNCHER_WAIT_S: f64 = 3_600.0;
+/// Largest device servo rate, Hz (the Touch runs at 1 kHz).
+pub const MAX_DEVICE_RATE_HZ: f64 = 10_000.0;
+/// Largest queue / history depth of a bridge stream: bounds what the bridge allocates.
+pub const MAX_BRIDGE_DEPTH: usize = 1 << 16;
+/// Largest recording chunk, bytes (the reader refuses larger chunks).
+pub const MAX_CHUNK_SIZE_BYTES: u64 = 256 << 20;
+
+/// Upper bounds of every duration, rate and step (the lower bounds are checked with each
+/// key above). Each problem names the key; [`crate::load`] adds line and column.
+fn check_upper_bounds(v: &mut Checks, file: &LaunchFile) {
+    v.at_most(
+        "session.seconds",
+        file.session.seconds,
+        MAX_SESSION_S,
+        "s",
+        "30 days; 0 runs until Ctrl-C",
+    );
+    let l = &file.launcher;
+    for (key, value) in [
+        ("launcher.restart_backoff_s", l.restart_backoff_s),
+        ("launcher.ready_timeout_s", l.ready_timeout_s),
+        ("launcher.stop_grace_s", l.stop_grace_s),
+    ] {
+        v.at_most(key, value, MAX_LAUNCHER_WAIT_S, "s", "one hour");
+    }
+    v.at_most(
+        "launcher.status_period_s",
+        l.status_period_s,
+        60.0,
+        "s",
+        "a status line at least every minute",
+    );
+    v.at_most(
+        "scene.dt",
+        file.scene.dt,
+        MAX_DT_S,
+        "s",
+        "the study uses 0.01",
+    );
+    let dt = file.scene.dt;
+    if dt.is_finite() && dt > 0.0 && dt < MIN_DT_S {
+        v.push(
+            "scene.dt",
+            format!("{dt} s is too small; at least {MIN_DT_S} s (the study uses 0.01)"),
+        );
+    }
+    let d = &file.device;
+    v.at_most(
+        "device.rate_hz",
+        d.rate_hz,
+        MAX_DEVICE_RATE_HZ,
+        "Hz",
+        "the Touch servo runs at 1 kHz",
+    );
+    v.at_most(
+        "device.continuous_window_s",
+        d.continuous_window_s,
+        600.0,
+        "s",
+        "ten minutes",
+    );
+    v.at_most("device.stale_frame_s", d.stale_frame_s, 10.0, "s", "");
+    v.at_most("device.stale_ramp_s", d.stale_ramp_s, 10.0, "s", "");
+    v.at_most(
+        "device.lcp_budget_s",
+        d.lcp_budget_s,
+        0.01,
+        "s",
+        "ten servo ticks",
+    );
+    v.at_most(
+        "device.stats_rate_hz",
+        d.stats_rate_hz,
+        MAX_DEVICE_RATE_HZ,
+        "Hz",
+        "at most once per servo tick",
+    );
+    v.at_most(
+        "device.emulated.hold_s",
+        d.emulated.hold_s,
+        MAX_LAUNCHER_WAIT_S,
+        "s",
+        "one hour",
+    );
+    for (key, value) in [
+        (
+            "device.emulated.approach_speed_m_per_s",
+            d.emulated.approach_speed_m_per_s,
+        ),
+        (
+            "device.emulated.press_speed_m_per_s",
+            d.emulated.press_speed_m_per_s,
+        ),
+    ] {
+        v.at_most(key, value, 1.0, "m/s", "a hand moves the stylus slower");
+    }
+    v.at_most(
+        "device.replay.time_scale",
+        d.replay.time_scale,
+        100.0,
+        "",
+        "replays at most 100× the recorded speed",
+    );
+    let r = &file.recording;
+    v.at_most(
+        "recording.mesh_rate_hz",
+        r.mesh_rate_hz,
+        1_000.0,
+        "Hz",
+        "the physics steps at 100 Hz",
+    );
+    if r.chunk_size_bytes > MAX_CHUNK_SIZE_BYTES {
+        v.push(
+            "recording.chunk_size_bytes",
+            format!(
+                "{} is too large; at most {MAX_CHUNK_SIZE_BYTES} bytes",
+                r.chunk_size_bytes
+            ),
+        );
+    }
+    let b = &file.bridge;
+    if b.queue_depth > MAX_BRIDGE_DEPTH {
+        v.push(
+            "bridge.queue_depth",
+            format!("{} is too large; at most {MAX_BRIDGE_DEPTH}", b.queue_depth),
+        );
+    }
+    for (name, stream) in b.streams.named() {
+        if stream.depth > MAX_BRIDGE_DEPTH {
+            v.push(
+                &format!("bridge.streams.{name}.depth"),
+                format!("{} is too large; at most {MAX_BRIDGE_DEPTH}", stream.depth),
+            );
+        }
+        if stream.rate_hz.is_finite() && stream.rate_hz > MAX_DEVICE_RATE_HZ {
+            v.push(
+                &format!("bridge.streams.{name}.rate_hz"),
+                format!(
+                    "{} Hz is too large; at most {MAX_DEVICE_RATE_HZ} Hz (0: every sample)",
+                    stream.rate_hz
+                ),
+            );
+        }
+    }
 }
 
 fn check_mesh_spec(v: &mut Checks, key: &str, spec: &str) {
@@ -427,6 +584,21 @@ impl Checks {
             self.push(
                 key,
                 format!("{value} is not allowed; must be finite and > 0 {unit}"),
+            );
+        }
+    }
+
+    /// Upper bound (NaN and ±inf are reported by the lower-bound checks).
+    fn at_most(&mut self, key: &str, value: f64, max: f64, unit: &str, why: &str) {
+        if value.is_finite() && value > max {
+            let why = if why.is_empty() {
+                String::new()
+            } else {
+                format!(" ({why})")
+            };
+            self.push(
+                key,
+                format!("{value} {unit} is too large; at most {max} {unit}{why}"),
             );
         }
     }

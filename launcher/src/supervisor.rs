@@ -195,6 +195,67 @@ pub enum LauncherError {
     InterruptedDuringStart(&'static str),
     #[error("cannot subscribe to the session's streams: {0}")]
     Link(#[from] msgs::ipc::LinkError),
+    #[error(
+        "session {name:?} is already running ({holder}); its nodes would share shared-memory \
+         services with this one. Stop it, or give this run another name (--session NAME or \
+         [session] name)"
+    )]
+    SessionLive { name: String, holder: String },
+}
+
+/// Directory of the per-session lock files.
+fn session_lock_dir() -> PathBuf {
+    std::env::temp_dir().join("arthrosim-sessions")
+}
+
+/// Exclusive claim on a session name for the launcher's lifetime: an advisory `flock` on
+/// `<tmp>/arthrosim-sessions/<name>.lock`. The kernel releases it when the launcher exits
+/// in any way (also `kill -9`), so a dead session never blocks its name.
+#[derive(Debug)]
+pub struct SessionLock {
+    _file: std::fs::File,
+    pub path: PathBuf,
+}
+
+impl SessionLock {
+    /// Claims `name`, or says who holds it.
+    pub fn acquire(name: &str) -> Result<SessionLock, LauncherError> {
+        use std::os::fd::AsRawFd;
+        let dir = session_lock_dir();
+        let io = |what: String| move |source| LauncherError::Io { what, source };
+        std::fs::create_dir_all(&dir).map_err(io(format!("create {}", dir.display())))?;
+        let path = dir.join(format!("{name}.lock"));
+        let mut file = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .open(&path)
+            .map_err(io(format!("open {}", path.display())))?;
+        // SAFETY: flock on a file descriptor we own.
+        let rc = unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) };
+        if rc != 0 {
+            let holder = std::fs::read_to_string(&path)
+                .ok()
+                .map(|t| t.trim().to_string())
+                .filter(|t| !t.is_empty())
+                .unwrap_or_else(|| "holder unknown".into());
+            return Err(LauncherError::SessionLive {
+                name: name.to_string(),
+                holder,
+            });
+        }
+        file.set_len(0)
+            .map_err(io(format!("write {}", path.display())))?;
+        writeln!(
+            file,
+            "launcher pid {}, lock {}",
+            std::process::id(),
+            path.display()
+        )
+        .map_err(io(format!("write {}", path.display())))?;
+        Ok(SessionLock { _file: file, path })
+    }
 }
 
 /// Per-node outcome.
@@ -661,13 +722,39 @@ fn forward_lines(
     })
 }
 
-/// `sessions/<UTC timestamp>` relative to the working directory.
+/// `sessions/<UTC timestamp>` relative to the working directory, unique: the folder is
+/// created here, and a run that finds its second's folder taken (another run started in the
+/// same second) takes `<stamp>-2`, `<stamp>-3`, … (`create_dir` is atomic, so two runs never
+/// get the same one).
 pub fn default_out_dir() -> PathBuf {
     let secs = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map(|d| d.as_secs())
         .unwrap_or(0);
-    PathBuf::from("sessions").join(utc_stamp(secs))
+    unique_dir(Path::new("sessions"), &utc_stamp(secs))
+}
+
+/// Creates and returns `parent/stem`, or `parent/stem-N` for the first N ≥ 2 that does not
+/// exist yet. Falls back to the plain path (and lets the session's own create report the
+/// problem) when the parent cannot be created.
+pub fn unique_dir(parent: &Path, stem: &str) -> PathBuf {
+    if std::fs::create_dir_all(parent).is_err() {
+        return parent.join(stem);
+    }
+    for n in 1..10_000u32 {
+        let name = if n == 1 {
+            stem.to_string()
+        } else {
+            format!("{stem}-{n}")
+        };
+        let dir = parent.join(name);
+        match std::fs::create_dir(&dir) {
+            Ok(()) => return dir,
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
+            Err(_) => return dir,
+        }
+    }
+    parent.join(format!("{stem}-{}", std::process::id()))
 }
 
 /// `YYYYMMDD-HHMMSS` (UTC) of a Unix time.
@@ -724,6 +811,9 @@ pub fn run(opts: &RunOptions) -> Result<SessionReport, LauncherError> {
     if kinds.is_empty() {
         return Err(LauncherError::NothingToStart(opts.origin.clone()));
     }
+    // One live session per name: two sessions with the same name would share their
+    // iceoryx2 services (each haptic node rendering the other's physics).
+    let _session_lock = SessionLock::acquire(&opts.session)?;
     let logs = opts.out_dir.join("logs");
     std::fs::create_dir_all(&logs).map_err(|source| LauncherError::Io {
         what: format!("create session folder {}", logs.display()),

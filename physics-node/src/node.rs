@@ -58,7 +58,10 @@ pub fn run_node(args: NodeArgs) -> anyhow::Result<()> {
         None => launch_config::SceneConfig::default(),
     };
     let data_dir = args.data.clone().unwrap_or_else(launch_config::data_dir);
-    let mut sim = Simulation::new(&scene, &data_dir).context("building the physics scene")?;
+    // Real time: a partial compliance cache is filled ahead of the probe on a worker thread,
+    // never solved inside a step.
+    let mut sim = Simulation::with_filling(&scene, &data_dir, crate::compliance::Filling::Prefetch)
+        .context("building the physics scene")?;
     let mut csv = match &args.out {
         Some(dir) => {
             std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;

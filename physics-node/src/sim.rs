@@ -11,7 +11,7 @@
 //! A step allocates nothing and iterates nothing unordered, so the same inputs give
 //! bit-identical outputs.
 
-use crate::compliance::{direction, ComplianceCache, ConstraintCorrection, RestSolver};
+use crate::compliance::{direction, ComplianceCache, ConstraintCorrection, Filling, RestSolver};
 use crate::contact::{boundary_triangles, ContactDetector, ContactParams, TissueSurface};
 use crate::error::PhysicsError;
 use crate::fem::{FemModel, FemSettings, Material, RestCompliance};
@@ -29,13 +29,21 @@ const COMPLIANCE_BUDGET_BYTES: usize = 768 << 20;
 /// Widest block of columns solved at once when filling the cache.
 const BLOCK_COLUMNS: usize = 48;
 
-/// Adapter: the FEM's rest factorization on reduced (free-dof) vectors of length `dim`.
-struct RestFactor<'a> {
-    rest: &'a mut RestCompliance,
+/// Adapter: the FEM's rest factorization on reduced (free-dof) vectors of length `dim`
+/// (the solver a [`ComplianceCache`] owns).
+pub struct RestFactor {
+    rest: RestCompliance,
     dim: usize,
 }
 
-impl RestSolver for RestFactor<'_> {
+impl RestFactor {
+    pub fn new(rest: RestCompliance) -> RestFactor {
+        let dim = cache_dim(&rest);
+        RestFactor { rest, dim }
+    }
+}
+
+impl RestSolver for RestFactor {
     fn dim(&self) -> usize {
         self.dim
     }
@@ -72,8 +80,11 @@ pub struct Simulation {
     instance_id: u64,
     device_sequence: u64,
     fem: FemModel,
-    rest: RestCompliance,
     cache: ComplianceCache,
+    filling: Filling,
+    budget_bytes: usize,
+    /// Rest positions of every mesh node (the prefetcher's map).
+    rest_positions: Vec<Point3<f64>>,
     correction: ConstraintCorrection,
     surface: TissueSurface,
     /// Rigid support under the held inferior surface (bone), if anything is held.
@@ -106,8 +117,30 @@ pub struct Simulation {
 
 impl Simulation {
     /// Builds the scene: meniscus mesh and fixed set, FE model, rest factorization and
-    /// compliance cache, collision surface, probe.
+    /// compliance cache, collision surface, probe. A compliance cache that cannot hold the
+    /// whole surface is filled inline (deterministic; see [`Self::with_filling`]).
     pub fn new(scene: &SceneConfig, data_dir: &Path) -> Result<Simulation, PhysicsError> {
+        Self::with_filling(scene, data_dir, Filling::Inline)
+    }
+
+    /// [`Self::new`] with a choice of how a partial compliance cache is filled: the real-time
+    /// physics node uses [`Filling::Prefetch`] (no solve inside a step).
+    pub fn with_filling(
+        scene: &SceneConfig,
+        data_dir: &Path,
+        filling: Filling,
+    ) -> Result<Simulation, PhysicsError> {
+        Self::with_compliance(scene, data_dir, filling, COMPLIANCE_BUDGET_BYTES)
+    }
+
+    /// [`Self::with_filling`] with the compliance cache's memory budget, bytes (tests use a
+    /// small one to exercise a partial cache on a small mesh).
+    pub fn with_compliance(
+        scene: &SceneConfig,
+        data_dir: &Path,
+        filling: Filling,
+        budget_bytes: usize,
+    ) -> Result<Simulation, PhysicsError> {
         if !(scene.dt.is_finite() && scene.dt > 0.0) {
             return Err(PhysicsError::Config(format!(
                 "dt must be > 0 s, got {}",
@@ -166,7 +199,7 @@ impl Simulation {
             FemSettings::from_scene(scene).map_err(|e| PhysicsError::Fem(e.to_string()))?;
         let mut fem = FemModel::new(&mesh, material, &fixed, settings)
             .map_err(|e| PhysicsError::Fem(e.to_string()))?;
-        let mut rest = fem
+        let rest = fem
             .rest_compliance(scene.dt, BLOCK_COLUMNS)
             .map_err(|e| PhysicsError::Fem(e.to_string()))?;
 
@@ -193,11 +226,11 @@ impl Simulation {
         let cache = ComplianceCache::new(
             free_index,
             &surface.nodes,
-            &mut RestFactor {
-                rest: &mut rest,
-                dim,
-            },
-            COMPLIANCE_BUDGET_BYTES,
+            &surface.triangles,
+            &mesh.nodes,
+            Box::new(RestFactor { rest, dim }),
+            budget_bytes,
+            filling,
         );
 
         let probe = Probe::new(&scene.probe, c.contact_distance, data_dir)?;
@@ -247,8 +280,10 @@ impl Simulation {
             instance_id: 0,
             device_sequence: 0,
             fem,
-            rest,
             cache,
+            filling,
+            budget_bytes,
+            rest_positions: mesh.nodes.clone(),
             correction: ConstraintCorrection::new(dim, MAX_CONTACTS),
             surface,
             support,
@@ -327,25 +362,27 @@ impl Simulation {
         self.fem
             .set_material(material)
             .map_err(|e| PhysicsError::Fem(e.to_string()))?;
-        self.rest = self
+        let rest = self
             .fem
             .rest_compliance(self.dt, BLOCK_COLUMNS)
             .map_err(|e| PhysicsError::Fem(e.to_string()))?;
         let free_index: Vec<u32> = (0..self.fem.node_count())
             .map(|n| {
-                self.rest
-                    .free_index(n)
+                rest.free_index(n)
                     .map_or(crate::compliance::NONE, |i| i as u32)
             })
             .collect();
         self.cache = ComplianceCache::new(
             free_index,
             &self.surface.nodes,
-            &mut RestFactor {
-                rest: &mut self.rest,
+            &self.surface.triangles,
+            &self.rest_positions,
+            Box::new(RestFactor {
+                rest,
                 dim: self.dim,
-            },
-            COMPLIANCE_BUDGET_BYTES,
+            }),
+            self.budget_bytes,
+            self.filling,
         );
         self.scene.material.degeneration_grade = grade;
         self.degeneration_grade = grade;
@@ -376,6 +413,7 @@ impl Simulation {
         // Start-of-step geometry: collision surface and nodal rotations of the committed state.
         self.surface.refit(self.fem.positions());
         self.fem.update_node_rotations();
+        self.cache.prefetch(&self.probe);
         lap(&mut self.times.prepare_ns, &mut last);
 
         // 1. Free motion.
@@ -429,10 +467,6 @@ impl Simulation {
             self.correction.assemble(
                 contacts,
                 &mut self.cache,
-                &mut RestFactor {
-                    rest: &mut self.rest,
-                    dim: self.dim,
-                },
                 rotations,
                 &self.probe,
                 dt,
@@ -634,9 +668,44 @@ impl Simulation {
         &self.probe
     }
 
-    /// Compliance cache misses so far (each one 3-column solve inside a step).
+    /// Compliance cache misses so far: nodes a step needed that were not cached (inline
+    /// filling: each one 3-column solve inside the step; prefetch: each one approximated).
     pub fn compliance_misses(&self) -> u64 {
         self.cache.misses
+    }
+
+    /// Contacts whose tissue compliance was approximated so far (prefetch filling: a node
+    /// of the contact was not cached yet).
+    pub fn compliance_approximations(&self) -> u64 {
+        self.cache.approximated
+    }
+
+    /// Surface nodes whose compliance is cached now.
+    pub fn compliance_cached_nodes(&self) -> usize {
+        self.cache.cached_nodes()
+    }
+
+    /// Waits (set-up, not the real-time loop) until the prefetcher has cached the surface
+    /// around the probe's current pose and target; true when it did within `timeout`.
+    pub fn wait_compliance_prefetched(&mut self, timeout: std::time::Duration) -> bool {
+        self.cache.wait_prefetched(&self.probe, timeout)
+    }
+
+    /// The inputs a new [`ComplianceCache`] for this scene needs besides its solver and
+    /// free rows: surface nodes, surface triangles and rest positions (to build one off the
+    /// real-time loop).
+    pub fn compliance_layout(&self) -> (&[usize], &[[usize; 3]], &[Point3<f64>]) {
+        (
+            &self.surface.nodes,
+            &self.surface.triangles,
+            &self.rest_positions,
+        )
+    }
+
+    /// Swaps in a compliance cache built elsewhere (e.g. on a worker thread after a material
+    /// change) and returns the old one. Cheap: the caller drops the old one off the loop.
+    pub fn swap_compliance(&mut self, cache: ComplianceCache) -> ComplianceCache {
+        std::mem::replace(&mut self.cache, cache)
     }
 
     /// Total mechanical energy, J: tissue (elastic, kinetic, gravity) + probe (kinetic,

@@ -116,7 +116,8 @@ impl Recorder {
             path: info.launch_path.clone().unwrap_or_default(),
             detail,
         })?;
-        let path = out_dir.join(&config.file_name);
+        // A restarted recorder continues in a new part; it never reopens the first one.
+        let path = crate::read::next_part_path(out_dir, &config.file_name);
         let writer = SessionWriter::create_with_mapping(&path, config, info, mapping)?;
         Ok(Recorder {
             session: session.to_string(),

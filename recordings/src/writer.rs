@@ -147,7 +147,13 @@ impl SessionWriter {
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir).map_err(|e| RecordingError::io(dir, e))?;
         }
-        let file = File::create(path).map_err(|e| RecordingError::io(path, e))?;
+        // Never truncates: a recording that exists is an earlier part of a session (a
+        // restarted recorder writes `session.N.mcap`, see `read::next_part_path`).
+        let file = std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(path)
+            .map_err(|e| RecordingError::io(path, e))?;
         let compression = match config.compression {
             ChunkCompression::Zstd => Some(mcap::Compression::Zstd),
             ChunkCompression::None => None,

@@ -48,6 +48,10 @@ struct Args {
     /// Study data folder (default: $ARTHROSIM_DATA, else ../shared/data).
     #[arg(long)]
     data: Option<PathBuf>,
+    /// How a partial compliance cache is filled: `prefetch` (worker thread, as the physics
+    /// node) or `inline` (a miss is solved inside the step).
+    #[arg(long, default_value = "prefetch")]
+    compliance: String,
     /// Indentation of the proxy below the surface, m.
     #[arg(long, default_value_t = 1.5e-3)]
     depth: f64,
@@ -81,7 +85,12 @@ fn main() -> anyhow::Result<()> {
         scene.solver.stiffness_rotation_tolerance = t;
     }
     let t_build = Instant::now();
-    let mut sim = Simulation::new(&scene, &data_dir)
+    let filling = match args.compliance.as_str() {
+        "prefetch" => physics_node::compliance::Filling::Prefetch,
+        "inline" => physics_node::compliance::Filling::Inline,
+        other => bail!("--compliance {other}: expected prefetch or inline"),
+    };
+    let mut sim = Simulation::with_filling(&scene, &data_dir, filling)
         .with_context(|| format!("building scene for {}", args.mesh))?;
     let build_s = t_build.elapsed().as_secs_f64();
 
@@ -112,6 +121,7 @@ fn main() -> anyhow::Result<()> {
     let mut force_sum = 0.0;
     let mut stiffness_updates = 0u64;
     let misses_before = sim.compliance_misses();
+    let approximations_before = sim.compliance_approximations();
     let times_before = sim.phase_times();
     let t0 = Instant::now();
     let more = |done: usize| match args.steps {
@@ -156,6 +166,7 @@ fn main() -> anyhow::Result<()> {
         "wall_steps_per_s": steps as f64 / wall,
         "step_p50_us": pct(0.5),
         "step_p99_us": pct(0.99),
+        "step_p99_over_p50": pct(0.99) / pct(0.5),
         "step_max_us": pct(1.0),
         "contacts_mean": contacts_sum as f64 / steps as f64,
         "contact_fraction": in_contact as f64 / steps as f64,
@@ -171,6 +182,9 @@ fn main() -> anyhow::Result<()> {
         "compliance_slots": slots,
         "compliance_complete": complete,
         "compliance_misses": sim.compliance_misses() - misses_before,
+        "compliance_filling": args.compliance,
+        "compliance_approximated_contacts": sim.compliance_approximations() - approximations_before,
+        "compliance_cached_nodes": sim.compliance_cached_nodes(),
         "build_s": build_s,
         "phase_mean_us": phases,
     });

@@ -228,6 +228,7 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
 
     // Everything the loop touches is allocated here.
     let mut renderer = Renderer::new(limits.clone());
+    renderer.set_device_instance(instance);
     let mut incoming = boxed_frame();
     let mut sample = DeviceSample::default();
     let mut stats = LoopStats::new();
@@ -290,6 +291,8 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
                 false
             }
         };
+        // Ticks up to sequence − 1 have been published: a frame can use no later sample.
+        renderer.set_device_sequence(sequence - 1);
         match ipc::take_newest(&frames, &mut incoming) {
             Ok(0) => {}
             Ok(_) => renderer.accept_frame(&mut incoming),

@@ -229,6 +229,12 @@ pub struct Renderer {
     pub invalid_frames: u64,
     /// Faults raised on frame acceptance, reported with the next tick.
     pending_faults: u32,
+    /// This node's device instance (0: frames are not checked against it) and its newest
+    /// published tick: a frame must have been computed for one of our own samples.
+    device_instance: u64,
+    device_sequence: u64,
+    /// Non-zero while the newest frame may not be rendered (its fault bits): ramp to zero.
+    unrenderable: u32,
 }
 
 /// A zeroed boxed frame without a large stack temporary.
@@ -253,7 +259,49 @@ impl Renderer {
             restarts: 0,
             invalid_frames: 0,
             pending_faults: 0,
+            device_instance: 0,
+            device_sequence: 0,
+            unrenderable: 0,
         }
+    }
+
+    /// Render only frames computed for this device instance's samples.
+    pub fn set_device_instance(&mut self, instance: u64) {
+        self.device_instance = instance;
+    }
+
+    /// The newest device tick this node published (frames may not claim a later one).
+    pub fn set_device_sequence(&mut self, sequence: u64) {
+        self.device_sequence = sequence;
+    }
+
+    /// Why `frame` must not be rendered (fault bits; 0: it may be): a physics fault flag, a
+    /// probe driven by an external target, another device's (or a future) sample, or a
+    /// sample older than the staleness limit.
+    fn refusal(&self, frame: &ContactFrame) -> u32 {
+        use msgs::physics_to_haptic::drive;
+        let mut bits = 0;
+        if frame.physics_faults != 0 {
+            bits |= fault::PHYSICS_FAULT;
+        }
+        if frame.drive & drive::EXTERNAL_TARGET != 0 {
+            bits |= fault::FOREIGN_FRAME;
+        }
+        if self.device_instance != 0 {
+            let used = frame.device_sequence_used;
+            if frame.device_instance_used != self.device_instance
+                || used == 0
+                || used > self.device_sequence
+            {
+                bits |= fault::FOREIGN_FRAME;
+            } else {
+                let lag_ns = (self.device_sequence - used) as f64 * 1e9 / self.limits.rate_hz;
+                if lag_ns > self.limits.stale_frame_ns as f64 {
+                    bits |= fault::STALE_FRAME;
+                }
+            }
+        }
+        bits
     }
 
     pub fn limits(&self) -> &Limits {
@@ -282,6 +330,23 @@ impl Renderer {
     /// is valid (no copy, no allocation); an invalid frame is quarantined and the previous
     /// one kept (it will age out and ramp the force down if nothing valid follows).
     pub fn accept_frame(&mut self, incoming: &mut Box<ContactFrame>) {
+        let refused = self.refusal(incoming);
+        if refused != 0 {
+            // Not swapped in, and the frame in use stops being rendered too: the force ramps
+            // to zero until a frame computed for this device's own state arrives.
+            self.unrenderable = refused;
+            self.pending_faults |= refused;
+            let new_kinds = refused & !self.logged.0;
+            self.logged.0 |= refused;
+            if new_kinds != 0 {
+                tracing::warn!(
+                    sequence = incoming.sequence,
+                    faults = refused,
+                    "contact frame not for this device's state or physically faulty: ramping force to zero (logged once)"
+                );
+            }
+            return;
+        }
         if !incoming.is_valid() {
             self.invalid_frames += 1;
             self.pending_faults |= fault::INVALID_FRAME;
@@ -306,6 +371,7 @@ impl Renderer {
         }
         core::mem::swap(incoming, &mut self.current);
         self.have_frame = true;
+        self.unrenderable = 0;
         // Warm start from the physics solution of this frame (same rows, solved at δ_free);
         // the solver discards non-finite entries.
         let rows = self.current.row_count as usize;
@@ -345,6 +411,11 @@ impl Renderer {
                     "contact frame stale: ramping force to zero (logged once)"
                 );
             }
+            out.rendered = self.limiter.ramp_down(now_ns);
+            return out;
+        }
+        if self.unrenderable != 0 {
+            out.faults |= self.unrenderable;
             out.rendered = self.limiter.ramp_down(now_ns);
             return out;
         }

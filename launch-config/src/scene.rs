@@ -18,6 +18,10 @@ pub struct SceneConfig {
     pub solver: SolverConfig,
     pub contact: ContactConfig,
     pub probe: ProbeConfig,
+    pub faults: FaultConfig,
+    /// Material (degeneration grade) changes are prepared off the real-time loop and swapped
+    /// in; at most one change starts per this interval, s (later commands are coalesced).
+    pub material_change_interval_s: f64,
 }
 
 impl Default for SceneConfig {
@@ -30,6 +34,44 @@ impl Default for SceneConfig {
             solver: SolverConfig::default(),
             contact: ContactConfig::default(),
             probe: ProbeConfig::default(),
+            faults: FaultConfig::default(),
+            material_change_interval_s: 1.0,
+        }
+    }
+}
+
+/// `[scene.faults]`: the checks every physics step passes before its frame may be rendered.
+/// A step that fails one is published with a fault flag, rolled back and counted.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct FaultConfig {
+    /// Largest contact force on the probe that is physical for the scene, N. The study's
+    /// probings stay below 25 N and the Touch renders at most 3.3 N; a diverging contact
+    /// solve reaches 10⁴–10⁶ N.
+    pub max_contact_force_n: f64,
+    /// Deepest probe penetration left after the contact correction, m (a converged solve
+    /// leaves ~0; the contact distance is 1.1 mm).
+    pub max_penetration_m: f64,
+    /// Largest relative residual ‖b − AΔv‖/‖b‖ of the free-motion CG. The truncated CG (25
+    /// iterations) does not reach its tolerance by design; a residual of this size means it
+    /// made no progress at all.
+    pub max_cg_residual: f64,
+    /// Relative slack of the energy check: without contact, the tissue's kinetic energy may
+    /// not exceed the mechanical energy it had when the last contact ended by more than this.
+    pub energy_tolerance: f64,
+    /// After this many faulty steps in a row, roll back to the rest state instead of the last
+    /// good one.
+    pub rest_after_faults: u32,
+}
+
+impl Default for FaultConfig {
+    fn default() -> Self {
+        FaultConfig {
+            max_contact_force_n: 200.0,
+            max_penetration_m: 3e-3,
+            max_cg_residual: 1.0,
+            energy_tolerance: 0.05,
+            rest_after_faults: 3,
         }
     }
 }

@@ -227,6 +227,33 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
         );
     }
 
+    let fc = &s.faults;
+    v.positive(
+        "scene.faults.max_contact_force_n",
+        fc.max_contact_force_n,
+        "N (a physical bound for the scene's contact force)",
+    );
+    v.positive("scene.faults.max_penetration_m", fc.max_penetration_m, "m");
+    v.positive("scene.faults.max_cg_residual", fc.max_cg_residual, "");
+    v.non_negative("scene.faults.energy_tolerance", fc.energy_tolerance, "");
+    if fc.rest_after_faults == 0 {
+        v.push("scene.faults.rest_after_faults", "must be > 0");
+    }
+    v.positive(
+        "scene.material_change_interval_s",
+        s.material_change_interval_s,
+        "s (material changes are rate-limited)",
+    );
+    if s.material_change_interval_s > 3600.0 {
+        v.push(
+            "scene.material_change_interval_s",
+            format!(
+                "{} s is too long; at most 3600 s",
+                s.material_change_interval_s
+            ),
+        );
+    }
+
     let p = &s.probe;
     if p.model != "default" {
         v.existing_file(

@@ -11,6 +11,7 @@
 pub mod compliance;
 pub mod contact;
 pub mod error;
+pub mod faults;
 pub mod fem;
 pub mod node;
 pub mod probe;

@@ -70,6 +70,21 @@ pub struct PhaseTimes {
     pub correction_ns: u64,
 }
 
+/// The material-dependent parts of a simulation, prepared off the real-time loop
+/// ([`Simulation::prepare_material`]) and swapped in at a step boundary.
+pub struct MaterialParts {
+    grade: f64,
+    fem: FemModel,
+    rest: RestCompliance,
+    cache: ComplianceCache,
+}
+
+impl MaterialParts {
+    pub fn grade(&self) -> f64 {
+        self.grade
+    }
+}
+
 /// A meniscus–probe simulation.
 pub struct Simulation {
     scene: SceneConfig,
@@ -110,6 +125,13 @@ pub struct Simulation {
     visual: Option<crate::visual::VisualModel>,
     sites: Vec<ProbingSite>,
     degeneration_grade: f64,
+    /// Haptic instance whose device state drives the probe (0: none / external target).
+    device_instance: u64,
+    /// `msgs::physics_to_haptic::drive` bits written into the frame.
+    drive: u32,
+    /// Per-step checks and the last good state.
+    monitor: crate::faults::FaultMonitor,
+    report: crate::faults::StepReport,
     /// Reduced dimension of the rest system (3 × free nodes).
     dim: usize,
     times: PhaseTimes,
@@ -271,6 +293,7 @@ impl Simulation {
 
         let n_nodes = mesh.nodes.len();
         let spheres = probe.spheres.len();
+        let monitor = crate::faults::FaultMonitor::new(&scene.faults, &fem);
         Ok(Simulation {
             scene: scene.clone(),
             dt: scene.dt,
@@ -310,6 +333,10 @@ impl Simulation {
             visual,
             sites,
             degeneration_grade: scene.material.degeneration_grade,
+            device_instance: 0,
+            drive: 0,
+            monitor,
+            report: crate::faults::StepReport::default(),
             dim,
             times: PhaseTimes::default(),
         })
@@ -389,9 +416,84 @@ impl Simulation {
         Ok(())
     }
 
+    /// Builds the material-dependent parts of `scene` at degeneration grade `grade` (FE
+    /// model, rest factorization, compliance cache): seconds of work and up to the cache
+    /// budget of memory, meant for a worker thread. [`Self::swap_material`] puts them in.
+    pub fn prepare_material(
+        scene: &SceneConfig,
+        data_dir: &Path,
+        grade: f64,
+    ) -> Result<MaterialParts, PhysicsError> {
+        if !(grade.is_finite() && (0.0..=2.0).contains(&grade)) {
+            return Err(PhysicsError::Config(format!(
+                "degeneration grade must be in 0..=2, got {grade}"
+            )));
+        }
+        let mut scene = scene.clone();
+        scene.material.degeneration_grade = grade;
+        let sim = Simulation::new(&scene, data_dir)?;
+        Ok(MaterialParts {
+            grade,
+            fem: sim.fem,
+            rest: sim.rest,
+            cache: sim.cache,
+        })
+    }
+
+    /// Swaps prepared material parts in at a step boundary: the current positions and
+    /// velocities move to the new FE model (O(nodes), no allocation), and the old parts come
+    /// back, to be dropped off the real-time loop. Parts built for another mesh are refused
+    /// and returned as they are.
+    pub fn swap_material(
+        &mut self,
+        mut parts: MaterialParts,
+    ) -> Result<MaterialParts, MaterialParts> {
+        if parts.fem.node_count() != self.fem.node_count() || parts.rest.dt() != self.dt {
+            return Err(parts);
+        }
+        for n in 0..self.fem.node_count() {
+            // Only fail for an out-of-range node or a non-finite value: the committed state
+            // of a good step is finite.
+            let _ = parts.fem.set_position(n, self.fem.positions()[n]);
+            let _ = parts.fem.set_velocity(n, self.fem.velocities()[n]);
+        }
+        std::mem::swap(&mut self.fem, &mut parts.fem);
+        std::mem::swap(&mut self.rest, &mut parts.rest);
+        std::mem::swap(&mut self.cache, &mut parts.cache);
+        std::mem::swap(&mut self.degeneration_grade, &mut parts.grade);
+        self.scene.material.degeneration_grade = self.degeneration_grade;
+        Ok(parts)
+    }
+
+    /// The degeneration grade in use.
+    pub fn degeneration_grade(&self) -> f64 {
+        self.degeneration_grade
+    }
+
     /// Records which device state drove this step (published in the frame).
     pub fn set_device_sequence(&mut self, sequence: u64) {
         self.device_sequence = sequence;
+    }
+
+    /// Records which device sample (haptic instance and tick) drives the next step; the
+    /// haptic node renders only frames computed for its own samples.
+    pub fn set_device_sample(&mut self, instance: u64, sequence: u64) {
+        self.device_instance = instance;
+        self.device_sequence = sequence;
+        self.drive &= !msgs::physics_to_haptic::drive::EXTERNAL_TARGET;
+    }
+
+    /// The probe follows an external target (not a device) from the next step on: frames
+    /// say so and name no device sample, so no haptic node renders them.
+    pub fn set_external_drive(&mut self) {
+        self.device_instance = 0;
+        self.device_sequence = 0;
+        self.drive |= msgs::physics_to_haptic::drive::EXTERNAL_TARGET;
+    }
+
+    /// Faulty steps since start (each one flagged, rolled back and not rendered).
+    pub fn physics_faults(&self) -> u64 {
+        self.monitor.faulty_steps
     }
 
     /// Instance id written into every frame.
@@ -400,8 +502,53 @@ impl Simulation {
         self.frame.instance_id = id;
     }
 
-    /// One FreeMotionAnimationLoop step. Allocation-free.
+    /// One FreeMotionAnimationLoop step, checked. Allocation-free. A step that fails a check
+    /// (see [`crate::faults`]) or errors numerically is still published, with its
+    /// `physics_faults` bits set, and the state is rolled back; it returns `Ok` (survived).
     pub fn step(&mut self) -> Result<(), PhysicsError> {
+        use msgs::physics_to_haptic::{drive, physics_fault};
+        self.report = crate::faults::StepReport {
+            lcp_converged: true,
+            ..Default::default()
+        };
+        let (faults, errored) = match self.advance() {
+            Ok(()) => (self.monitor.check(&self.report, &mut self.fem), false),
+            Err(PhysicsError::Numerical { detail, .. }) => {
+                self.monitor.note_numerical(&detail);
+                (physics_fault::NUMERICAL, true)
+            }
+            Err(e) => return Err(e),
+        };
+        let frame = &mut *self.frame;
+        frame.physics_faults = faults;
+        frame.drive = self.drive;
+        if faults == 0 {
+            self.monitor.commit_good(&self.fem, &self.probe);
+            return Ok(());
+        }
+        if errored {
+            // The step stopped midway: close it so time and sequence still advance, with no
+            // contact problem a consumer could use.
+            self.time = (self.sequence + 1) as f64 * self.dt;
+            self.sequence += 1;
+            frame.instance_id = self.instance_id;
+            frame.sequence = self.sequence;
+            frame.sim_time_s = self.time;
+            frame.dt_s = self.dt;
+            frame.contact_count = 0;
+            frame.row_count = 0;
+            frame.device_sequence_used = self.device_sequence;
+            frame.device_instance_used = self.device_instance;
+        }
+        self.monitor
+            .roll_back(faults, self.time, &mut self.fem, &mut self.probe);
+        self.warm.iter_mut().for_each(|w| *w = [0.0; 3]);
+        frame.drive |= drive::ROLLED_BACK;
+        Ok(())
+    }
+
+    /// The unchecked step.
+    fn advance(&mut self) -> Result<(), PhysicsError> {
         let dt = self.dt;
         let clock = std::time::Instant::now();
         let lap = |acc: &mut u64, last: &mut std::time::Instant| {
@@ -417,12 +564,14 @@ impl Simulation {
         lap(&mut self.times.prepare_ns, &mut last);
 
         // 1. Free motion.
-        self.fem
+        let cg = self
+            .fem
             .free_motion(dt, &self.external)
             .map_err(|e| PhysicsError::Numerical {
                 time: self.time,
                 detail: e.to_string(),
             })?;
+        self.report.cg_residual = cg.relative_residual;
         self.probe.free_motion(dt, &self.gravity);
         lap(&mut self.times.free_motion_ns, &mut last);
 
@@ -501,6 +650,13 @@ impl Simulation {
                 Ok(sol) => {
                     iterations = sol.iterations;
                     residual = sol.residual;
+                    self.report.lcp_converged = sol.converged;
+                    self.report.penetration = crate::faults::corrected_penetration(
+                        &frame.compliance,
+                        &frame.free_violation,
+                        &self.lambda,
+                        rows,
+                    );
                 }
                 Err(e) => {
                     return Err(PhysicsError::Numerical {
@@ -567,6 +723,8 @@ impl Simulation {
         }
         self.contact_force = [force.x, force.y, force.z];
         self.contact_torque = [torque.x, torque.y, torque.z];
+        self.report.contacts = m;
+        self.report.force = self.contact_force;
 
         // Frame header and results.
         frame.instance_id = self.instance_id;
@@ -579,6 +737,7 @@ impl Simulation {
         frame.lcp_iterations = iterations;
         frame.lcp_residual = residual;
         frame.device_sequence_used = self.device_sequence;
+        frame.device_instance_used = self.device_instance;
         frame.proxy_pose = proxy_pose;
         frame.probe_free_pose = probe_free_pose;
         frame.probe_pose = self.probe.pose();

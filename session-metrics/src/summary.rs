@@ -111,6 +111,10 @@ pub struct SessionSummary {
     /// Mean wall time of a physics step, ms.
     pub physics_step_ms_mean: Option<f64>,
     pub physics_instances: u32,
+    /// Physics steps that failed a fault check (flagged, rolled back, not rendered).
+    pub physics_faults: u64,
+    /// What tripped, over the session (names of the `physics_fault` bits seen).
+    pub physics_fault_kinds: Vec<&'static str>,
     pub haptic_ticks: u64,
     /// Device states per wall-clock second as received by the launcher.
     pub haptic_hz: Option<f64>,
@@ -281,6 +285,15 @@ pub fn summarize(record: &SessionRecord) -> SessionSummary {
     let sim_s: f64 = instances.iter().map(|e| e.4 - e.3).sum();
     let physics_steps = record.contacts.len() as u64;
     let device_span = record.total_device_span_ns();
+    let physics_faults = record
+        .contacts
+        .iter()
+        .filter(|s| s.physics_faults != 0)
+        .count() as u64;
+    let fault_bits = record
+        .contacts
+        .iter()
+        .fold(0u32, |acc, s| acc | s.physics_faults);
 
     SessionSummary {
         regions: out,
@@ -290,6 +303,8 @@ pub fn summarize(record: &SessionRecord) -> SessionSummary {
         physics_step_ms_mean: (physics_steps > 0)
             .then(|| step_ns_sum as f64 / physics_steps as f64 * 1e-6),
         physics_instances: instances.len() as u32,
+        physics_faults,
+        physics_fault_kinds: msgs::physics_to_haptic::physics_fault::names(fault_bits).collect(),
         haptic_ticks: record.device_ticks,
         haptic_hz: (device_span > 0 && record.device_ticks > 1)
             .then(|| (record.device_ticks - 1) as f64 / (device_span as f64 * 1e-9)),
@@ -344,6 +359,14 @@ impl fmt::Display for SessionSummary {
                 String::new()
             }
         )?;
+        if self.physics_faults > 0 {
+            writeln!(
+                f,
+                "physics faults: {} steps flagged and rolled back ({})",
+                self.physics_faults,
+                self.physics_fault_kinds.join(", ")
+            )?;
+        }
         writeln!(
             f,
             "haptic:  {} ticks, {} Hz received, {} Hz reported",
@@ -375,6 +398,7 @@ mod tests {
             dt_s: 0.01,
             step_duration_ns: 2 * MS,
             contact_count: contact as u32,
+            physics_faults: 0,
             // The device ticks at 1 kHz with sequence = its time in ms.
             device_sequence_used: t_ms,
             normal: if contact { [0.0, 0.0, 1.0] } else { [0.0; 3] },
@@ -466,6 +490,26 @@ mod tests {
         assert_eq!(s.regions_with_contact(), Vec::<&str>::new());
         for name in ["posterior", "mid", "anterior"] {
             assert_eq!(s.region(name).unwrap().contact_steps, 0);
+        }
+    }
+
+    #[test]
+    fn faulty_steps_are_counted_not_summarised() {
+        let mut record = region_record();
+        let clean = summarize(&record);
+        let mut bad = sample(10_000, true, -1e5, 0.0);
+        bad.physics_faults = msgs::physics_to_haptic::physics_fault::FORCE_BOUND;
+        record.contacts.push(bad);
+        let s = summarize(&record);
+        assert_eq!(clean.physics_faults, 0);
+        assert_eq!(s.physics_faults, 1);
+        assert_eq!(
+            s.physics_fault_kinds,
+            vec!["contact force beyond the scene bound"]
+        );
+        for (a, b) in clean.regions.iter().zip(&s.regions) {
+            assert_eq!(a.peak_normal_force_n, b.peak_normal_force_n);
+            assert_eq!(a.contact_steps, b.contact_steps);
         }
     }
 

@@ -25,6 +25,7 @@ use msgs::ros_mapping::{ClockOffsetError, Mapping, StampClock};
 
 use crate::dds::{self, DdsError, DdsThread, Envelope, Inbound, Outbound};
 use crate::stats::{BridgeStats, Stream, OUT_STREAMS};
+use crate::target_gate::TargetGate;
 
 #[derive(Debug, thiserror::Error)]
 pub enum BridgeError {
@@ -61,6 +62,7 @@ struct Running {
     last_buttons: Option<u32>,
     target_sequence: u64,
     material_sequence: u64,
+    targets: TargetGate,
 }
 
 pub struct Bridge {
@@ -180,6 +182,7 @@ impl Bridge {
             last_buttons: None,
             target_sequence: 0,
             material_sequence: 0,
+            targets: TargetGate::new(self.config.accept_target_pose, &self.config.target_pose),
         });
         Ok(())
     }
@@ -202,8 +205,10 @@ impl Bridge {
         let mut handled = 0;
 
         let now = msgs::clock::monotonic_ns();
+        let targets = &mut run.targets;
         let frames = ipc::drain_each(&run.contact_frames, |frame| {
             stats.record_ipc_latency(now.saturating_sub(frame.publish_ns));
+            targets.set_probe_position(frame.probe_pose.position);
             stats
                 .physics_step_ns
                 .store(frame.step_duration_ns, Ordering::Relaxed);
@@ -267,6 +272,14 @@ impl Bridge {
         if surfaces > 0 {
             BridgeStats::add(&stats.surfaces, surfaces as u64);
             handled += surfaces;
+            if run.targets.needs_workspace() {
+                let n = (surface.vertex_count as usize).min(surface.positions.len());
+                run.targets.set_scene_points(
+                    surface.positions[..n]
+                        .iter()
+                        .map(|p| [p[0] as f64, p[1] as f64, p[2] as f64]),
+                );
+            }
             let src = surface.publish_ns;
             if gate.open(Stream::Mesh, src) {
                 let mut mesh = Box::<Marker>::default();
@@ -289,6 +302,20 @@ impl Bridge {
             handled += 1;
             match cmd {
                 Inbound::ProbeTarget(pose) => {
+                    let now_s = msgs::clock::monotonic_ns() as f64 * 1e-9;
+                    let pose = match run.targets.check(&pose, now_s) {
+                        Ok(pose) => pose,
+                        Err(why) => {
+                            BridgeStats::add(&stats.targets_refused[why as usize], 1);
+                            if run.targets.refused(why) == 1 {
+                                tracing::warn!(
+                                    reason = why.name(),
+                                    "probe target refused (counted on /diagnostics; logged once per reason)"
+                                );
+                            }
+                            continue;
+                        }
+                    };
                     run.target_sequence += 1;
                     let target = ProbeTarget {
                         sequence: run.target_sequence,

@@ -19,6 +19,7 @@ use msgs::ros_mapping::{self, Mapping, StampClock, Topic};
 
 use crate::convert;
 use crate::stats::{percentile, BridgeStats, Stream, OUT_STREAMS};
+use crate::target_gate::Refusal;
 
 /// A message for the DDS side, with the monotonic publish time of the sample it came from.
 pub struct Envelope {
@@ -367,9 +368,17 @@ impl DdsSide {
     fn poll_inbound(&mut self) {
         if let Some(sub) = &self.target_pose {
             while let Ok(Some((msg, _info))) = sub.take() {
+                if !self.config.accept_target_pose {
+                    // Counted, never forwarded: external control is opt-in.
+                    BridgeStats::add(&self.stats.targets_refused[Refusal::Disabled as usize], 1);
+                    continue;
+                }
                 match convert::probe_target(&msg) {
                     Some(pose) => forward(&self.inbound, &self.stats, Inbound::ProbeTarget(pose)),
-                    None => BridgeStats::add(&self.stats.inbound_rejected, 1),
+                    None => BridgeStats::add(
+                        &self.stats.targets_refused[Refusal::Malformed as usize],
+                        1,
+                    ),
                 }
             }
         }
@@ -489,6 +498,25 @@ impl DdsSide {
                 KeyValue::new("ipc_errors", BridgeStats::get(&stats.ipc_errors)),
             ],
         };
+        inputs_status.values.push(KeyValue::new(
+            "accept_target_pose",
+            self.config.accept_target_pose,
+        ));
+        let mut refused_total = 0;
+        for why in Refusal::ALL {
+            let n = BridgeStats::get(&stats.targets_refused[why as usize]);
+            refused_total += n;
+            inputs_status
+                .values
+                .push(KeyValue::new(&format!("targets_refused_{}", why.name()), n));
+        }
+        inputs_status
+            .values
+            .push(KeyValue::new("targets_refused", refused_total));
+        if refused_total > 0 {
+            inputs_status.level = DiagnosticStatus::WARN;
+            inputs_status.message = format!("{refused_total} probe targets refused so far");
+        }
         if rates[0] == 0.0 && rates[1] == 0.0 {
             inputs_status.level = DiagnosticStatus::STALE;
             inputs_status.message = "no physics or haptic samples in the last window".into();

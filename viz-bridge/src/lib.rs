@@ -7,7 +7,8 @@
 //! out `probe/pose` (PoseStamped), `probe/wrench` (WrenchStamped, contact force on the probe,
 //! eq. (1), world frame), `device/wrench`, `device/joint_states`, `device/buttons` (Joy),
 //! `meniscus/mesh` (Marker TRIANGLE_LIST, transient-local), `contacts` (MarkerArray), `/tf`,
-//! `/diagnostics`; in `probe/target_pose` (PoseStamped → physics ProbeTarget) and
+//! `/diagnostics`; in `probe/target_pose` (PoseStamped → physics ProbeTarget, only with
+//! `[bridge] accept_target_pose = true`, and then bounded: see [`target_gate`]) and
 //! `material/degeneration_grade` (Float64 → physics MaterialCommand).
 //!
 //! Two threads: the shared-memory thread (iceoryx2 ports are not `Send`) converts samples
@@ -19,6 +20,7 @@ pub mod bridge;
 pub mod convert;
 pub mod dds;
 pub mod stats;
+pub mod target_gate;
 
 use std::path::{Path, PathBuf};
 

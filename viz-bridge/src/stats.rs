@@ -78,6 +78,8 @@ pub struct BridgeStats {
     pub targets_forwarded: AtomicU64,
     pub grades_forwarded: AtomicU64,
     pub inbound_rejected: AtomicU64,
+    /// Target poses refused by the gate, per [`crate::target_gate::Refusal`] (in its order).
+    pub targets_refused: [AtomicU64; 5],
     pub ipc_errors: AtomicU64,
     /// Last physics step duration, ns.
     pub physics_step_ns: AtomicU64,

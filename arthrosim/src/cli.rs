@@ -167,6 +167,16 @@ pub struct GapArgs {
     /// Print the verdict as one JSON line.
     #[arg(long)]
     pub json: bool,
+    /// Also write a launch file whose scene carries the verdict as physics (modulus →
+    /// modulus_scale, support → support_stiffness, friction → friction, …; see the README).
+    /// A force–displacement table is then fitted in the base scene (mid-body press,
+    /// displacement as measured, first row as offset, tissue keys reset), not the study's.
+    #[arg(long, value_name = "OUT.toml")]
+    pub calibrate: Option<PathBuf>,
+    /// Launch file the calibration starts from (default: the embedded default; for a
+    /// session recording, the launch file it recorded).
+    #[arg(long, value_name = "BASE.toml", requires = "calibrate")]
+    pub launch: Option<PathBuf>,
 }
 
 #[derive(Debug, Subcommand)]

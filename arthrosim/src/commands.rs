@@ -348,18 +348,50 @@ fn gap_command(args: GapArgs) -> Result<i32> {
         ),
         None => None,
     };
-    let mut report = match (&args.experiment, &args.force_displacement) {
-        (_, Some(table)) => gap::diagnose_force_displacement(table, &opts)
-            .with_context(|| format!("diagnosing {}", table.display()))?,
-        (Some(dir), None) => gap::diagnose_dir(dir, &opts)
-            .with_context(|| format!("diagnosing {}", dir.display()))?,
+    // the calibration's output and base are checked first too
+    let calibrate = match &args.calibrate {
+        Some(out) => {
+            gap::calibrate::check_out_path(out).context("--calibrate")?;
+            let base = match &args.launch {
+                Some(b) => Some(gap::calibrate::load_base(b).context("--launch")?),
+                None => None,
+            };
+            Some((out, base))
+        }
+        None => None,
+    };
+    let input = match (&args.experiment, &args.force_displacement) {
+        (_, Some(table)) => gap::calibrate::Input::Table(table.clone()),
+        (Some(dir), None) => gap::calibrate::Input::Path(dir.clone()),
         (None, None) => bail!("give an EXPERIMENT_DIR or --force-displacement FILE.csv"),
+    };
+    let input_name = match &input {
+        gap::calibrate::Input::Table(p) | gap::calibrate::Input::Path(p) => p.display().to_string(),
+    };
+    let (mut report, calibration) = match (calibrate, &input) {
+        (Some((out, base)), _) => {
+            let (report, cal) = gap::calibrate::calibrate_input(&input, base, &opts)
+                .with_context(|| format!("diagnosing {input_name}"))?;
+            (report, Some((out, cal)))
+        }
+        (None, gap::calibrate::Input::Table(table)) => (
+            gap::diagnose_force_displacement(table, &opts)
+                .with_context(|| format!("diagnosing {input_name}"))?,
+            None,
+        ),
+        (None, gap::calibrate::Input::Path(dir)) => (
+            gap::diagnose_dir(dir, &opts).with_context(|| format!("diagnosing {input_name}"))?,
+            None,
+        ),
     };
     if let Some(g) = rendering {
         report.rendering_gap = Some(g);
     }
     gap::write_report(&report, &out)
         .with_context(|| format!("writing the report to {}", out.display()))?;
+    if let Some((path, cal)) = &calibration {
+        gap::calibrate::write_launch(cal, path).context("--calibrate")?;
+    }
     if args.json {
         println!("{}", serde_json::to_string(&report.verdict)?);
     } else {
@@ -385,6 +417,26 @@ fn gap_command(args: GapArgs) -> Result<i32> {
             None => {}
         }
         println!("report: {}", out.join("report.html").display());
+        if let Some((path, cal)) = &calibration {
+            if cal.unchanged() {
+                println!(
+                    "calibrated launch file: {} (verdict none: its scene is the input scene, unchanged)",
+                    path.display()
+                );
+            } else {
+                println!(
+                    "calibrated launch file: {} (promised held-out RMSE {:.4} N)",
+                    path.display(),
+                    cal.promised_heldout_rmse
+                );
+            }
+            for c in &cal.changes {
+                println!("  {}", c.line());
+            }
+            if cal.notes().next().is_some() {
+                println!("  (effects marked `not written` are comments in the file, not physics)");
+            }
+        }
     }
     Ok(0)
 }

@@ -29,6 +29,10 @@ pub struct TrialData {
     pub resims: HashMap<Effect, Vec<Vec<[f64; 3]>>>,
     /// Per effect and knot: the re-simulation is usable (absent: all usable).
     pub resim_ok: HashMap<Effect, Vec<bool>>,
+    /// Re-simulations added at fitted parameter values (calibration's refinement, see
+    /// `calibrate::refine`): (parameter value, force on the grid) per piecewise-linear effect.
+    /// Empty for a plain diagnosis.
+    pub extra_knots: HashMap<Effect, Vec<(f64, Vec<[f64; 3]>)>>,
     /// Contact normal (outward), depth (mm) and phase at the measurement times.
     pub normal: [f64; 3],
     pub depth: Vec<f64>,
@@ -329,6 +333,7 @@ pub fn prepare(
         base,
         resims,
         resim_ok: HashMap::new(),
+        extra_knots: HashMap::new(),
         normal,
         depth,
         phase,

@@ -37,6 +37,9 @@ pub struct SessionRecording {
     pub device: DeviceConfig,
     /// Where `device` came from (`launch.toml` or why defaults were used).
     pub device_source: String,
+    /// The recorded launch file (`launch.toml` attachment), when readable: the base of a
+    /// calibrated launch file.
+    pub launch: Option<LaunchFile>,
     pub steps: Vec<ContactStep>,
     pub ticks: Vec<DeviceTick>,
 }
@@ -166,6 +169,7 @@ pub fn read_session(path: &Path) -> Result<SessionRecording, GapError> {
             }
         },
     };
+    let recorded_launch = launch.as_ref().and_then(|l| l.as_ref().ok()).cloned();
     let (device, device_source) = match launch {
         Some(Ok(l)) => (l.device, format!("{ATTACHMENT_LAUNCH} attachment")),
         Some(Err(e)) => (
@@ -182,6 +186,7 @@ pub fn read_session(path: &Path) -> Result<SessionRecording, GapError> {
         scene,
         device,
         device_source,
+        launch: recorded_launch,
         steps,
         ticks,
     })
@@ -856,6 +861,7 @@ mod tests {
             scene: SceneConfig::default(),
             device: DeviceConfig::default(),
             device_source: "defaults".into(),
+            launch: None,
             steps,
             ticks,
         }

@@ -12,10 +12,10 @@
 //! The one place that maps an effect to launch keys is [`apply_effect`]; [`TISSUE_KEYS`] lists
 //! the keys it can write (a force–displacement table is calibrated from a scene with them
 //! reset, so the result does not depend on what the base launch file already holds).
-use super::dataset::{diverged, TrialData};
+use super::dataset::TrialData;
 use super::effects::Effect;
 use super::fit::FittedParam;
-use super::model::{replay, ForceModel};
+use super::model::{replay_checked, ForceModel};
 use super::sim_model::{refined_spec, SimForceModel};
 use super::{GapError, Options, Report};
 use launch_config::{LaunchFile, SceneConfig};
@@ -533,10 +533,10 @@ pub fn refine(
                 continue;
             };
             use rayon::prelude::*;
-            let forces: Vec<Result<Vec<[f64; 3]>, GapError>> = data
+            let forces: Vec<Result<_, GapError>> = data
                 .par_iter()
                 .map(|d| {
-                    replay(model, &variant, &d.path).map_err(|err| {
+                    replay_checked(model, &variant, &d.path).map_err(|err| {
                         GapError::Sim(format!("trial {}, {}: {err}", d.name, variant.label()))
                     })
                 })
@@ -544,10 +544,12 @@ pub fn refine(
             let mut kept = 0;
             for (d, f) in data.iter_mut().zip(forces) {
                 let f = f?;
-                if diverged(&f, &d.base, &d.f) {
+                // a step the physics flagged as faulty is no solution (the fault flag, not a
+                // force heuristic, as in the diagnosis's own re-simulations)
+                if f.diverged() {
                     continue;
                 }
-                d.extra_knots.entry(e).or_default().push((v, f));
+                d.extra_knots.entry(e).or_default().push((v, f.forces));
                 kept += 1;
             }
             done.push(format!(

@@ -74,8 +74,9 @@ pub struct PhaseTimes {
 /// ([`Simulation::prepare_material`]) and swapped in at a step boundary.
 pub struct MaterialParts {
     grade: f64,
+    /// Time step the rest factorization (inside the cache's solver) was built for.
+    dt: f64,
     fem: FemModel,
-    rest: RestCompliance,
     cache: ComplianceCache,
 }
 
@@ -434,8 +435,8 @@ impl Simulation {
         let sim = Simulation::new(&scene, data_dir)?;
         Ok(MaterialParts {
             grade,
+            dt: sim.dt,
             fem: sim.fem,
-            rest: sim.rest,
             cache: sim.cache,
         })
     }
@@ -448,7 +449,7 @@ impl Simulation {
         &mut self,
         mut parts: MaterialParts,
     ) -> Result<MaterialParts, MaterialParts> {
-        if parts.fem.node_count() != self.fem.node_count() || parts.rest.dt() != self.dt {
+        if parts.fem.node_count() != self.fem.node_count() || parts.dt != self.dt {
             return Err(parts);
         }
         for n in 0..self.fem.node_count() {
@@ -458,7 +459,6 @@ impl Simulation {
             let _ = parts.fem.set_velocity(n, self.fem.velocities()[n]);
         }
         std::mem::swap(&mut self.fem, &mut parts.fem);
-        std::mem::swap(&mut self.rest, &mut parts.rest);
         std::mem::swap(&mut self.cache, &mut parts.cache);
         std::mem::swap(&mut self.degeneration_grade, &mut parts.grade);
         self.scene.material.degeneration_grade = self.degeneration_grade;

@@ -541,9 +541,10 @@ def run_flood(args):
     k = 0
     while time.monotonic() < end:
         for m in pose_r.take(N=64):
-            probe = vec(m.pose.position)
+            if hasattr(m, "pose"):  # skip InvalidSample (instance state changes)
+                probe = vec(m.pose.position)
         for m in diag_r.take(N=16):
-            for st in m.status:
+            for st in getattr(m, "status", []):
                 if st.name == "arthrosim/viz-bridge/inputs":
                     diag = {kv.key: kv.value for kv in st.values}
         ts = time.time_ns()
@@ -575,7 +576,7 @@ def run_flood(args):
     settle = time.monotonic() + 2.5
     while time.monotonic() < settle:
         for m in diag_r.take(N=16):
-            for st in m.status:
+            for st in getattr(m, "status", []):
                 if st.name == "arthrosim/viz-bridge/inputs":
                     diag = {kv.key: kv.value for kv in st.values}
         time.sleep(0.05)

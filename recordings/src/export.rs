@@ -3,7 +3,7 @@
 
 use crate::channels::*;
 use crate::error::RecordingError;
-use crate::read::{check_schema, decode, scan, scan_parts, ChannelInfo, Event};
+use crate::read::{check_schema, decode, scan_parts, ChannelInfo, Event};
 use mcap::records::MessageHeader;
 use msgs::protocol::Region;
 use serde::Serialize;

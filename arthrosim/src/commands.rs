@@ -150,7 +150,7 @@ fn replay_from_recording(launch: &mut launch_config::LaunchFile, out_dir: &Path)
     let is_mcap = path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("mcap"));
-    if launch.device.backend != "replay" || !is_mcap {
+    if launch.device.backend != launch_config::device::DeviceBackend::Replay || !is_mcap {
         return Ok(());
     }
     std::fs::create_dir_all(out_dir)

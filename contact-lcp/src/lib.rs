@@ -33,7 +33,8 @@ use std::time::Instant;
 pub const MAX_CONTACTS: usize = 32;
 /// Rows per contact: normal, tangent 1, tangent 2 (mirrors `msgs::ROWS_PER_CONTACT`).
 pub const ROWS_PER_CONTACT: usize = 3;
-/// Row stride of W (mirrors `msgs::MAX_ROWS`).
+/// Row stride of W (mirrors `msgs::MAX_ROWS`; haptic-node and physics-node assert at compile
+/// time that the copies agree, since this crate has no dependencies).
 pub const MAX_ROWS: usize = MAX_CONTACTS * ROWS_PER_CONTACT;
 
 pub mod synthetic;

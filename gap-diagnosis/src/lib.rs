@@ -93,6 +93,16 @@ pub enum GapError {
     Other(String),
 }
 
+impl From<msgs::csv_input::CsvError> for GapError {
+    fn from(e: msgs::csv_input::CsvError) -> Self {
+        GapError::Line {
+            file: e.file,
+            line: e.line,
+            msg: e.problem,
+        }
+    }
+}
+
 /// Study data folder: `ARTHROSIM_DATA`, else `../shared/data` next to the workspace.
 pub fn data_dir() -> PathBuf {
     if let Ok(d) = std::env::var("ARTHROSIM_DATA") {

@@ -452,7 +452,7 @@ fn trials_from_session(
             }),
         },
         material: MaterialSpec {
-            preset: sc.material.preset.clone(),
+            preset: sc.material.preset,
             youngs_modulus: sc.material.youngs_modulus,
             poisson_ratio: sc.material.poisson_ratio,
         },

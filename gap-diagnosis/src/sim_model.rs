@@ -60,7 +60,7 @@ impl SimForceModel {
             scene.meniscus.transform.rotation_deg = t.rotation_deg;
             scene.meniscus.transform.translation = t.translation;
         }
-        scene.material.preset = s.material.preset.clone();
+        scene.material.preset = s.material.preset;
         scene.material.youngs_modulus = s.material.youngs_modulus;
         scene.material.poisson_ratio = s.material.poisson_ratio;
         scene.probe.tip_radius = s.probe.tip_radius;
@@ -93,7 +93,7 @@ impl SimForceModel {
         sc.dt = dt;
         sc.material.modulus_scale *= v.modulus_scale;
         if v.neo_hookean {
-            sc.material.model = "neo-hookean".into();
+            sc.material.model = launch_config::scene::MaterialModel::StableNeoHookean;
         }
         // effects add to the nominal scene (a recorded session may already have friction or
         // an elastic support; experiment folders start from zero for both)

@@ -64,17 +64,8 @@ impl Limits {
                 problem: "must be ≤ 10 s",
             });
         }
-        let reference_is_probe_free = match c.displacement_reference.as_str() {
-            "proxy" => false,
-            "probe_free" => true,
-            other => {
-                return Err(ConfigError::Field {
-                    field: "displacement_reference",
-                    value: other.to_string(),
-                    problem: "must be `proxy` or `probe_free`",
-                })
-            }
-        };
+        let reference_is_probe_free =
+            c.displacement_reference == launch_config::device::DisplacementReference::ProbeFree;
         if !(c.lcp_tolerance.is_finite() && c.lcp_tolerance >= 0.0) {
             return Err(ConfigError::Field {
                 field: "lcp_tolerance",
@@ -150,11 +141,6 @@ mod tests {
         };
         let e = Limits::from_config(&c).unwrap_err().to_string();
         assert!(e.contains("peak_force_n"), "{e}");
-        let c = DeviceConfig {
-            displacement_reference: "probe".into(),
-            ..DeviceConfig::default()
-        };
-        assert!(Limits::from_config(&c).is_err());
     }
 
     #[test]
@@ -173,7 +159,7 @@ mod tests {
         )
         .unwrap();
         let c = load_device_config(Some(&p)).unwrap();
-        assert_eq!(c.backend, "replay");
+        assert_eq!(c.backend, launch_config::device::DeviceBackend::Replay);
         assert!(c.replay.path.ends_with("x.csv"), "{}", c.replay.path);
         assert_eq!(c.peak_force_n, 3.3);
         std::fs::write(&p, "[device]\nbogus = 1\n").unwrap();

@@ -370,7 +370,7 @@ fn touch_servo_watchdog_fades_the_force_when_the_node_loop_stalls() {
         set(path.as_ptr());
     }
     let mut config = launch_config::DeviceConfig::default();
-    config.backend = "touch".into();
+    config.backend = launch_config::device::DeviceBackend::Touch;
     config.touch.library = fake_libhd().display().to_string();
     let watchdog_ms = config.touch.servo_watchdog_s * 1e3;
     let mut touch =

@@ -1,6 +1,7 @@
 //! `[device]`: the haptic node's device backend, servo loop and safety limits. Owned by
 //! haptic-node. SI units throughout (N, m, s); every field has a default so an empty
 //! launch file runs the emulated Touch.
+pub use crate::choices::{DeviceBackend, DisplacementReference, SiteSource};
 use serde::{Deserialize, Serialize};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -8,7 +9,7 @@ use serde::{Deserialize, Serialize};
 pub struct DeviceConfig {
     /// `touch` (3D Systems Touch through OpenHaptics libHD), `emulated` (Touch emulator driven
     /// by an operator model) or `replay` (proxy pose trajectory from a CSV file).
-    pub backend: String,
+    pub backend: DeviceBackend,
     /// Servo loop rate, Hz.
     pub rate_hz: f64,
     /// Multiplies the contact force Hᵀλ/dt before clamping (1 = physical).
@@ -39,7 +40,7 @@ pub struct DeviceConfig {
     /// Reference pose of the displacement Δx in δ = δ_free + H·Δx: `proxy` (the proxy pose
     /// the physics step was driven toward: reproduces the physics force exactly at the same
     /// proxy position) or `probe_free` (the probe's free pose).
-    pub displacement_reference: String,
+    pub displacement_reference: DisplacementReference,
     /// Ask for SCHED_FIFO and locked memory (logged when the OS refuses).
     pub realtime: bool,
     /// SCHED_FIFO priority (1–99).
@@ -62,7 +63,7 @@ pub struct DeviceConfig {
 impl Default for DeviceConfig {
     fn default() -> Self {
         DeviceConfig {
-            backend: "emulated".into(),
+            backend: DeviceBackend::Emulated,
             rate_hz: 1000.0,
             force_scale: 1.0,
             peak_force_n: 3.3,
@@ -75,7 +76,7 @@ impl Default for DeviceConfig {
             lcp_tolerance: 1e-3,
             lcp_budget_s: 200e-6,
             use_rotation: false,
-            displacement_reference: "proxy".into(),
+            displacement_reference: DisplacementReference::Proxy,
             realtime: true,
             realtime_priority: 80,
             servo_spin_s: 150e-6,
@@ -152,7 +153,7 @@ pub struct EmulatedConfig {
     /// Where the probing sites come from: `scene` (the physics library's sites on the
     /// `[scene]` meniscus) or `plane` (a row of sites on the plane z = `plane_height_m`, for
     /// runs against an analytic half-space).
-    pub sites: String,
+    pub sites: SiteSource,
     pub plane_height_m: f64,
 }
 
@@ -175,7 +176,7 @@ impl Default for EmulatedConfig {
             press_speed_m_per_s: 0.004,
             hold_s: 1.0,
             repeat: true,
-            sites: "scene".into(),
+            sites: SiteSource::Scene,
             plane_height_m: 0.0,
         }
     }

@@ -12,8 +12,10 @@
 //! loaded, so the [`LaunchFile`] a node receives only holds absolute paths.
 
 pub mod bridge;
+pub mod choices;
 pub mod device;
 pub mod load;
+pub mod node;
 pub mod recording;
 pub mod scene;
 pub mod validate;

@@ -4,6 +4,7 @@
 //! (the project's parametric meniscus), `study:lateral` / `study:medial` (the study's meshes
 //! from `ARTHROSIM_DATA`, with the study's scale and, for the lateral, its fixed nodes), or a
 //! path to a `.msh` file.
+pub use crate::choices::{CgMatrix, MaterialModel, MaterialPreset, RotationMethod, SolverKind};
 use serde::{Deserialize, Serialize};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -135,7 +136,7 @@ impl Default for MeniscusConfig {
 #[serde(deny_unknown_fields, default)]
 pub struct MaterialConfig {
     /// `lateral` (E 3.50 MPa, ν 0.29), `medial` (E 3.84 MPa, ν 0.26) or `custom`.
-    pub preset: String,
+    pub preset: MaterialPreset,
     /// Young's modulus, Pa; overrides the preset.
     pub youngs_modulus: Option<f64>,
     /// Poisson's ratio; overrides the preset.
@@ -143,7 +144,7 @@ pub struct MaterialConfig {
     /// Density, kg/m³.
     pub density: f64,
     /// `corotational` (linear corotational) or `neo-hookean` (stable neo-Hookean).
-    pub model: String,
+    pub model: MaterialModel,
     /// Degeneration grade 0..=2: modulus × (1 − 0.205 · grade), grade 2 = −41%.
     pub degeneration_grade: f64,
     /// Extra global modulus scale (specimen variability).
@@ -156,11 +157,11 @@ pub struct MaterialConfig {
 impl Default for MaterialConfig {
     fn default() -> Self {
         MaterialConfig {
-            preset: "lateral".into(),
+            preset: MaterialPreset::Lateral,
             youngs_modulus: None,
             poisson_ratio: None,
             density: 1090.0,
-            model: "corotational".into(),
+            model: MaterialModel::Corotational,
             degeneration_grade: 0.0,
             modulus_scale: 1.0,
             rayleigh_mass: 0.0,
@@ -174,15 +175,15 @@ impl Default for MaterialConfig {
 pub struct SolverConfig {
     /// `cg` (SOFA's CG), `cg-jacobi`, `cg-cholesky`, `cg-warped-cholesky` (CG preconditioned
     /// by the rest factor, rotation-warped) or `direct` (faer sparse Cholesky every step).
-    pub kind: String,
+    pub kind: SolverKind,
     pub cg_iterations: u32,
     pub cg_tolerance: f64,
     /// Element rotation of the corotational FEM: `qr` (SOFA's "large", default) or `polar`.
-    pub rotation: String,
+    pub rotation: RotationMethod,
     /// Precision of the matrix the CG products read: `f32` (default; half the memory
     /// traffic, right for SOFA's truncated CG) or `f64` (for a CG that must converge
     /// below ~1e-6).
-    pub cg_matrix: String,
+    pub cg_matrix: CgMatrix,
     /// With the f32 CG matrix: re-rotate an element's stiffness blocks only once its rotation
     /// moved by more than this (≈ rad) since they were built; 0 = every element every step,
     /// as SOFA. Elastic forces always use the current rotation. At most
@@ -193,11 +194,11 @@ pub struct SolverConfig {
 impl Default for SolverConfig {
     fn default() -> Self {
         SolverConfig {
-            kind: "cg".into(),
+            kind: SolverKind::Cg,
             cg_iterations: 25,
             cg_tolerance: 1e-9,
-            rotation: "qr".into(),
-            cg_matrix: "f32".into(),
+            rotation: RotationMethod::Qr,
+            cg_matrix: CgMatrix::F32,
             // 1e-3 rad: a quarter of the default fine mesh's elements turn that far per step
             // while the probe slides; the mean contact force moves by < 1e-4 relative.
             stiffness_rotation_tolerance: 1e-3,

@@ -5,6 +5,7 @@
 //! Paths are checked as they are in the given [`LaunchFile`]; after [`crate::load`] they are
 //! absolute (resolved against the launch file's folder).
 
+use crate::choices::{DeviceBackend, MaterialPreset};
 use crate::load::{is_builtin_spec, Issue};
 use crate::scene::TransformConfig;
 use crate::LaunchFile;
@@ -94,12 +95,9 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
     );
 
     let mat = &s.material;
-    v.one_of(
-        "scene.material.preset",
-        &mat.preset,
-        &["lateral", "medial", "custom"],
-    );
-    if mat.preset == "custom" {
+    // Choices (preset, model, solver kind, rotation, CG matrix, device backend, displacement
+    // reference, emulated sites) are enums checked when the file is parsed (`crate::load`).
+    if mat.preset == MaterialPreset::Custom {
         if mat.youngs_modulus.is_none() {
             v.push(
                 "scene.material.youngs_modulus",
@@ -133,11 +131,6 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
         mat.density,
         "kg/m³ (meniscus 1090)",
     );
-    v.one_of(
-        "scene.material.model",
-        &mat.model,
-        &["corotational", "neo-hookean"],
-    );
     if !(mat.degeneration_grade.is_finite() && (0.0..=2.0).contains(&mat.degeneration_grade)) {
         v.push(
             "scene.material.degeneration_grade",
@@ -160,19 +153,6 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
     );
 
     let sol = &s.solver;
-    v.one_of(
-        "scene.solver.kind",
-        &sol.kind,
-        &[
-            "cg",
-            "cg-jacobi",
-            "cg-cholesky",
-            "cg-warped-cholesky",
-            "direct",
-        ],
-    );
-    v.one_of("scene.solver.rotation", &sol.rotation, &["qr", "polar"]);
-    v.one_of("scene.solver.cg_matrix", &sol.cg_matrix, &["f32", "f64"]);
     v.non_negative(
         "scene.solver.stiffness_rotation_tolerance",
         sol.stiffness_rotation_tolerance,
@@ -287,11 +267,6 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
 
     // [device]
     let d = &file.device;
-    v.one_of(
-        "device.backend",
-        &d.backend,
-        &["touch", "emulated", "replay"],
-    );
     v.positive(
         "device.rate_hz",
         d.rate_hz,
@@ -324,13 +299,7 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
     v.positive("device.stats_rate_hz", d.stats_rate_hz, "Hz");
     v.positive("device.workspace_scale", d.workspace_scale, "");
     v.finite_array("device.workspace_offset_m", &d.workspace_offset_m, "m");
-    v.one_of(
-        "device.displacement_reference",
-        &d.displacement_reference,
-        &["proxy", "probe_free"],
-    );
     let e = &d.emulated;
-    v.one_of("device.emulated.sites", &e.sites, &["scene", "plane"]);
     if e.probings_per_region == 0 {
         v.push(
             "device.emulated.probings_per_region",
@@ -350,7 +319,7 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
     v.non_negative("device.emulated.hover_m", e.hover_m, "m");
     v.non_negative("device.emulated.press_depth_m", e.press_depth_m, "m");
     v.non_negative("device.emulated.hold_s", e.hold_s, "s");
-    if d.backend == "replay" {
+    if d.backend == DeviceBackend::Replay {
         if d.replay.path.is_empty() {
             v.push(
                 "device.replay.path",
@@ -647,16 +616,6 @@ impl Checks {
                     format!("{x} is not allowed; must be finite ({unit})"),
                 );
             }
-        }
-    }
-
-    fn one_of(&mut self, key: &str, value: &str, allowed: &[&str]) {
-        if !allowed.contains(&value) {
-            let list: Vec<String> = allowed.iter().map(|a| format!("`{a}`")).collect();
-            self.push(
-                key,
-                format!("{value:?} is not allowed; allowed: {}", list.join(", ")),
-            );
         }
     }
 

@@ -181,7 +181,10 @@ fn solver_matrix_precision_and_stiffness_tolerance_are_checked() {
     assert!(rendered.contains("too lax"), "{rendered}");
     let ok = "[scene.solver]\ncg_matrix = \"f64\"\nstiffness_rotation_tolerance = 0.0\n";
     let file = load_str(ok, Path::new("solver.toml")).unwrap();
-    assert_eq!(file.scene.solver.cg_matrix, "f64");
+    assert_eq!(
+        file.scene.solver.cg_matrix,
+        launch_config::scene::CgMatrix::F64
+    );
 }
 
 #[test]
@@ -230,7 +233,10 @@ fn embedded_default_validates() {
     )
     .unwrap();
     assert!(file.nodes.physics && file.nodes.haptic && file.nodes.bridge && file.nodes.recorder);
-    assert_eq!(file.device.backend, "emulated");
+    assert_eq!(
+        file.device.backend,
+        launch_config::device::DeviceBackend::Emulated
+    );
 }
 
 fn examples_dir() -> PathBuf {
@@ -293,4 +299,52 @@ fn resolved_file_round_trips_through_toml() {
     let text = toml::to_string(&file).unwrap();
     let again = load_str(&text, Path::new("resolved.toml")).unwrap();
     assert_eq!(again, file);
+}
+
+#[test]
+fn every_bad_choice_is_reported_at_once_with_its_line_and_allowed_values() {
+    let text = "[scene.material]\nmodel = \"mooney\"\n[scene.solver]\nkind = \"gmres\"\nrotation = \"large\"\n\
+                [device]\nbackend = \"joystick\"\ndisplacement_reference = \"probe\"\n\
+                [device.emulated]\nsites = 'mesh'\n[launcher]\nrestart = \"always\"\n";
+    let err = load_str(text, Path::new("choices.toml")).unwrap_err();
+    let keys: Vec<(&str, Option<usize>)> = err
+        .issues()
+        .iter()
+        .map(|i| (i.key.as_str(), i.line))
+        .collect();
+    assert_eq!(
+        keys,
+        [
+            ("scene.material.model", Some(2)),
+            ("scene.solver.kind", Some(4)),
+            ("scene.solver.rotation", Some(5)),
+            ("device.backend", Some(7)),
+            ("device.displacement_reference", Some(8)),
+            ("device.emulated.sites", Some(10)),
+            ("launcher.restart", Some(12)),
+        ]
+    );
+    let rendered = err.to_string();
+    for line in [
+        "choices.toml:2:1: key `scene.material.model`: \"mooney\" is not allowed; allowed: `corotational`, `neo-hookean`",
+        "choices.toml:7:1: key `device.backend`: \"joystick\" is not allowed; allowed: `touch`, `emulated`, `replay`",
+        "choices.toml:10:1: key `device.emulated.sites`: \"mesh\" is not allowed; allowed: `scene`, `plane`",
+        "key `launcher.restart`: \"always\" is not allowed; allowed: `never`, `on-failure`",
+    ] {
+        assert!(rendered.contains(line), "{line}\nnot in\n{rendered}");
+    }
+    // A good choice parses into its enum, once.
+    let file = load_str(
+        "[scene.solver]\nkind = \"cg-warped-cholesky\"\n[device.emulated]\nsites = \"plane\"\n",
+        Path::new("ok.toml"),
+    )
+    .unwrap();
+    assert_eq!(
+        file.scene.solver.kind,
+        launch_config::scene::SolverKind::CgWarpedCholesky
+    );
+    assert_eq!(
+        file.device.emulated.sites,
+        launch_config::device::SiteSource::Plane
+    );
 }

@@ -14,11 +14,13 @@
 //! Units: SI (m, s, N, kg), world frame z-up (REP-103). Quaternions are `[x, y, z, w]`.
 
 pub mod clock;
+pub mod csv_input;
 pub mod ipc;
 pub mod lifecycle;
 pub mod protocol;
 pub mod ros;
 pub mod ros_mapping;
+pub mod timing;
 
 use iceoryx2::prelude::ZeroCopySend;
 

@@ -33,15 +33,9 @@ const MAX_LAG_STEPS: u32 = 5;
 
 #[derive(clap::Args, Debug, Clone, Default)]
 pub struct NodeArgs {
-    /// Launch file (TOML); its `[scene]` section configures this node. None: defaults.
-    #[arg(long)]
-    pub launch: Option<PathBuf>,
-    /// Session prefix of the shared-memory services (default: $ARTHROSIM_SESSION or `default`).
-    #[arg(long)]
-    pub session: Option<String>,
-    /// Folder for the contact-force CSV (`contact_force.csv`); none: no CSV.
-    #[arg(long)]
-    pub out: Option<PathBuf>,
+    /// `--launch` (its `[scene]` section), `--session`, `--out` (`contact_force.csv`).
+    #[command(flatten)]
+    pub common: launch_config::node::CommonArgs,
     /// Study data folder (default: $ARTHROSIM_DATA, else ../shared/data).
     #[arg(long)]
     pub data: Option<PathBuf>,
@@ -52,9 +46,10 @@ pub struct NodeArgs {
 
 /// Runs the physics node until the stop flag is raised (SIGINT/SIGTERM) or `--seconds` pass.
 pub fn run_node(args: NodeArgs) -> anyhow::Result<()> {
+    launch_config::node::init_tracing("info");
     let stop = msgs::lifecycle::install_stop_flag();
-    let session = ipc::session_name(args.session.as_deref())?;
-    let (scene, accept_target_pose) = match &args.launch {
+    let session = ipc::session_name(args.common.session.as_deref())?;
+    let (scene, accept_target_pose) = match &args.common.launch {
         Some(path) => {
             let file = launch_config::load(path)
                 .with_context(|| format!("loading launch file {}", path.display()))?;
@@ -67,7 +62,7 @@ pub fn run_node(args: NodeArgs) -> anyhow::Result<()> {
     // never solved inside a step.
     let mut sim = Simulation::with_filling(&scene, &data_dir, crate::compliance::Filling::Prefetch)
         .context("building the physics scene")?;
-    let mut csv = match &args.out {
+    let mut csv = match &args.common.out {
         Some(dir) => {
             std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
             let path = dir.join("contact_force.csv");

@@ -17,22 +17,17 @@ use msgs::physics_to_haptic::ContactFrame;
 use msgs::physics_to_viz::SurfaceFrame;
 use msgs::ros_mapping::{Mapping, StampClock};
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::atomic::Ordering;
 use std::time::Duration;
 
 /// Command-line arguments of the recorder node (also `arthrosim node recorder`).
 #[derive(Debug, Clone, clap::Args)]
 pub struct NodeArgs {
-    /// Launch file (TOML); its `[recording]` section configures this node. None: defaults.
-    #[arg(long)]
-    pub launch: Option<PathBuf>,
-    /// iceoryx2 session name (default: $ARTHROSIM_SESSION or "default").
-    #[arg(long)]
-    pub session: Option<String>,
-    /// Session folder: the MCAP (and metadata.yaml) are written here.
-    #[arg(long, default_value = ".")]
-    pub out: PathBuf,
+    /// `--launch` (its `[recording]` section), `--session`, `--out` (the session folder the
+    /// MCAP and metadata.yaml are written to; default: the current folder).
+    #[command(flatten)]
+    pub common: launch_config::node::CommonArgs,
     /// Stop by itself after this many seconds (0: run until SIGINT/SIGTERM).
     #[arg(long, default_value_t = 0.0)]
     pub seconds: f64,
@@ -285,13 +280,15 @@ pub fn read_launch(path: Option<&Path>) -> Result<(LaunchFile, String), Recordin
 
 /// Entry point of the `recorder` binary and of `arthrosim node recorder`.
 pub fn run_node(args: NodeArgs) -> anyhow::Result<()> {
+    launch_config::node::init_tracing("info");
+    let out = args.common.out.as_deref().unwrap_or(Path::new("."));
     let stop = msgs::lifecycle::install_stop_flag();
-    let session = ipc::session_name(args.session.as_deref())?;
-    let (launch, launch_text) = read_launch(args.launch.as_deref())?;
+    let session = ipc::session_name(args.common.session.as_deref())?;
+    let (launch, launch_text) = read_launch(args.common.launch.as_deref())?;
     let scene_toml = toml::to_string(&launch.scene).context("serialising the scene section")?;
     let info = SessionInfo {
         session: session.clone(),
-        launch_path: args.launch.clone(),
+        launch_path: args.common.launch.clone(),
         launch_text,
         scene_toml,
         source: "recorder".into(),
@@ -307,7 +304,7 @@ pub fn run_node(args: NodeArgs) -> anyhow::Result<()> {
     let mut recorder = Recorder::new(
         &session,
         &launch.recording,
-        &args.out,
+        out,
         &info,
         launch.bridge.ros_mapping(),
         StampClock::for_session()?,

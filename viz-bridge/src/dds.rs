@@ -18,7 +18,7 @@ use serde::Serialize;
 use msgs::ros_mapping::{self, Mapping, StampClock, Topic};
 
 use crate::convert;
-use crate::stats::{percentile, BridgeStats, Stream, OUT_STREAMS};
+use crate::stats::{BridgeStats, LatencyWindow, Stream, OUT_STREAMS};
 use crate::target_gate::Refusal;
 
 /// A message for the DDS side, with the monotonic publish time of the sample it came from.
@@ -169,7 +169,7 @@ struct DdsSide {
     _spinner: JoinHandle<()>,
     inbound: SyncSender<Inbound>,
     /// Source publish → DDS write latency per stream in the current window, ns.
-    latency_ns: [Vec<u64>; OUT_STREAMS],
+    latency_ns: [LatencyWindow; OUT_STREAMS],
     window_start: Instant,
     last_published: [u64; OUT_STREAMS],
     last_dropped: [u64; OUT_STREAMS],
@@ -356,10 +356,7 @@ impl DdsSide {
         if ok {
             BridgeStats::add(&counters.published, 1);
             let latency = msgs::clock::monotonic_ns().saturating_sub(envelope.source_ns);
-            let window = &mut self.latency_ns[stream as usize];
-            if window.len() < 100_000 {
-                window.push(latency);
-            }
+            self.latency_ns[stream as usize].record(latency);
         } else {
             BridgeStats::add(&counters.dropped_dds, 1);
         }
@@ -422,10 +419,7 @@ impl DdsSide {
             dropped_now += dropped_queue + dropped_dds - self.last_dropped[i];
             self.last_published[i] = published;
             self.last_dropped[i] = dropped_queue + dropped_dds;
-            let window = &mut self.latency_ns[i];
-            let p50 = percentile(window, 0.5) as f64 / 1e3;
-            let p99 = percentile(window, 0.99) as f64 / 1e3;
-            window.clear();
+            let (p50, p99) = self.latency_ns[i].take_p50_p99_us();
             let t = stream.topic().trim_start_matches('/');
             bridge.values.extend([
                 KeyValue::new(&format!("{t} rate_hz"), format!("{rate:.1}")),
@@ -454,12 +448,8 @@ impl DdsSide {
             .collect();
         self.last_inputs = inputs;
         let (ipc_p50, ipc_p99) = match stats.ipc_latency_ns.lock() {
-            Ok(mut v) => {
-                let r = (percentile(&mut v, 0.5), percentile(&mut v, 0.99));
-                v.clear();
-                r
-            }
-            Err(_) => (0, 0),
+            Ok(mut w) => w.take_p50_p99_us(),
+            Err(_) => (0.0, 0.0),
         };
         let mut inputs_status = DiagnosticStatus {
             level: DiagnosticStatus::OK,
@@ -470,8 +460,8 @@ impl DdsSide {
                 KeyValue::new("contact_frame rate_hz", format!("{:.1}", rates[0])),
                 KeyValue::new("device_state rate_hz", format!("{:.1}", rates[1])),
                 KeyValue::new("surface rate_hz", format!("{:.1}", rates[2])),
-                KeyValue::new("ipc latency_p50_us", format!("{:.1}", ipc_p50 as f64 / 1e3)),
-                KeyValue::new("ipc latency_p99_us", format!("{:.1}", ipc_p99 as f64 / 1e3)),
+                KeyValue::new("ipc latency_p50_us", format!("{ipc_p50:.1}")),
+                KeyValue::new("ipc latency_p99_us", format!("{ipc_p99:.1}")),
                 KeyValue::new(
                     "physics step_ms",
                     format!(

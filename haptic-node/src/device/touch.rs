@@ -538,7 +538,7 @@ mod tests {
     #[test]
     fn missing_library_is_a_clear_error() {
         let mut c = DeviceConfig::default();
-        c.backend = "touch".into();
+        c.backend = launch_config::device::DeviceBackend::Touch;
         c.touch.library = "libHD-not-installed-here.so".into();
         let e = match Touch::open(&c) {
             Err(e) => e.to_string(),

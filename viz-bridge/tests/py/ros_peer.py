@@ -448,20 +448,15 @@ def run_bench(args):
         if end_at is not None and time.monotonic() - end_at > 1.0:
             ended = True
             break
-    lat.sort()
-
-    def pct(p):
-        return lat[min(len(lat) - 1, int(round((len(lat) - 1) * p)))] / 1e3 if lat else None
-
+    # The raw latencies go back to bridge-bench, which takes the percentiles with the
+    # workspace's one latency histogram (msgs::timing), like every other benchmark.
     print(json.dumps({
         "ended": ended,
         "pose_received": len(seen["pose"]),
         "wrench_received": len(seen["wrench"]),
         "pose_max": max(seen["pose"]) if seen["pose"] else -1,
         "duplicates": dup,
-        "latency_p50_us": pct(0.5),
-        "latency_p99_us": pct(0.99),
-        "latency_max_us": lat[-1] / 1e3 if lat else None,
+        "latencies_ns": lat,
     }), flush=True)
     return 0
 

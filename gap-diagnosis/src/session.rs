@@ -619,11 +619,8 @@ pub fn rendering_gap(rec: &SessionRecording) -> Result<RenderingGap, GapError> {
     }
     let d = &rec.device;
     let peak = d.peak_force_n;
-    let scale = if d.force_scale > 0.0 {
-        d.force_scale
-    } else {
-        1.0
-    };
+    // The scale the session rendered with (`force_scale = 0` is the automatic choice).
+    let scale = d.rendering().force_scale;
     let mut by_key: Vec<((u64, u64), usize)> = rec
         .steps
         .iter()

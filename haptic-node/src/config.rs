@@ -11,6 +11,8 @@ pub enum ConfigError {
         value: String,
         problem: &'static str,
     },
+    #[error("{0}")]
+    LimitRaised(String),
     #[error("launch file {path}: {detail}")]
     Parse { path: String, detail: String },
 }
@@ -20,7 +22,15 @@ pub enum ConfigError {
 pub struct Limits {
     pub rate_hz: f64,
     pub period_ns: u64,
+    /// Rendered force per tissue force (see `launch_config::device::Rendering`).
     pub force_scale: f64,
+    /// Virtual coupling in series with the contact compliance, tissue side, m/N (1/k_c):
+    /// bounds the felt stiffness by `force_scale / coupling_compliance_m_per_n`.
+    pub coupling_compliance_m_per_n: f64,
+    /// That bound, N/m.
+    pub felt_stiffness_limit_n_per_m: f64,
+    /// Per-axis play of the rendered stylus position, m.
+    pub position_hysteresis_m: f64,
     pub peak_force_n: f64,
     pub continuous_force_n: f64,
     pub continuous_window_s: f64,
@@ -80,13 +90,26 @@ impl Limits {
                 problem: "must be ≥ 1",
             });
         }
-        if !(c.force_scale.is_finite() && c.force_scale >= 0.0) {
+        if !(c.force_scale.is_finite() && (0.0..=1.0).contains(&c.force_scale)) {
             return Err(ConfigError::Field {
                 field: "force_scale",
                 value: c.force_scale.to_string(),
-                problem: "must be finite and ≥ 0",
+                problem: "must be within 0..=1 (0 = automatic)",
             });
         }
+        // The device's hard limits: checked here too, so a node started without the
+        // launcher's validation cannot be given a raised limit either.
+        if let Some(raise) = c.limit_raises().into_iter().next() {
+            return Err(ConfigError::LimitRaised(raise.to_string()));
+        }
+        for (field, v) in [
+            ("max_stiffness_n_per_m", c.max_stiffness_n_per_m),
+            ("tissue_force_range_n", c.tissue_force_range_n),
+            ("tissue_stiffness_n_per_m", c.tissue_stiffness_n_per_m),
+        ] {
+            positive(field, v)?;
+        }
+        let rendering = c.rendering();
         if !(c.stale_ramp_s.is_finite() && c.stale_ramp_s >= 0.0) {
             return Err(ConfigError::Field {
                 field: "stale_ramp_s",
@@ -97,7 +120,20 @@ impl Limits {
         Ok(Limits {
             rate_hz,
             period_ns: (1e9 / rate_hz).round() as u64,
-            force_scale: c.force_scale,
+            force_scale: rendering.force_scale,
+            coupling_compliance_m_per_n: 1.0 / rendering.coupling_stiffness_n_per_m,
+            felt_stiffness_limit_n_per_m: rendering.felt_stiffness_limit_n_per_m,
+            position_hysteresis_m: {
+                let h = c.position_hysteresis_m;
+                if !(h.is_finite() && (0.0..=1e-3).contains(&h)) {
+                    return Err(ConfigError::Field {
+                        field: "position_hysteresis_m",
+                        value: h.to_string(),
+                        problem: "must be within 0..=0.001 m",
+                    });
+                }
+                h
+            },
             peak_force_n: positive("peak_force_n", c.peak_force_n)?,
             continuous_force_n: positive("continuous_force_n", c.continuous_force_n)?,
             continuous_window_s: window,

@@ -295,7 +295,7 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
         renderer.set_device_sequence(sequence - 1);
         match ipc::take_newest(&frames, &mut incoming) {
             Ok(0) => {}
-            Ok(_) => renderer.accept_frame(&mut incoming),
+            Ok(_) => renderer.accept_frame(&mut incoming, now),
             Err(e) => {
                 if !logged_link {
                     tracing::warn!("contact frame link (logged once): {e}");

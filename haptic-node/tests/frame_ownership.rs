@@ -71,7 +71,7 @@ impl Bench {
                 self.tick.saturating_sub(2).max(1),
             );
             edit(&mut f);
-            self.renderer.accept_frame(&mut f);
+            self.renderer.accept_frame(&mut f, self.now);
         }
         let out = self.renderer.tick(self.now, &Pose::IDENTITY, true);
         (norm(out.rendered), out.faults)

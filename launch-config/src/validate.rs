@@ -281,7 +281,17 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
             ),
         );
     }
-    v.positive("device.force_scale", d.force_scale, "(1 = physical)");
+    if !(d.force_scale.is_finite() && (0.0..=1.0).contains(&d.force_scale)) {
+        v.push(
+            "device.force_scale",
+            format!(
+                "{} is not allowed; must be within 0..=1 (0 = automatic from the tissue \
+                 reference and the device limits, 1 = physical; the device never amplifies \
+                 the tissue force)",
+                d.force_scale
+            ),
+        );
+    }
     v.positive("device.peak_force_n", d.peak_force_n, "N (Touch: 3.3)");
     v.positive(
         "device.continuous_force_n",
@@ -294,6 +304,42 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
         d.max_force_rate_n_per_s,
         "N/s",
     );
+    v.positive(
+        "device.max_stiffness_n_per_m",
+        d.max_stiffness_n_per_m,
+        "N/m (Touch: 1000)",
+    );
+    if !(d.position_hysteresis_m.is_finite() && (0.0..=1e-3).contains(&d.position_hysteresis_m)) {
+        v.push(
+            "device.position_hysteresis_m",
+            format!(
+                "{} m is out of range; allowed: 0 ≤ position_hysteresis_m ≤ 0.001 m (Touch: 3.3e-5)",
+                d.position_hysteresis_m
+            ),
+        );
+    }
+    // Device limits are invariants: lowering is allowed, raising never.
+    for raise in d.limit_raises() {
+        v.push(raise.key, raise.to_string());
+    }
+    v.positive(
+        "device.tissue_force_range_n",
+        d.tissue_force_range_n,
+        "N (cadaver table: 7.2)",
+    );
+    v.positive(
+        "device.tissue_stiffness_n_per_m",
+        d.tissue_stiffness_n_per_m,
+        "N/m (cadaver table: 3100)",
+    );
+    let (lo, hi) = crate::device::SERVO_WATCHDOG_RANGE_S;
+    let wd = d.touch.servo_watchdog_s;
+    if !(wd.is_finite() && (lo..=hi).contains(&wd)) {
+        v.push(
+            "device.touch.servo_watchdog_s",
+            format!("{wd} s is out of range; allowed: {lo} ≤ servo_watchdog_s ≤ {hi} s"),
+        );
+    }
     v.positive("device.stale_frame_s", d.stale_frame_s, "s");
     v.non_negative("device.stale_ramp_s", d.stale_ramp_s, "s");
     v.positive("device.stats_rate_hz", d.stats_rate_hz, "Hz");
@@ -318,6 +364,11 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
     );
     v.non_negative("device.emulated.hover_m", e.hover_m, "m");
     v.non_negative("device.emulated.press_depth_m", e.press_depth_m, "m");
+    v.non_negative(
+        "device.emulated.press_force_n",
+        e.press_force_n,
+        "N at the tissue (0 = press to press_depth_m; the study: 4.16)",
+    );
     v.non_negative("device.emulated.hold_s", e.hold_s, "s");
     if d.backend == DeviceBackend::Replay {
         if d.replay.path.is_empty() {

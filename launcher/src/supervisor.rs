@@ -1053,7 +1053,19 @@ pub fn run(opts: &RunOptions) -> Result<SessionReport, LauncherError> {
         end,
         nodes,
         frames_missed: monitor.frames_missed,
-        summary: summarize(&record),
+        summary: {
+            let mut s = summarize(&record);
+            if opts.launch.nodes.haptic {
+                let r = opts.launch.device.rendering();
+                s.rendering = Some(session_metrics::summary::RenderingSummary {
+                    force_scale: r.force_scale,
+                    automatic: r.automatic,
+                    coupling_stiffness_n_per_m: r.coupling_stiffness_n_per_m,
+                    felt_stiffness_limit_n_per_m: r.felt_stiffness_limit_n_per_m,
+                });
+            }
+            s
+        },
     };
     let json = serde_json::to_string_pretty(&report).map_err(|e| LauncherError::Io {
         what: "serialise summary.json".into(),

@@ -97,6 +97,19 @@ pub struct RegionSummary {
     pub mean_probe_displacement_m: Option<f64>,
 }
 
+/// How the session rendered the tissue force (from the launch file's `[device]`: see
+/// `launch_config::device::Rendering`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct RenderingSummary {
+    pub force_scale: f64,
+    /// The scale was chosen automatically from the tissue reference and the device limits.
+    pub automatic: bool,
+    /// Virtual coupling in series with the contact compliance, tissue side, N/m.
+    pub coupling_stiffness_n_per_m: f64,
+    /// Largest felt stiffness, N/m (= force_scale × coupling).
+    pub felt_stiffness_limit_n_per_m: f64,
+}
+
 /// The end-of-session summary.
 #[derive(Debug, Clone, Default, PartialEq, Serialize)]
 pub struct SessionSummary {
@@ -120,6 +133,9 @@ pub struct SessionSummary {
     pub haptic_hz: Option<f64>,
     /// The haptic node's own newest rate estimate.
     pub haptic_reported_hz: Option<f64>,
+    /// How the tissue force was rendered: force scale and virtual coupling (None: no
+    /// haptic node in the session).
+    pub rendering: Option<RenderingSummary>,
     pub conventions: &'static str,
 }
 
@@ -309,6 +325,7 @@ pub fn summarize(record: &SessionRecord) -> SessionSummary {
         haptic_hz: (device_span > 0 && record.device_ticks > 1)
             .then(|| (record.device_ticks - 1) as f64 / (device_span as f64 * 1e-9)),
         haptic_reported_hz: record.haptic_reported_hz,
+        rendering: None,
         conventions: CONVENTIONS,
     }
 }
@@ -374,6 +391,16 @@ impl fmt::Display for SessionSummary {
             opt(self.haptic_hz, 1.0, 1),
             opt(self.haptic_reported_hz, 1.0, 1)
         )?;
+        if let Some(r) = &self.rendering {
+            writeln!(
+                f,
+                "rendering: force scale {:.4}{}, virtual coupling {:.2} N/mm at the tissue, felt stiffness ≤ {:.2} N/mm",
+                r.force_scale,
+                if r.automatic { " (automatic)" } else { "" },
+                r.coupling_stiffness_n_per_m * 1e-3,
+                r.felt_stiffness_limit_n_per_m * 1e-3
+            )?;
+        }
         write!(
             f,
             "F_n = -f·n: negative in compression (study: -4.0 N measured, -4.16 N simulated); \

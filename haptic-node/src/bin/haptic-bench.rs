@@ -109,7 +109,7 @@ fn lcp_p99_us(contacts: usize, solves: u32) -> anyhow::Result<(f64, f64)> {
             *f = *frame;
             f.sequence = 1 + i / 10;
             f.publish_ns = t0 + i * 1_000_000;
-            renderer.accept_frame(&mut f);
+            renderer.accept_frame(&mut f, t0 + i * 1_000_000);
         }
         // The hand trembles by up to ±50 µm around the frame's proxy.
         seed ^= seed << 13;

@@ -91,7 +91,8 @@ pub fn open(
         DeviceBackend::Touch => Ok(Box::new(touch::Touch::open(config)?)),
         DeviceBackend::Emulated => Ok(Box::new(emulated::EmulatedTouch::new(
             &config.emulated,
-            operator::Protocol::new(&config.emulated, sites)?,
+            operator::Protocol::new(&config.emulated, sites)?
+                .with_felt_target(config.emulated.press_force_n * config.rendering().force_scale),
             start_ns,
         )?)),
         DeviceBackend::Replay => Ok(Box::new(replay::Replay::open(&config.replay, start_ns)?)),

@@ -32,6 +32,9 @@ pub enum Command {
     /// Write a generated experiment folder from a higher-fidelity truth with injected
     /// effects (the truth goes to a separate file outside the folder).
     Reality(RealityArgs),
+    /// Press the probe quasi-statically along a probing site's normal and print the tissue
+    /// force against probe displacement (and the error against a force–displacement table).
+    ProbeCurve(ProbeCurveArgs),
     /// Run one node in this process (used by `run`).
     #[command(subcommand, hide = true)]
     Node(NodeCommand),
@@ -222,4 +225,30 @@ pub struct RealityArgs {
     /// Truth file (must be outside the experiment folder).
     #[arg(long, value_name = "FILE")]
     pub truth: PathBuf,
+}
+
+#[derive(Debug, Args)]
+pub struct ProbeCurveArgs {
+    /// Launch file (TOML) whose scene is pressed. Without one, the embedded default session.
+    pub file: Option<PathBuf>,
+    /// Probing region: the middle one of its protocol sites.
+    #[arg(long, default_value = "mid", value_parser = ["posterior", "mid", "anterior"])]
+    pub site: String,
+    /// Probe displacement from first touch to reach, with a unit (`8mm`, `0.008m`; a bare
+    /// number is mm). With --table, at least the table's last displacement is reached.
+    #[arg(long, default_value = "8mm")]
+    pub depth: String,
+    /// Degeneration grade 0..=2 instead of the scene's (grade 2: −41% modulus).
+    #[arg(long)]
+    pub grade: Option<f64>,
+    /// Probe travel per 10 ms step, mm (quasi-static).
+    #[arg(long, default_value_t = 0.02)]
+    pub step_mm: f64,
+    /// A force–displacement table (`displacement_mm,force_N`, first row the offset to
+    /// subtract, as the cadaver table): print the error at each of its points.
+    #[arg(long, value_name = "FILE.csv")]
+    pub table: Option<PathBuf>,
+    /// Print one JSON document instead of text.
+    #[arg(long)]
+    pub json: bool,
 }

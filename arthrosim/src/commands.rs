@@ -1,8 +1,8 @@
 //! What each subcommand does. Returns the process exit code.
 
 use crate::cli::{
-    Cli, Command, GapArgs, GapCommand, NodeCommand, RealityArgs, RecordingsCommand, ReplayArgs,
-    RunArgs, ValidateArgs,
+    Cli, Command, GapArgs, GapCommand, NodeCommand, ProbeCurveArgs, RealityArgs, RecordingsCommand,
+    ReplayArgs, RunArgs, ValidateArgs,
 };
 use anyhow::{bail, Context, Result};
 use gap_diagnosis as gap;
@@ -17,6 +17,7 @@ pub fn dispatch(cli: Cli) -> Result<i32> {
         Command::Recordings(cmd) => recordings(cmd),
         Command::Gap(args) => gap_command(args),
         Command::Reality(args) => reality(args),
+        Command::ProbeCurve(args) => probe_curve(args),
         Command::Node(node) => {
             match node {
                 NodeCommand::Physics(a) => physics_node::node::run_node(a),
@@ -463,5 +464,130 @@ fn reality(args: RealityArgs) -> Result<i32> {
         truth.label,
         args.truth.display()
     );
+    Ok(0)
+}
+
+/// A length with a unit (`8mm`, `0.8cm`, `0.008m`; a bare number is mm), in m.
+fn parse_length(s: &str) -> Result<f64> {
+    let t = s.trim();
+    let (num, scale) = if let Some(v) = t.strip_suffix("mm") {
+        (v, 1e-3)
+    } else if let Some(v) = t.strip_suffix("cm") {
+        (v, 1e-2)
+    } else if let Some(v) = t.strip_suffix('m') {
+        (v, 1.0)
+    } else {
+        (t, 1e-3)
+    };
+    let v: f64 = num
+        .trim()
+        .parse()
+        .map_err(|_| anyhow::anyhow!("--depth {s:?}: expected a length such as 8mm"))?;
+    if !(v.is_finite() && v > 0.0) {
+        bail!("--depth {s:?}: must be > 0");
+    }
+    Ok(v * scale)
+}
+
+/// `arthrosim probe-curve [FILE]`.
+fn probe_curve(args: ProbeCurveArgs) -> Result<i32> {
+    use physics_node::probe_curve::{self as pc, ForceTable, ProbeCurveOptions, Region};
+    let launch = match &args.file {
+        Some(path) => launch_config::load(path)?,
+        None => launch_config::load_str(
+            launch_config::DEFAULT_LAUNCH,
+            launch_config::DEFAULT_LAUNCH_ORIGIN,
+        )?,
+    };
+    let origin = args.file.as_ref().map_or_else(
+        || launch_config::DEFAULT_LAUNCH_ORIGIN.to_string(),
+        |p| p.display().to_string(),
+    );
+    let region = Region::parse(&args.site).ok_or_else(|| {
+        anyhow::anyhow!(
+            "--site {:?}: expected posterior, mid or anterior",
+            args.site
+        )
+    })?;
+    let table = match &args.table {
+        Some(p) => Some(ForceTable::load(p)?),
+        None => None,
+    };
+    let mut depth = parse_length(&args.depth)?;
+    if let Some(t) = &table {
+        depth = depth.max(t.max_displacement_m());
+    }
+    let mut opts = ProbeCurveOptions::new(region, depth);
+    opts.step_m = args.step_mm * 1e-3;
+    opts.grade = args.grade;
+    let data = launch_config::data_dir();
+    let curve = pc::run(&launch.scene, &data, &opts)
+        .with_context(|| format!("probe curve of the scene of {origin}"))?;
+    let comparison = match &table {
+        Some(t) => Some(pc::compare(&curve, t)?),
+        None => None,
+    };
+    if args.json {
+        let doc = serde_json::json!({
+            "launch": origin,
+            "mesh": launch.scene.meniscus.mesh,
+            "curve": curve,
+            "table": comparison,
+        });
+        println!("{}", serde_json::to_string_pretty(&doc)?);
+        return Ok(0);
+    }
+    let s = &curve;
+    println!(
+        "probe curve: {origin}, mesh {}, {} site #{} at ({:.2}, {:.2}, {:.2}) mm, normal ({:.3}, {:.3}, {:.3}), grade {}",
+        launch.scene.meniscus.mesh,
+        s.region.name(),
+        s.site_index,
+        s.site_point_m[0] * 1e3,
+        s.site_point_m[1] * 1e3,
+        s.site_point_m[2] * 1e3,
+        s.site_normal[0],
+        s.site_normal[1],
+        s.site_normal[2],
+        s.degeneration_grade
+    );
+    println!("displacement_mm,force_N,active_contacts,active_reach_mm");
+    // One line per 0.25 mm (and the last point).
+    let mut next = 0.0;
+    for (i, p) in s.points.iter().enumerate() {
+        if p.displacement_m + 1e-12 >= next || i + 1 == s.points.len() {
+            println!(
+                "{:.3},{:.4},{},{:.2}",
+                p.displacement_m * 1e3,
+                p.force_n,
+                p.active_contacts,
+                p.active_reach_m * 1e3
+            );
+            next = p.displacement_m + 0.25e-3;
+        }
+    }
+    if let Some(c) = &comparison {
+        println!(
+            "\ntable {} (offset {:.2} N subtracted, peak {:.2} N)",
+            c.table.display(),
+            c.offset_n,
+            c.peak_n
+        );
+        println!("displacement_mm,table_N,simulated_N,error_N,error_%_of_peak");
+        for p in &c.points {
+            println!(
+                "{:.2},{:.3},{:.3},{:+.3},{:+.1}",
+                p.displacement_m * 1e3,
+                p.table_n,
+                p.simulated_n,
+                p.error_n,
+                p.error_percent_of_peak
+            );
+        }
+        println!(
+            "max error {:.3} N = {:.1}% of the table's peak",
+            c.max_error_n, c.max_error_percent_of_peak
+        );
+    }
     Ok(0)
 }

@@ -132,6 +132,13 @@ impl Default for MeniscusConfig {
     }
 }
 
+/// Largest `[scene.material] strain_stiffening` rate (per unit strain): beyond it the
+/// modulus grows more than e^10 over a strain of 0.2, far stiffer than any soft tissue.
+pub const MAX_STRAIN_STIFFENING: f64 = 50.0;
+/// Largest `[scene.meniscus] support_stiffness`, N/m per node (a support this stiff is
+/// indistinguishable from holding the nodes).
+pub const MAX_SUPPORT_STIFFNESS: f64 = 1.0e7;
+
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct MaterialConfig {
@@ -147,8 +154,12 @@ pub struct MaterialConfig {
     pub model: MaterialModel,
     /// Degeneration grade 0..=2: modulus × (1 − 0.205 · grade), grade 2 = −41%.
     pub degeneration_grade: f64,
-    /// Extra global modulus scale (specimen variability).
+    /// Extra global modulus scale (specimen variability; fitted to measured probing in the
+    /// default scene).
     pub modulus_scale: f64,
+    /// Strain stiffening: element modulus × exp(rate · ε_eq) (ε_eq the element's von Mises
+    /// equivalent strain), 0 = linear. Allowed 0..=[`MAX_STRAIN_STIFFENING`].
+    pub strain_stiffening: f64,
     /// Rayleigh damping coefficients (mass, stiffness).
     pub rayleigh_mass: f64,
     pub rayleigh_stiffness: f64,
@@ -164,6 +175,7 @@ impl Default for MaterialConfig {
             model: MaterialModel::Corotational,
             degeneration_grade: 0.0,
             modulus_scale: 1.0,
+            strain_stiffening: 0.0,
             rayleigh_mass: 0.0,
             rayleigh_stiffness: 0.0,
         }

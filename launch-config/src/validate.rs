@@ -88,11 +88,16 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
             "`inferior`, `none`, or a path to a file of 0-based node indices",
         );
     }
-    v.non_negative(
-        "scene.meniscus.support_stiffness",
-        m.support_stiffness,
-        "N/m per node; 0 holds the fixed nodes rigidly",
-    );
+    let max_support = crate::scene::MAX_SUPPORT_STIFFNESS;
+    if !(m.support_stiffness.is_finite() && (0.0..=max_support).contains(&m.support_stiffness)) {
+        v.push(
+            "scene.meniscus.support_stiffness",
+            format!(
+                "{} is out of range; allowed: 0 ≤ k ≤ {max_support:e} N/m per node (0 holds the fixed nodes rigidly)",
+                m.support_stiffness
+            ),
+        );
+    }
 
     let mat = &s.material;
     // Choices (preset, model, solver kind, rotation, CG matrix, device backend, displacement
@@ -145,6 +150,16 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
         mat.modulus_scale,
         "(1 = nominal)",
     );
+    let max_k = crate::scene::MAX_STRAIN_STIFFENING;
+    if !(mat.strain_stiffening.is_finite() && (0.0..=max_k).contains(&mat.strain_stiffening)) {
+        v.push(
+            "scene.material.strain_stiffening",
+            format!(
+                "{} is out of range; allowed: 0 ≤ rate ≤ {max_k} (per unit strain; 0 = linear)",
+                mat.strain_stiffening
+            ),
+        );
+    }
     v.non_negative("scene.material.rayleigh_mass", mat.rayleigh_mass, "1/s");
     v.non_negative(
         "scene.material.rayleigh_stiffness",

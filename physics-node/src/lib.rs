@@ -15,6 +15,7 @@ pub mod faults;
 pub mod fem;
 pub mod node;
 pub mod probe;
+pub mod probe_curve;
 pub mod sim;
 
 // The contact frame's W is laid out with msgs' row stride and solved by contact-lcp, which

@@ -14,7 +14,7 @@
 use crate::compliance::{direction, ComplianceCache, ConstraintCorrection, Filling, RestSolver};
 use crate::contact::{boundary_triangles, ContactDetector, ContactParams, TissueSurface};
 use crate::error::PhysicsError;
-use crate::fem::{FemModel, FemSettings, Material, RestCompliance};
+use crate::fem::{FemModel, FemSettings, Material, RestCompliance, StrainStiffening};
 use crate::geometry::ProbingSite;
 use crate::probe::{pose_to_nalgebra, Probe};
 use launch_config::SceneConfig;
@@ -136,6 +136,11 @@ pub struct Simulation {
     /// Reduced dimension of the rest system (3 × free nodes).
     dim: usize,
     times: PhaseTimes,
+    /// Node rotations divided by √(patch modulus factor): the stiffness-warped compliance
+    /// R A0⁻¹ Rᵀ / s of a strain-stiffened tissue (only used when it stiffens).
+    warp: Vec<nalgebra::Matrix3<f64>>,
+    /// Secant modulus factor of the loaded patch in the last step (1: linear or no contact).
+    patch_stiffening: f64,
 }
 
 impl Simulation {
@@ -222,6 +227,10 @@ impl Simulation {
             FemSettings::from_scene(scene).map_err(|e| PhysicsError::Fem(e.to_string()))?;
         let mut fem = FemModel::new(&mesh, material, &fixed, settings)
             .map_err(|e| PhysicsError::Fem(e.to_string()))?;
+        fem.set_stiffening(
+            StrainStiffening::new(scene.material.strain_stiffening)
+                .map_err(|e| PhysicsError::Fem(e.to_string()))?,
+        );
         let rest = fem
             .rest_compliance(scene.dt, BLOCK_COLUMNS)
             .map_err(|e| PhysicsError::Fem(e.to_string()))?;
@@ -340,6 +349,8 @@ impl Simulation {
             report: crate::faults::StepReport::default(),
             dim,
             times: PhaseTimes::default(),
+            warp: vec![nalgebra::Matrix3::identity(); n_nodes],
+            patch_stiffening: 1.0,
         })
     }
 
@@ -611,7 +622,33 @@ impl Simulation {
             frame.compliance[r * MAX_ROWS..r * MAX_ROWS + self.prev_rows].fill(0.0);
         }
         self.prev_rows = rows;
-        let rotations = self.fem.node_rotations();
+        // The contact compliance is the rest compliance warped by the node rotations and, for
+        // a strain-stiffening tissue, divided by the secant modulus factor of the loaded
+        // patch: with the probe moving quasi-statically the free motion relaxes the tissue
+        // almost completely (mg nodal masses against kN/m), so the contact force is W⁻¹ times
+        // the violation and the stiffening has to be in W. One factor for the patch (the
+        // mean node factor under the contacts, weighted by their free penetration) scales
+        // W and the tissue correction alike, so the deformed shape stays the rest response.
+        let rotations = if self.fem.stiffening().is_active() {
+            let factors = self.fem.node_stiffening();
+            let (mut sum, mut weight) = (0.0, 0.0);
+            for c in contacts.iter() {
+                let w = (-c.free_violation[0]).max(0.0);
+                for a in 0..3 {
+                    sum += w * c.weights[a] * factors[c.nodes[a]];
+                    weight += w * c.weights[a];
+                }
+            }
+            let patch = if weight > 0.0 { sum / weight } else { 1.0 };
+            self.patch_stiffening = patch;
+            let inv_sqrt = 1.0 / patch.sqrt();
+            for (w, r) in self.warp.iter_mut().zip(self.fem.node_rotations()) {
+                *w = r * inv_sqrt;
+            }
+            &self.warp[..]
+        } else {
+            self.fem.node_rotations()
+        };
         if m > 0 {
             self.correction.assemble(
                 contacts,
@@ -757,6 +794,12 @@ impl Simulation {
             }
         }
         Ok(())
+    }
+
+    /// Secant modulus factor the contact compliance of the last step was divided by (1 for
+    /// a linear tissue or without contact).
+    pub fn patch_stiffening(&self) -> f64 {
+        self.patch_stiffening
     }
 
     pub fn contact_frame(&self) -> &ContactFrame {

@@ -166,6 +166,63 @@ impl Material {
     }
 }
 
+/// Largest modulus factor the strain-stiffening law gives (bounds the stiffness a few
+/// crushed elements under the probe tip can reach, which keeps the implicit step and the
+/// warped compliance well conditioned).
+pub const MAX_STIFFENING_FACTOR: f64 = 50.0;
+
+/// Strain stiffening of the tissue (Fung-type exponential secant modulus): an element's
+/// modulus is E · exp(rate · ε_eq), with ε_eq its von Mises equivalent small strain in the
+/// corotated frame, capped at [`MAX_STIFFENING_FACTOR`]. Collagenous tissue stiffens as its
+/// fibres straighten under load (Fung 1967); the rate is fitted to measured probing (the
+/// cadaver force–displacement table), see `launch/default.toml`. rate = 0: linear.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StrainStiffening {
+    /// Exponential rate per unit equivalent strain, ≥ 0.
+    pub rate: f64,
+}
+
+impl StrainStiffening {
+    pub const NONE: StrainStiffening = StrainStiffening { rate: 0.0 };
+
+    pub fn new(rate: f64) -> Result<Self, FemError> {
+        if !(rate.is_finite() && rate >= 0.0) {
+            return Err(FemError::Material(format!(
+                "strain_stiffening must be finite and ≥ 0, got {rate}"
+            )));
+        }
+        Ok(StrainStiffening { rate })
+    }
+
+    pub fn is_active(&self) -> bool {
+        self.rate > 0.0
+    }
+
+    /// Modulus factor at equivalent strain `eps_eq` (≥ 1).
+    #[inline]
+    pub fn factor(&self, eps_eq: f64) -> f64 {
+        if self.rate <= 0.0 || !eps_eq.is_finite() {
+            return 1.0;
+        }
+        (self.rate * eps_eq.max(0.0))
+            .exp()
+            .min(MAX_STIFFENING_FACTOR)
+    }
+
+    /// von Mises equivalent strain of the small strain ε = sym(RᵀF) − I:
+    /// √(2/3 · dev ε : dev ε).
+    #[inline]
+    pub fn equivalent_strain(f: &nalgebra::Matrix3<f64>, rot: &nalgebra::Matrix3<f64>) -> f64 {
+        let rf = rot.transpose() * f;
+        let mut eps = (rf + rf.transpose()) * 0.5 - nalgebra::Matrix3::identity();
+        let mean = eps.trace() / 3.0;
+        for i in 0..3 {
+            eps[(i, i)] -= mean;
+        }
+        (2.0 / 3.0 * eps.norm_squared()).sqrt()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -35,6 +35,13 @@ pub enum Command {
     /// Press the probe quasi-statically along a probing site's normal and print the tissue
     /// force against probe displacement (and the error against a force–displacement table).
     ProbeCurve(ProbeCurveArgs),
+    /// Blinded degeneration-grade training: a session of N specimens with hidden grades;
+    /// probe each, answer its grade (page or Touch buttons; the emulated operator answers by
+    /// a stiffness policy), see the confusion matrix and accuracy; results go to SQLite.
+    Train(TrainArgs),
+    /// Trainee records: the learning-curve report.
+    #[command(subcommand)]
+    Trainees(TraineesCommand),
     /// Run one node in this process (used by `run`).
     #[command(subcommand, hide = true)]
     Node(NodeCommand),
@@ -136,6 +143,8 @@ pub enum NodeCommand {
     Bridge(viz_bridge::NodeArgs),
     /// The MCAP recorder.
     Recorder(recordings::recorder::NodeArgs),
+    /// The live viewer (Foxglove WebSocket and the trainee page).
+    Viewer(viewer::NodeArgs),
 }
 
 #[derive(Debug, Args)]
@@ -251,4 +260,45 @@ pub struct ProbeCurveArgs {
     /// Print one JSON document instead of text.
     #[arg(long)]
     pub json: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct TrainArgs {
+    /// Trainee name (created on first use; no path separators or control characters).
+    #[arg(long, value_name = "NAME")]
+    pub trainee: String,
+    /// Number of scored specimens.
+    #[arg(long, default_value_t = 6, value_name = "N")]
+    pub cases: u32,
+    /// Seed of the hidden grade sequence (default: from the clock; stored with the session).
+    #[arg(long, value_name = "S")]
+    pub seed: Option<u64>,
+    /// Trainee database (SQLite). Default: $XDG_DATA_HOME/arthrosim/trainees.sqlite, else
+    /// ~/.local/share/arthrosim/trainees.sqlite.
+    #[arg(long, value_name = "PATH")]
+    pub db: Option<PathBuf>,
+    /// Launch file (TOML). Without one, the embedded default session.
+    pub file: Option<PathBuf>,
+    /// Session folder (default: sessions/<UTC timestamp>).
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
+    /// iceoryx2 session name (default: $ARTHROSIM_SESSION, else `[session] name`).
+    #[arg(long, value_name = "NAME")]
+    pub session: Option<String>,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum TraineesCommand {
+    /// Write a self-contained HTML report (learning curve, confusion, response time and
+    /// force per grade, links to each session's recording and gap report).
+    Report {
+        /// The trainee (default: every trainee, one page each plus an index).
+        name: Option<String>,
+        /// Folder for the report.
+        #[arg(long, value_name = "DIR")]
+        out: PathBuf,
+        /// Trainee database (default as for `train`).
+        #[arg(long, value_name = "PATH")]
+        db: Option<PathBuf>,
+    },
 }

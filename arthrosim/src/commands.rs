@@ -2,7 +2,7 @@
 
 use crate::cli::{
     Cli, Command, GapArgs, GapCommand, NodeCommand, ProbeCurveArgs, RealityArgs, RecordingsCommand,
-    ReplayArgs, RunArgs, ValidateArgs,
+    ReplayArgs, RunArgs, TrainArgs, TraineesCommand, ValidateArgs,
 };
 use anyhow::{bail, Context, Result};
 use gap_diagnosis as gap;
@@ -18,12 +18,15 @@ pub fn dispatch(cli: Cli) -> Result<i32> {
         Command::Gap(args) => gap_command(args),
         Command::Reality(args) => reality(args),
         Command::ProbeCurve(args) => probe_curve(args),
+        Command::Train(args) => train(args),
+        Command::Trainees(cmd) => trainees(cmd),
         Command::Node(node) => {
             match node {
                 NodeCommand::Physics(a) => physics_node::node::run_node(a),
                 NodeCommand::Haptic(a) => haptic_node::run_node(a),
                 NodeCommand::Bridge(a) => viz_bridge::run_node(a),
                 NodeCommand::Recorder(a) => recordings::recorder::run_node(a),
+                NodeCommand::Viewer(a) => viewer::run_node(a),
             }?;
             Ok(0)
         }
@@ -590,4 +593,140 @@ fn probe_curve(args: ProbeCurveArgs) -> Result<i32> {
         );
     }
     Ok(0)
+}
+
+/// `arthrosim train`: the session runs under the launcher on a second thread while the
+/// training driver runs the cases on this one; the driver's end (or Ctrl-C) stops the session.
+fn train(args: TrainArgs) -> Result<i32> {
+    training::check_trainee_name(&args.trainee)?;
+    if args.cases == 0 {
+        bail!("--cases 0: at least one specimen");
+    }
+    let db_path = args.db.clone().unwrap_or_else(training::default_path);
+    // Open (and refuse) the database before anything starts.
+    let mut db = training::Db::open(&db_path)?;
+    let (mut launch, origin) = match &args.file {
+        Some(path) => (launch_config::load(path)?, path.display().to_string()),
+        None => (
+            launch_config::load_str(
+                launch_config::DEFAULT_LAUNCH,
+                launch_config::DEFAULT_LAUNCH_ORIGIN,
+            )?,
+            launch_config::DEFAULT_LAUNCH_ORIGIN.to_string(),
+        ),
+    };
+    let session = match (&args.session, std::env::var(msgs::ipc::SESSION_ENV)) {
+        (Some(s), _) => s.clone(),
+        (None, Ok(s)) => s,
+        (None, Err(_)) => launch.session.name.clone(),
+    };
+    let session = msgs::ipc::session_name(Some(&session))?;
+    launch.session.name = session.clone();
+    let operator = training::prepare_launch(&mut launch);
+    let issues = launch_config::validate(&launch);
+    if !issues.is_empty() {
+        let text: Vec<String> = issues.iter().map(|i| i.to_string()).collect();
+        bail!("{origin}: {}", text.join("; "));
+    }
+    let seed = args
+        .seed
+        .unwrap_or_else(|| msgs::clock::realtime_ns() ^ u64::from(std::process::id()));
+    let out_dir = args.out.clone().unwrap_or_else(launcher::default_out_dir);
+    let request = training::TrainRequest {
+        trainee: args.trainee.clone(),
+        cases: args.cases,
+        seed,
+        db: db_path.clone(),
+        session: session.clone(),
+        out_dir: out_dir.clone(),
+        launch_origin: origin.clone(),
+    };
+    println!(
+        "training {:?}: {} specimens, seed {seed}, operator {}, database {}",
+        args.trainee,
+        args.cases,
+        operator.name(),
+        db_path.display()
+    );
+    if launch.viewer.enabled {
+        println!(
+            "trainee page: http://{}:{}/",
+            launch.viewer.bind, launch.viewer.http_port
+        );
+    }
+    let mut opts = RunOptions::for_current_exe(launch.clone(), origin, session, out_dir, None)?;
+    opts.live = LiveMode::Quiet;
+    let stop = msgs::lifecycle::install_stop_flag();
+    let session_thread = std::thread::spawn(move || launcher::run(&opts));
+    let mut progress = |line: &str| println!("{line}");
+    let result = training::train(&request, &launch, operator, &mut db, stop, &mut progress);
+    // The cases are done (or failed): end the session.
+    stop.store(true, std::sync::atomic::Ordering::SeqCst);
+    let report = session_thread
+        .join()
+        .map_err(|_| anyhow::anyhow!("the session thread panicked"))?;
+    let text = result?;
+    println!();
+    print!("{text}");
+    match report {
+        Ok(r) => {
+            println!("files: {}", r.out_dir);
+            Ok(0)
+        }
+        Err(e) => {
+            eprintln!("warning: the session did not end cleanly: {e}");
+            Ok(1)
+        }
+    }
+}
+
+/// `arthrosim trainees report [NAME] --out DIR`.
+fn trainees(cmd: TraineesCommand) -> Result<i32> {
+    match cmd {
+        TraineesCommand::Report { name, out, db } => {
+            let db_path = db.unwrap_or_else(training::default_path);
+            if !db_path.exists() {
+                bail!("trainee database {} does not exist", db_path.display());
+            }
+            let db = training::Db::open(&db_path)?;
+            let names = match name {
+                Some(n) => {
+                    training::check_trainee_name(&n)?;
+                    vec![n]
+                }
+                None => db.trainee_names()?,
+            };
+            if names.is_empty() {
+                bail!("no trainees in {}", db_path.display());
+            }
+            let single = names.len() == 1;
+            let mut index = String::from(
+                "<!doctype html><html><head><meta charset=\"utf-8\"><title>arthrosim trainees</title></head><body><h1>Trainees</h1><ul>",
+            );
+            for (i, n) in names.iter().enumerate() {
+                let sessions = db.sessions_of(n)?;
+                let dir = if single {
+                    out.clone()
+                } else {
+                    out.join(format!("trainee-{}", i + 1))
+                };
+                let path = training::write_report(n, &sessions, &dir)?;
+                println!("{n}: {} sessions → {}", sessions.len(), path.display());
+                let html_name = n
+                    .replace('&', "&amp;")
+                    .replace('<', "&lt;")
+                    .replace('>', "&gt;");
+                index.push_str(&format!(
+                    "<li><a href=\"trainee-{}/index.html\">{html_name}</a></li>",
+                    i + 1
+                ));
+            }
+            if !single {
+                index.push_str("</ul></body></html>\n");
+                std::fs::write(out.join("index.html"), index)
+                    .with_context(|| format!("writing {}", out.join("index.html").display()))?;
+            }
+            Ok(0)
+        }
+    }
 }

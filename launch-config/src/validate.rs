@@ -415,6 +415,12 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
     if let Err(e) = file.recording.validate() {
         v.push_owned("recording", e.to_string());
     }
+    if let Err(e) = file.viewer.validate() {
+        v.push_owned("viewer", e.to_string());
+    }
+    if let Err(e) = file.training.validate() {
+        v.push_owned("training", e.to_string());
+    }
 
     check_upper_bounds(&mut v, file);
     v.issues

@@ -28,21 +28,24 @@ pub enum NodeKind {
     Haptic,
     Bridge,
     Recorder,
+    Viewer,
 }
 
 impl NodeKind {
     /// Physics first (the others read its streams), the recorder before the haptic node so
     /// it sees every tick, haptic last.
-    pub const START_ORDER: [NodeKind; 4] = [
+    pub const START_ORDER: [NodeKind; 5] = [
         NodeKind::Physics,
         NodeKind::Recorder,
         NodeKind::Bridge,
+        NodeKind::Viewer,
         NodeKind::Haptic,
     ];
     /// Haptic first (force ramps to zero while physics still answers), recorder last (it
     /// records the stop and closes its file).
-    pub const STOP_ORDER: [NodeKind; 4] = [
+    pub const STOP_ORDER: [NodeKind; 5] = [
         NodeKind::Haptic,
+        NodeKind::Viewer,
         NodeKind::Bridge,
         NodeKind::Physics,
         NodeKind::Recorder,
@@ -55,6 +58,7 @@ impl NodeKind {
             NodeKind::Haptic => "haptic",
             NodeKind::Bridge => "bridge",
             NodeKind::Recorder => "recorder",
+            NodeKind::Viewer => "viewer",
         }
     }
 
@@ -69,6 +73,7 @@ impl NodeKind {
             NodeKind::Haptic => file.nodes.haptic,
             NodeKind::Bridge => file.nodes.bridge,
             NodeKind::Recorder => file.nodes.recorder && file.recording.enabled,
+            NodeKind::Viewer => file.viewer.enabled,
         }
     }
 }
@@ -1130,7 +1135,7 @@ mod tests {
     #[test]
     fn stop_order_is_haptic_first_recorder_last() {
         assert_eq!(NodeKind::STOP_ORDER[0], NodeKind::Haptic);
-        assert_eq!(NodeKind::STOP_ORDER[3], NodeKind::Recorder);
+        assert_eq!(NodeKind::STOP_ORDER[4], NodeKind::Recorder);
         assert_eq!(NodeKind::START_ORDER[0], NodeKind::Physics);
         for k in NodeKind::START_ORDER {
             assert_eq!(NodeKind::from_name(k.name()), Some(k));

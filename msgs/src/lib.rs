@@ -433,6 +433,81 @@ pub mod bridge_to_physics {
     }
 }
 
+pub mod training {
+    //! Blinded grade training (`arthrosim train`): the driver's prompt to the viewer page, and
+    //! the trainee's answer from the page back to the driver. The grade itself is never sent
+    //! before the answer.
+    use super::*;
+
+    /// Training states in [`TrainingPrompt::state`].
+    pub mod state {
+        /// No training running (plain session).
+        pub const IDLE: u32 = 0;
+        /// A specimen is loaded; probe it, then answer.
+        pub const PROBING: u32 = 1;
+        /// The answer of the current case is stored; the next specimen is being loaded.
+        pub const ANSWERED: u32 = 2;
+        /// All cases answered; `correct` holds the score.
+        pub const FINISHED: u32 = 3;
+    }
+
+    /// Published by the training driver whenever its state changes (and once a second).
+    #[repr(C)]
+    #[derive(Debug, Clone, Copy, ZeroCopySend)]
+    #[type_name("arthrosim::TrainingPrompt")]
+    pub struct TrainingPrompt {
+        pub sequence: u64,
+        pub publish_ns: u64,
+        /// Case number, 1-based (0: none yet).
+        pub case_index: u32,
+        pub case_count: u32,
+        /// `state::*`.
+        pub state: u32,
+        /// Grades the trainee may answer: 0..grade_count.
+        pub grade_count: u32,
+        /// Probings counted in the current case.
+        pub probings: u32,
+        /// Correct answers so far (shown only when FINISHED).
+        pub correct: u32,
+        /// Answered cases so far.
+        pub answered: u32,
+        pub _pad: u32,
+    }
+
+    impl Topic for TrainingPrompt {
+        const SERVICE: &'static str = "training/prompt";
+        const HISTORY: usize = 1;
+        const MAX_BUFFER: usize = 8;
+    }
+
+    /// Where an answer came from.
+    pub mod source {
+        pub const PAGE: u32 = 1;
+        pub const BUTTONS: u32 = 2;
+    }
+
+    /// The trainee's answer for one case, from the viewer page.
+    #[repr(C)]
+    #[derive(Debug, Clone, Copy, ZeroCopySend)]
+    #[type_name("arthrosim::TrainingAnswer")]
+    pub struct TrainingAnswer {
+        pub sequence: u64,
+        pub publish_ns: u64,
+        /// The case answered (must match the prompt's `case_index`, else it is ignored).
+        pub case_index: u32,
+        pub grade: u32,
+        /// `source::*`.
+        pub source: u32,
+        pub _pad: u32,
+    }
+
+    impl Topic for TrainingAnswer {
+        const SERVICE: &'static str = "training/answer";
+        const HISTORY: usize = 1;
+        const MAX_BUFFER: usize = 8;
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -52,6 +52,7 @@ fn haptic(session: &str, trajectory: &std::path::Path) -> Proc {
 
 #[test]
 fn haptic_force_matches_the_physics_force_at_the_same_proxy() {
+    let _rig = one_rig_at_a_time();
     let s = session("match");
     let dir = temp_dir("match");
     let k = 500.0;
@@ -145,6 +146,7 @@ fn established_contact(
 
 #[test]
 fn kill9_of_physics_mid_contact_ramps_force_to_zero_within_10ms_of_staleness() {
+    let _rig = one_rig_at_a_time();
     let s = session("kill");
     let dir = temp_dir("kill");
     let traj = write_trajectory(
@@ -165,6 +167,7 @@ fn kill9_of_physics_mid_contact_ramps_force_to_zero_within_10ms_of_staleness() {
 
 #[test]
 fn restarted_physics_is_picked_up_without_cleanup_and_without_a_force_step() {
+    let _rig = one_rig_at_a_time();
     let s = session("restart");
     let dir = temp_dir("restart");
     let traj = write_trajectory(
@@ -194,6 +197,7 @@ fn restarted_physics_is_picked_up_without_cleanup_and_without_a_force_step() {
 
 #[test]
 fn nan_proxy_position_produces_no_force() {
+    let _rig = one_rig_at_a_time();
     let s = session("nan");
     let dir = temp_dir("nan");
     let nan = f64::NAN;

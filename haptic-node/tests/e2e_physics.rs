@@ -78,6 +78,7 @@ fn probing(dir: &std::path::Path, depth: f64, nan: Option<(f64, f64)>) -> PathBu
 
 #[test]
 fn haptic_force_matches_the_real_physics_force_at_the_same_proxy() {
+    let _rig = one_rig_at_a_time();
     let s = session("real-match");
     let dir = temp_dir("real-match");
     let traj = probing(&dir, 1.0e-3, None);
@@ -140,6 +141,7 @@ fn haptic_force_matches_the_real_physics_force_at_the_same_proxy() {
 
 #[test]
 fn kill9_of_real_physics_ramps_to_zero_and_a_restart_is_picked_up() {
+    let _rig = one_rig_at_a_time();
     let s = session("real-kill");
     let dir = temp_dir("real-kill");
     let traj = probing(&dir, 1.5e-3, None);
@@ -169,6 +171,7 @@ fn kill9_of_real_physics_ramps_to_zero_and_a_restart_is_picked_up() {
 
 #[test]
 fn nan_proxy_against_real_physics_produces_no_force() {
+    let _rig = one_rig_at_a_time();
     let s = session("real-nan");
     let dir = temp_dir("real-nan");
     let traj = probing(&dir, 1.5e-3, Some((4.0, 4.5)));

@@ -147,6 +147,7 @@ fn stylus_below_surface() -> (&'static str, String) {
 
 #[test]
 fn touch_renders_the_contact_force_through_libhd_and_leaves_it_at_zero() {
+    let _rig = one_rig_at_a_time();
     let (r, w) = run_touch(
         "touch-render",
         &[
@@ -225,6 +226,7 @@ fn assert_zero_after(r: &Report, at_ms: f64, after_ms: f64) {
 
 #[test]
 fn touch_servo_error_holds_zero_force_then_ramps_back_in() {
+    let _rig = one_rig_at_a_time();
     let (r, w) = run_touch(
         "touch-error",
         &[
@@ -269,6 +271,7 @@ fn touch_servo_error_holds_zero_force_then_ramps_back_in() {
 
 #[test]
 fn touch_nan_position_produces_no_force() {
+    let _rig = one_rig_at_a_time();
     let (r, w) = run_touch(
         "touch-nan",
         &[stylus_below_surface(), ("FAKE_HD_NAN_AT_MS", "800".into())],
@@ -335,6 +338,7 @@ fn refused_calibration(test: &str, auto_calibrate: bool, calibration: &str) -> (
 
 #[test]
 fn touch_calibration_needing_the_inkwell_is_a_clear_error_and_no_force() {
+    let _rig = one_rig_at_a_time();
     let (err, r) = refused_calibration("touch-inkwell", true, "manual");
     assert!(err.contains("inkwell"), "{err}");
     r.assert_discipline();
@@ -343,6 +347,7 @@ fn touch_calibration_needing_the_inkwell_is_a_clear_error_and_no_force() {
 
 #[test]
 fn touch_calibration_update_with_auto_calibrate_off_is_refused() {
+    let _rig = one_rig_at_a_time();
     let (err, r) = refused_calibration("touch-nocal", false, "update");
     assert!(err.contains("auto_calibrate"), "{err}");
     assert_eq!(r.get("calibration_updated_style"), 0.0);
@@ -351,6 +356,7 @@ fn touch_calibration_update_with_auto_calibrate_off_is_refused() {
 
 #[test]
 fn touch_that_cannot_initialise_names_the_hd_error() {
+    let _rig = one_rig_at_a_time();
     let dir = temp_dir("touch-init");
     let (code, err) = run_to_failure(&launch_file(&dir, true), &[("FAKE_HD_INIT", "fail".into())]);
     assert_ne!(code, Some(0));
@@ -363,6 +369,7 @@ fn touch_that_cannot_initialise_names_the_hd_error() {
 
 #[test]
 fn touch_servo_watchdog_fades_the_force_when_the_node_loop_stalls() {
+    let _rig = one_rig_at_a_time();
     // In this process: the node loop is this test, which stops commanding forces while the
     // stand-in's scheduler thread keeps calling the servo callback.
     let dir = temp_dir("touch-watchdog");

@@ -88,6 +88,16 @@ impl Drop for Proc {
     }
 }
 
+/// Holds the binary's real-time rig for one test at a time. Tests in one binary run in
+/// parallel, and each of these starts a SCHED_FIFO servo loop plus a physics publisher whose
+/// timing it then asserts on; on a 2-core CI runner two such rigs starved each other's
+/// publisher, the frame went stale mid-window and the node (rightly) ramped the force to zero.
+pub fn one_rig_at_a_time() -> std::sync::MutexGuard<'static, ()> {
+    static RIG: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    // A failed test poisons the lock; the next test still owns the rig alone.
+    RIG.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
 pub fn session(test: &str) -> String {
     format!("hn-{test}-{}", std::process::id())
 }

@@ -137,6 +137,7 @@ fn hold_stats(states: &[DeviceState]) -> Vec<(u32, f64, f64)> {
 /// under the device limit and the force holds still while the hand holds still.
 #[test]
 fn felt_stiffness_is_bounded_and_holds_are_steady_on_stiff_and_soft_tissue() {
+    let _rig = one_rig_at_a_time();
     for (name, k) in [("feel-stiff", 57e3), ("feel-soft", 1.0e3)] {
         let run = feel(name, k, 4.16);
         let kf = max_felt_stiffness(&run.states);
@@ -182,6 +183,7 @@ fn force_by_depth(states: &[DeviceState]) -> std::collections::BTreeMap<i64, (f6
 /// their modulus ratio within 10%, on the table's typical stiffness under the probe.
 #[test]
 fn degeneration_grades_change_the_felt_force_by_their_modulus_ratio() {
+    let _rig = one_rig_at_a_time();
     let k0 = 1.7e3;
     let grades = [(0, 1.0), (1, 1.0 - 0.205), (2, 1.0 - 0.41)];
     let runs: Vec<_> = grades
@@ -224,6 +226,7 @@ fn degeneration_grades_change_the_felt_force_by_their_modulus_ratio() {
 /// as the tissue lets it.
 #[test]
 fn the_operator_presses_to_a_felt_force_not_to_a_depth() {
+    let _rig = one_rig_at_a_time();
     let target = 4.16;
     let mut depths = Vec::new();
     for (name, k) in [("press-soft", 0.8e3), ("press-stiff", 3.0e3)] {

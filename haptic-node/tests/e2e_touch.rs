@@ -457,7 +457,7 @@ fn touch_servo_holds_the_last_force_while_the_shared_state_is_contended() {
     let report = dir.join("libhd-report.txt");
     let _one = in_process_libhd(&report);
     let mut config = launch_config::DeviceConfig::default();
-    config.backend = "touch".into();
+    config.backend = launch_config::device::DeviceBackend::Touch;
     config.touch.library = fake_libhd().display().to_string();
     // The longest watchdog allowed: on a loaded machine this thread's 1 ms sleeps can last
     // tens of ms, which the watchdog rightly fades out; the contention is what is tested.
@@ -519,7 +519,7 @@ fn touch_servo_clamps_on_its_own_whatever_the_node_loop_commands() {
     let report = dir.join("libhd-report.txt");
     let _one = in_process_libhd(&report);
     let mut config = launch_config::DeviceConfig::default();
-    config.backend = "touch".into();
+    config.backend = launch_config::device::DeviceBackend::Touch;
     config.touch.library = fake_libhd().display().to_string();
     // Even a configuration that was never validated cannot raise the servo's clamp.
     config.peak_force_n = 30.0;

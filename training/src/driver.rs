@@ -613,6 +613,7 @@ mod tests {
             instance_id: 1,
             sequence: t_ms / 10,
             device_sequence_used: 0,
+            physics_faults: 0,
             publish_ns: t_ms * 1_000_000,
             sim_time_s: t_ms as f64 / 1e3,
             dt_s: 0.01,

@@ -48,7 +48,7 @@ pub fn prepare_launch(launch: &mut LaunchFile) -> Operator {
     launch.nodes.haptic = true;
     // The hidden grade is loaded by command; start healthy whatever the file says.
     launch.scene.material.degeneration_grade = 0.0;
-    if launch.device.backend == "emulated" {
+    if launch.device.backend == launch_config::device::DeviceBackend::Emulated {
         launch.device.emulated.probings_per_region = launch.training.emulated_probings_per_region;
         launch.device.emulated.repeat = true;
         Operator::Emulated

@@ -24,9 +24,9 @@ use std::time::Duration;
 
 use anyhow::Context as _;
 use launch_config::{BridgeConfig, ViewerConfig};
-use viz_bridge::convert::StampClock;
+use msgs::ros_mapping::StampClock;
 
-use crate::mapping::{Channel, Frames, CHANNELS};
+use crate::mapping::{Channel, CHANNELS};
 use crate::source::{Counters, Rates, Update};
 
 /// Command-line arguments of the viewer node (`arthrosim node viewer`).
@@ -181,12 +181,14 @@ pub fn run(
     }
 
     let (tx, rx) = sync_channel::<Update>(config.queue_depth);
-    let clock = StampClock::new();
+    // The session's one stamp clock (ARTHROSIM_CLOCK_OFFSET_NS from the launcher), so the
+    // viewer stamps a sample as the bridge and the recorder do.
+    let clock = StampClock::for_session().context("the session stamp clock")?;
     let rates = Rates {
         state_period: Duration::from_secs_f64(1.0 / config.rate_hz),
         mesh_period: Duration::from_secs_f64(1.0 / config.mesh_rate_hz),
     };
-    let frames = Frames::from_bridge(bridge);
+    let frames = bridge.ros_mapping();
     let session_owned = session.to_string();
     let source_counters = counters.clone();
     let (ready_tx, ready_rx) = sync_channel::<()>(1);

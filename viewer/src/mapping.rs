@@ -1,7 +1,6 @@
 //! The one place where session samples become viewer output: the Foxglove channels (ROS 2
-//! messages, CDR-encoded, with the bridge's topic names, frames and conversions from
-//! `viz_bridge::convert`) and the trainee page's JSON events. When the ROS 2 mapping moves
-//! into `msgs`, only the imports here change.
+//! messages, CDR-encoded, with the bridge's topic names, frames and conversions: the one
+//! ROS 2 mapping, `msgs::ros_mapping`) and the trainee page's JSON events.
 
 use std::sync::Arc;
 
@@ -14,11 +13,10 @@ use msgs::ros::{
     self, DiagnosticArray, DiagnosticStatus, Header, JointState, KeyValue, Marker, MarkerArray,
     PoseStamped, RosMessage, TFMessage, WrenchStamped,
 };
+use msgs::ros_mapping::{full_topic_name, Mapping, StampClock, Topic};
 use msgs::training::TrainingPrompt;
 use msgs::{MAX_SURFACE_TRIANGLES, MAX_SURFACE_VERTICES};
 use serde::Serialize;
-use viz_bridge::convert::{self, StampClock};
-use viz_bridge::stats::Stream;
 
 /// Foxglove channels, in the order of [`Channel::ALL`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -47,30 +45,23 @@ impl Channel {
         Channel::Diagnostics,
     ];
 
-    /// Topic below the bridge namespace (absolute ones stay), as the bridge names it.
-    fn relative_topic(self) -> &'static str {
+    /// The session topic this channel carries (the bridge's and the recorder's name).
+    fn ros_topic(self) -> Topic {
         match self {
-            Channel::ProbePose => Stream::ProbePose.topic(),
-            Channel::ProbeWrench => Stream::ProbeWrench.topic(),
-            Channel::DeviceWrench => Stream::DeviceWrench.topic(),
-            Channel::JointStates => Stream::JointStates.topic(),
-            Channel::Mesh => Stream::Mesh.topic(),
-            Channel::Contacts => Stream::Contacts.topic(),
-            Channel::Tf => Stream::Tf.topic(),
-            Channel::Diagnostics => "/diagnostics",
+            Channel::ProbePose => Topic::ProbePose,
+            Channel::ProbeWrench => Topic::ProbeWrench,
+            Channel::DeviceWrench => Topic::DeviceWrench,
+            Channel::JointStates => Topic::JointStates,
+            Channel::Mesh => Topic::Mesh,
+            Channel::Contacts => Topic::Contacts,
+            Channel::Tf => Topic::Tf,
+            Channel::Diagnostics => Topic::Diagnostics,
         }
     }
 
     /// Full topic name under `namespace` (the `[bridge] namespace`, default `/arthrosim`).
     pub fn topic(self, namespace: &str) -> String {
-        let t = self.relative_topic();
-        if t.starts_with('/') {
-            t.to_string()
-        } else if namespace == "/" {
-            format!("/{t}")
-        } else {
-            format!("{namespace}/{t}")
-        }
+        full_topic_name(namespace, self.ros_topic().relative())
     }
 
     /// ROS 2 type name (`pkg/msg/Type`) and `ros2msg` schema text.
@@ -131,73 +122,49 @@ impl RosOut {
     }
 }
 
-/// Frame names and poses the mapping needs (from the `[bridge]` section, as the bridge).
-#[derive(Debug, Clone)]
-pub struct Frames {
-    pub world: String,
-    pub meniscus: msgs::Pose,
-    pub touch_base: msgs::Pose,
-}
-
-impl Frames {
-    pub fn from_bridge(b: &launch_config::BridgeConfig) -> Frames {
-        let pose = |f: &launch_config::bridge::FramePose| msgs::Pose {
-            position: f.position,
-            orientation: f.orientation,
-        };
-        Frames {
-            world: b.world_frame.clone(),
-            meniscus: pose(&b.meniscus_pose),
-            touch_base: pose(&b.touch_base_pose),
-        }
-    }
-}
-
 /// Messages of one physics step (probe pose, contact wrench, contact markers, tf).
 pub fn contact_messages(
     frame: &ContactFrame,
-    frames: &Frames,
+    mapping: &Mapping,
     clock: &StampClock,
     out: &mut Vec<RosOut>,
 ) {
-    let world = frames.world.as_str();
-    out.push(RosOut::ProbePose(convert::probe_pose(frame, clock, world)));
-    out.push(RosOut::ProbeWrench(convert::probe_wrench(
-        frame, clock, world,
-    )));
-    out.push(RosOut::Contacts(convert::contact_markers(
-        frame, clock, world,
-    )));
-    out.push(RosOut::Tf(convert::transforms(
-        &frame.probe_pose,
-        &frames.meniscus,
-        &frames.touch_base,
-        frame.publish_ns,
-        clock,
-        world,
-    )));
+    let stamp = clock.stamp(frame.publish_ns);
+    let mut pose = PoseStamped::default();
+    mapping.probe_pose_into(&mut pose, frame, stamp);
+    out.push(RosOut::ProbePose(pose));
+    let mut wrench = WrenchStamped::default();
+    mapping.probe_wrench_into(&mut wrench, frame, stamp);
+    out.push(RosOut::ProbeWrench(wrench));
+    let mut markers = MarkerArray::default();
+    mapping.contact_markers_into(&mut markers, frame, stamp);
+    out.push(RosOut::Contacts(markers));
+    let mut tf = TFMessage::default();
+    mapping.transforms_into(&mut tf, frame, stamp);
+    out.push(RosOut::Tf(tf));
 }
 
 /// Messages of one haptic tick (rendered force, joint states).
 pub fn device_messages(
     state: &DeviceState,
-    frames: &Frames,
+    mapping: &Mapping,
     clock: &StampClock,
     out: &mut Vec<RosOut>,
 ) {
-    out.push(RosOut::DeviceWrench(convert::device_wrench(
-        state,
-        clock,
-        &frames.world,
-    )));
-    out.push(RosOut::JointStates(convert::joint_states(state, clock)));
+    let stamp = clock.stamp(state.publish_ns);
+    let mut wrench = WrenchStamped::default();
+    mapping.device_wrench_into(&mut wrench, state, stamp);
+    out.push(RosOut::DeviceWrench(wrench));
+    let mut joints = JointState::default();
+    mapping.joint_states_into(&mut joints, state, stamp);
+    out.push(RosOut::JointStates(joints));
 }
 
 /// The deformed surface as the bridge's TRIANGLE_LIST marker.
-pub fn mesh_message(surface: &SurfaceFrame, frames: &Frames, clock: &StampClock) -> RosOut {
-    RosOut::Mesh(Box::new(
-        convert::mesh_marker(surface, clock, &frames.world).marker,
-    ))
+pub fn mesh_message(surface: &SurfaceFrame, mapping: &Mapping, clock: &StampClock) -> RosOut {
+    let mut marker = Box::<Marker>::default();
+    mapping.mesh_marker_into(&mut marker, surface, clock.stamp(surface.publish_ns));
+    RosOut::Mesh(marker)
 }
 
 /// Session status as the viewer sees it: what `/diagnostics` and the page's status panel show.
@@ -453,14 +420,14 @@ mod tests {
         frame.probe_pose = msgs::Pose::IDENTITY;
         frame.probe_pose.position = [0.01, -0.02, 0.03];
         frame.contact_force = [0.5, -1.0, -3.5];
-        let frames = Frames::from_bridge(&launch_config::BridgeConfig::default());
+        let mapping = launch_config::BridgeConfig::default().ros_mapping();
         let mut out = Vec::new();
-        contact_messages(frame, &frames, &StampClock::new(), &mut out);
+        contact_messages(frame, &mapping, &StampClock::measure(), &mut out);
         let mut buf = Vec::new();
         out[1].encode(&mut buf).unwrap();
         let back: WrenchStamped = ros::from_cdr(&buf).unwrap();
         assert_eq!(back.wrench.force.z, -3.5);
-        assert_eq!(back.header.frame_id, frames.world);
+        assert_eq!(back.header.frame_id, mapping.world_frame);
     }
 
     #[test]

@@ -16,11 +16,11 @@ use msgs::haptic_to_physics::DeviceState;
 use msgs::ipc::{self, LinkError, Queue};
 use msgs::physics_to_haptic::ContactFrame;
 use msgs::physics_to_viz::SurfaceFrame;
+use msgs::ros_mapping::{Mapping, StampClock};
 use msgs::training::{TrainingAnswer, TrainingPrompt};
 use msgs::Topic;
-use viz_bridge::convert::StampClock;
 
-use crate::mapping::{self, Frames, PageEvent, RosOut, Status};
+use crate::mapping::{self, PageEvent, RosOut, Status};
 
 /// What the shared-memory thread hands to the output thread.
 #[derive(Debug)]
@@ -72,7 +72,7 @@ fn push(tx: &SyncSender<Update>, counters: &Counters, update: Update) {
 #[allow(clippy::too_many_arguments)]
 pub fn run(
     session: &str,
-    frames: Frames,
+    frames: Mapping,
     rates: Rates,
     clock: StampClock,
     tx: SyncSender<Update>,

@@ -72,11 +72,11 @@ use crate::mesh::TetMesh;
 use corotational_pass::{element_rotation, CorotationalUpperPass};
 use element::{ElementOutput, TetRest, UpperScatter};
 pub use material::{Material, MaterialModel, StrainStiffening};
-use stiffening::StiffeningState;
 pub use rest_compliance::RestCompliance;
 pub use settings::{CgMatrix, FemSettings, LinearSolver, Preconditioner, RotationMethod};
 pub use sparse::{BlockPattern, SparseCholesky};
 use sparse::{UpperF32, NO_BLOCK};
+use stiffening::StiffeningState;
 
 /// Errors of the FEM model.
 #[derive(Debug, thiserror::Error)]

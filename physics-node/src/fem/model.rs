@@ -80,8 +80,7 @@ impl FemModel {
         let upper32 = UpperF32::new(&pattern);
         let upper_scatter = upper32.scatter(&pattern, &free_index, &mesh.tets, &elem_blocks);
         let (mu, lambda) = material.lame();
-        let stiffening =
-            StiffeningState::new(StrainStiffening::NONE, &mesh.tets, &rest_elems, n);
+        let stiffening = StiffeningState::new(StrainStiffening::NONE, &mesh.tets, &rest_elems, n);
         let mut model = FemModel {
             material,
             mu,

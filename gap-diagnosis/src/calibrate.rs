@@ -386,7 +386,11 @@ pub enum Input {
 pub const REFINE_BRACKET: f64 = 0.1;
 
 /// Rounds of [`refine`] at most (each re-simulates every trial once per refined effect).
-pub const MAX_REFINE_ROUNDS: usize = 5;
+/// Each round adds a knot at the new fit, so the fit walks towards the value like a secant
+/// iteration; on the tip-first hook over the coarse mesh the force is rough in the support
+/// stiffness and five rounds stopped 1% short (fit 1501 N/m, last knot 1485 N/m), leaving
+/// the written scene 45% worse than the interpolated promise.
+pub const MAX_REFINE_ROUNDS: usize = 8;
 
 /// Diagnoses `input` and applies the verdict.
 ///

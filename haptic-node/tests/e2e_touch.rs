@@ -23,8 +23,18 @@ const DEPTH: f64 = 2.5e-3;
 const COUPLING: f64 = 1000.0;
 
 /// The steady force the stylus at DEPTH feels: the half-space in series with the coupling.
+/// The steady force of a stylus held at DEPTH. The rendered position trails the reading by
+/// up to the per-axis play (`position_hysteresis_m`, against quantisation chatter at a still
+/// hand): whether the stand-in's first reading is already at DEPTH depends on start-up timing.
 fn felt() -> f64 {
     DEPTH / (1.0 / K + 1.0 / COUPLING)
+}
+
+/// The steady force when the stylus came to rest from a move: up to one play short of
+/// `felt()`.
+fn felt_after_play() -> f64 {
+    let play = launch_config::DeviceConfig::default().position_hysteresis_m;
+    (DEPTH - play) / (1.0 / K + 1.0 / COUPLING)
 }
 
 /// Builds the stand-in libHD once per test binary.
@@ -173,7 +183,15 @@ fn touch_renders_the_contact_force_through_libhd_and_leaves_it_at_zero() {
         .map(|(_, f)| *f)
         .collect();
     assert!(steady.len() > 500, "{} steady writes", steady.len());
-    let expect = felt();
+    // One steady value for the whole window, within the play of k·depth in series with the
+    // coupling.
+    let expect = steady[0][1];
+    assert!(
+        expect >= felt_after_play() - 1e-6 && expect <= felt() + 1e-6,
+        "steady force {expect} N, expected {} … {} N",
+        felt_after_play(),
+        felt()
+    );
     for f in &steady {
         assert!(
             f[0].abs() < 1e-9 && (f[1] - expect).abs() < 1e-6 && f[2].abs() < 1e-9,
@@ -257,10 +275,19 @@ fn touch_servo_error_holds_zero_force_then_ramps_back_in() {
             p[1].1[1] - p[0].1[1],
             p[1].1[2] - p[0].1[2],
         ]);
-        assert!(step <= MAX_STEP, "step {step} N at {} ms", p[1].0);
+        // The limit is a rate (400 N/s): a write that comes late after a loaded scheduler's
+        // gap may rise by the rate times the gap (the servo clamp allows up to 2 ms).
+        let gap_ms = (p[1].0 - p[0].0).clamp(1.0, 2.0);
+        assert!(
+            step <= MAX_STEP * gap_ms,
+            "step {step} N at {} ms ({gap_ms} ms after the previous write)",
+            p[1].0
+        );
     }
     assert!(
-        after.iter().any(|(_, f)| (f[1] - felt()).abs() < 1e-6),
+        after
+            .iter()
+            .any(|(_, f)| (f[1] - felt()).abs() < 1e-6 || (f[1] - felt_after_play()).abs() < 1e-6),
         "the force came back"
     );
     assert!(w

@@ -249,6 +249,7 @@ proptest! {
         let mut g = Rng(seed);
         good_frame(&mut g, &mut frame, contacts, 0, 1);
         let z0 = frame.proxy_pose.position[2];
+        let mu = frame.friction_mu;
         let (x, y) = (frame.proxy_pose.position[0], frame.proxy_pose.position[1]);
         r.accept_frame(&mut frame, 0);
         let q = 0.055e-3;
@@ -262,7 +263,7 @@ proptest! {
                 // The LCP stops at a 1e-3 relative tolerance: allow that much of the force.
                 prop_assert!(
                     d <= limit * q * (1.0 + 1e-6) + 2e-3 * norm(c),
-                    "{} contacts: ΔF {} N per {} m ({} N/m)", contacts, d, q, d / q
+                    "{} contacts (μ {}): ΔF {} N per {} m ({} N/m)", contacts, mu, d, q, d / q
                 );
             }
             prev = Some(c);

@@ -540,12 +540,15 @@ fn check_upper_bounds(v: &mut Checks, file: &LaunchFile) {
         "replays at most 100× the recorded speed",
     );
     let r = &file.recording;
+    // Any rate above the physics step rate records every frame (a test that compares the
+    // recording with the live bridge asks for 1e9 Hz: frames of a catch-up burst are
+    // microseconds apart); the bound only keeps the pacing period a finite, positive time.
     v.at_most(
         "recording.mesh_rate_hz",
         r.mesh_rate_hz,
-        1_000.0,
+        1.0e9,
         "Hz",
-        "the physics steps at 100 Hz",
+        "a pacing period of 1 ns; above the physics rate every frame is recorded anyway",
     );
     if r.chunk_size_bytes > MAX_CHUNK_SIZE_BYTES {
         v.push(

@@ -48,6 +48,10 @@ pub struct Spec<'a> {
     /// Indices (into `columns`) whose non-finite values are kept (a recorded dropout); a
     /// quaternion with a non-finite component is then kept as recorded, too.
     pub dropouts: &'a [usize],
+    /// Largest allowed |value| of a column: `(index into columns, bound)`. Checked as each
+    /// row is read, before the ordering, so a value beyond the bound is named as such even
+    /// where it also breaks the ordering (1e15 s + 1 ms rounds to 1e15 s).
+    pub magnitude: &'a [(usize, f64)],
 }
 
 impl<'a> Spec<'a> {
@@ -58,6 +62,7 @@ impl<'a> Spec<'a> {
             order: None,
             quaternion: None,
             dropouts: &[],
+            magnitude: &[],
         }
     }
 }
@@ -202,6 +207,17 @@ pub fn parse(text: &str, file: &Path, spec: &Spec) -> Result<Table, CsvError> {
             }
             row[k] = x;
         }
+        for &(k, bound) in spec.magnitude {
+            if row[k].abs() > bound {
+                return Err(err(
+                    line,
+                    format!(
+                        "column {}: {} is out of range; |value| ≤ {bound}",
+                        spec.columns[k], row[k]
+                    ),
+                ));
+            }
+        }
         if let Some((k, order, name)) = spec.order {
             if let Some(&last) = table.lines.len().checked_sub(1).map(|r| &table.row(r)[k]) {
                 let v = row[k];
@@ -256,6 +272,7 @@ mod tests {
             order: Some((0, Order::Increasing, "time")),
             quaternion: Some([1, 2, 3, 4]),
             dropouts,
+            magnitude: &[],
         }
     }
 

@@ -48,6 +48,7 @@
 pub mod channels;
 pub mod error;
 pub mod export;
+pub mod length_guard;
 pub mod read;
 pub mod recorder;
 pub mod repair;

@@ -192,7 +192,15 @@ impl Scanner<'_> {
                     self.out.skipped_chunks.push("chunk CRC mismatch".into());
                     return Ok(());
                 }
-                for inner in LinearReader::sans_magic(&uncompressed) {
+                // Only the records before one whose length prefixes overrun it.
+                let intact = match crate::length_guard::first_overlong(&uncompressed) {
+                    Some((at, problem)) => {
+                        self.out.skipped_chunks.push(problem);
+                        &uncompressed[..at]
+                    }
+                    None => &uncompressed[..],
+                };
+                for inner in LinearReader::sans_magic(intact) {
                     match inner {
                         Ok(r) => self.record(r, true)?,
                         Err(e) => {
@@ -249,7 +257,21 @@ pub fn scan_bytes(
             out: ScanOutcome::default(),
             visit,
         };
-        let reader = LinearReader::new(bytes).map_err(|e| RecordingError::Corrupt {
+        // Records from the first one whose length prefixes overrun it are not handed to the
+        // parser (it would reserve what they claim): a damaged tail, like a torn one.
+        let overlong = crate::length_guard::first_overlong(&bytes[mcap::MAGIC.len()..]);
+        let intact = match &overlong {
+            Some((0, problem)) => {
+                return Err(RecordingError::Corrupt {
+                    path: path.to_path_buf(),
+                    offset: mcap::MAGIC.len() as u64,
+                    detail: format!("header record: {problem}"),
+                })
+            }
+            Some((at, _)) => &bytes[..mcap::MAGIC.len() + at],
+            None => bytes,
+        };
+        let reader = LinearReader::new(intact).map_err(|e| RecordingError::Corrupt {
             path: path.to_path_buf(),
             offset: 0,
             detail: e.to_string(),
@@ -287,6 +309,12 @@ pub fn scan_bytes(
                 path: path.to_path_buf(),
                 detail: "no header record".into(),
             });
+        }
+        if let Some((at, problem)) = overlong {
+            scanner.out.stopped_early = Some(format!(
+                "after {records} records, at byte {}: {problem}",
+                mcap::MAGIC.len() + at
+            ));
         }
         Ok(scanner.out)
     }));

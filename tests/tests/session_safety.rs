@@ -283,17 +283,22 @@ fn recorder_killed_mid_session_loses_nothing_and_sighup_stops_in_order() {
     for topic in [TICK, STEP] {
         let before = count(&py, &snapshot, topic);
         let after = count(&py, &first, topic);
+        // Six seconds of session: ~6000 device ticks, ~600 physics steps at 100 Hz (fewer
+        // while the physics node starts up on a loaded machine).
+        let least = if topic == TICK { 1000 } else { 300 };
         assert!(
-            before > 1000,
+            before > least,
             "{topic}: only {before} messages before the kill"
         );
         assert!(
             after >= before,
             "{topic}: {before} messages before the kill, {after} in session.mcap afterwards"
         );
+        // Four more seconds in the restarted part.
+        let least_after = if topic == TICK { 1000 } else { 100 };
         assert!(
-            count(&py, &second, topic) > 1000,
-            "{topic}: restarted part is empty"
+            count(&py, &second, topic) > least_after,
+            "{topic}: restarted part is (nearly) empty"
         );
     }
     assert!(

@@ -37,6 +37,9 @@ pub struct TrainRequest {
     pub launch_origin: String,
 }
 
+/// How deep the emulated operator presses each specimen in training, m.
+pub const TRAINING_PRESS_DEPTH_M: f64 = 0.002;
+
 /// Adjusts a launch file for training: the viewer on (the trainee page), the recorder on
 /// (every case is in the session's MCAP), no time bound (the cases end the session), and
 /// with the emulated device, a protocol that visits every region within a few seconds.
@@ -51,6 +54,12 @@ pub fn prepare_launch(launch: &mut LaunchFile) -> Operator {
     if launch.device.backend == launch_config::device::DeviceBackend::Emulated {
         launch.device.emulated.probings_per_region = launch.training.emulated_probings_per_region;
         launch.device.emulated.repeat = true;
+        // The policy compares stiffness (force over depth) between specimens, as a trainee
+        // pressing each to the same 2 mm does. Pressing to a felt force instead ends each
+        // press on the rate-limited rendered force, which lags more on stiffer tissue: the
+        // peak-force/depth ratio then mixes the lag into the grade (train_e2e: 3 of 6).
+        launch.device.emulated.press_force_n = 0.0;
+        launch.device.emulated.press_depth_m = TRAINING_PRESS_DEPTH_M;
         Operator::Emulated
     } else {
         Operator::Trainee

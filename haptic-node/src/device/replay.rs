@@ -31,6 +31,7 @@ pub fn parse_trajectory(text: &str, path: &str) -> Result<Vec<TimedPose>, Device
         order: Some((0, Order::Increasing, "time")),
         quaternion: Some([4, 5, 6, 7]),
         dropouts: &[1, 2, 3, 4, 5, 6, 7],
+        magnitude: &[],
     };
     let table =
         csv_input::parse(text, Path::new(path), &spec).map_err(|e| DeviceError::ReplayLine {

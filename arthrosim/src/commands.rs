@@ -53,9 +53,13 @@ fn validate(args: &ValidateArgs) -> i32 {
     }
 }
 
-/// `arthrosim run [FILE]`.
-fn run(args: RunArgs) -> Result<i32> {
-    let (mut launch, origin) = match &args.file {
+/// The launch file of a session (the given file, or the embedded default), its origin for
+/// messages, and the session name: the flag, then the environment, then the launch file.
+fn session_launch(
+    file: Option<&std::path::Path>,
+    session_flag: &Option<String>,
+) -> Result<(launch_config::LaunchFile, String, String)> {
+    let (mut launch, origin) = match file {
         Some(path) => (launch_config::load(path)?, path.display().to_string()),
         None => (
             launch_config::load_str(
@@ -65,14 +69,19 @@ fn run(args: RunArgs) -> Result<i32> {
             launch_config::DEFAULT_LAUNCH_ORIGIN.to_string(),
         ),
     };
-    // Flag, then environment, then the launch file.
-    let session = match (&args.session, std::env::var(msgs::ipc::SESSION_ENV)) {
+    let session = match (session_flag, std::env::var(msgs::ipc::SESSION_ENV)) {
         (Some(s), _) => s.clone(),
         (None, Ok(s)) => s,
         (None, Err(_)) => launch.session.name.clone(),
     };
     let session = msgs::ipc::session_name(Some(&session))?;
     launch.session.name = session.clone();
+    Ok((launch, origin, session))
+}
+
+/// `arthrosim run [FILE]`.
+fn run(args: RunArgs) -> Result<i32> {
+    let (mut launch, origin, session) = session_launch(args.file.as_deref(), &args.session)?;
     let seconds = match args.seconds {
         Some(s)
             if !(s.is_finite() && (0.0..=launch_config::validate::MAX_SESSION_S).contains(&s)) =>
@@ -605,23 +614,7 @@ fn train(args: TrainArgs) -> Result<i32> {
     let db_path = args.db.clone().unwrap_or_else(training::default_path);
     // Open (and refuse) the database before anything starts.
     let mut db = training::Db::open(&db_path)?;
-    let (mut launch, origin) = match &args.file {
-        Some(path) => (launch_config::load(path)?, path.display().to_string()),
-        None => (
-            launch_config::load_str(
-                launch_config::DEFAULT_LAUNCH,
-                launch_config::DEFAULT_LAUNCH_ORIGIN,
-            )?,
-            launch_config::DEFAULT_LAUNCH_ORIGIN.to_string(),
-        ),
-    };
-    let session = match (&args.session, std::env::var(msgs::ipc::SESSION_ENV)) {
-        (Some(s), _) => s.clone(),
-        (None, Ok(s)) => s,
-        (None, Err(_)) => launch.session.name.clone(),
-    };
-    let session = msgs::ipc::session_name(Some(&session))?;
-    launch.session.name = session.clone();
+    let (mut launch, origin, session) = session_launch(args.file.as_deref(), &args.session)?;
     let operator = training::prepare_launch(&mut launch);
     let issues = launch_config::validate(&launch);
     if !issues.is_empty() {

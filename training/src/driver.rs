@@ -97,13 +97,28 @@ struct Probing {
     peak_force_n: f64,
     depth_at_peak_m: f64,
     max_depth_m: f64,
+    /// Least-squares sums of force on depth over the touching steps: n, Σd, Σf, Σd², Σdf.
+    fit: [f64; 5],
 }
 
 impl Probing {
-    /// Stiffness, N/m (None: too shallow to tell).
+    /// Stiffness, N/m (None: too shallow to tell): the least-squares slope of force on depth
+    /// over the whole probing. One peak over its depth carried the step at which the press
+    /// ended and the lag of the rendering in it; the slope uses every step of the loading
+    /// and unloading.
     fn stiffness(&self) -> Option<f64> {
-        (self.depth_at_peak_m > 5e-5 && self.peak_force_n > 0.05)
-            .then(|| self.peak_force_n / self.depth_at_peak_m)
+        if !(self.depth_at_peak_m > 5e-5 && self.peak_force_n > 0.05) {
+            return None;
+        }
+        let [n, sd, sf, sdd, sdf] = self.fit;
+        let var = n * sdd - sd * sd;
+        if n >= 5.0 && var > (n * 1e-5).powi(2) {
+            let slope = (n * sdf - sd * sf) / var;
+            if slope > 0.0 {
+                return Some(slope);
+            }
+        }
+        Some(self.peak_force_n / self.depth_at_peak_m)
     }
 }
 
@@ -149,6 +164,7 @@ impl CaseMeasure {
                 peak_force_n: 0.0,
                 depth_at_peak_m: 0.0,
                 max_depth_m: 0.0,
+                fit: [0.0; 5],
             });
             let d = [
                 p.start[0] - s.probe_position[0],
@@ -157,6 +173,13 @@ impl CaseMeasure {
             ];
             let depth = d[0] * p.normal[0] + d[1] * p.normal[1] + d[2] * p.normal[2];
             p.max_depth_m = p.max_depth_m.max(depth);
+            if depth > 0.0 {
+                p.fit[0] += 1.0;
+                p.fit[1] += depth;
+                p.fit[2] += f_n;
+                p.fit[3] += depth * depth;
+                p.fit[4] += depth * f_n;
+            }
             if f_n > p.peak_force_n {
                 p.peak_force_n = f_n;
                 p.depth_at_peak_m = depth;

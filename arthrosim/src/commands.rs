@@ -563,20 +563,30 @@ fn probe_curve(args: ProbeCurveArgs) -> Result<i32> {
         s.site_normal[2],
         s.degeneration_grade
     );
-    println!("displacement_mm,force_N,active_contacts,active_reach_mm");
+    println!("displacement_mm,force_N,active_contacts,active_reach_mm,physics_faults");
     // One line per 0.25 mm (and the last point).
     let mut next = 0.0;
     for (i, p) in s.points.iter().enumerate() {
         if p.displacement_m + 1e-12 >= next || i + 1 == s.points.len() {
             println!(
-                "{:.3},{:.4},{},{:.2}",
+                "{:.3},{:.4},{},{:.2},{:#x}",
                 p.displacement_m * 1e3,
                 p.force_n,
                 p.active_contacts,
-                p.active_reach_m * 1e3
+                p.active_reach_m * 1e3,
+                p.physics_faults
             );
             next = p.displacement_m + 0.25e-3;
         }
+    }
+    if let Some(first) = s.points.iter().find(|p| p.physics_faults != 0) {
+        // A rolled-back step's force is not the tissue's response: say where they start.
+        println!(
+            "physics faults: {} steps rolled back, the first at {:.3} mm (bits {:#x})",
+            s.faulty_steps(),
+            first.displacement_m * 1e3,
+            first.physics_faults
+        );
     }
     if let Some(c) = &comparison {
         println!(

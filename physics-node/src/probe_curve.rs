@@ -116,6 +116,9 @@ pub struct CurvePoint {
     pub active_contacts: usize,
     /// Largest distance of a force-carrying contact point from the tip sphere's centre, m.
     pub active_reach_m: f64,
+    /// `msgs::physics_to_haptic::physics_fault` bits of the step (0: a good step). A faulty
+    /// step was rolled back, so its force is not the tissue's response to this displacement.
+    pub physics_faults: u32,
 }
 
 /// A probe curve.
@@ -151,6 +154,11 @@ impl ProbeCurve {
         let (a, b) = (&p[k - 1], &p[k]);
         let u = (d - a.displacement_m) / (b.displacement_m - a.displacement_m);
         Some(a.force_n + u * (b.force_n - a.force_n))
+    }
+
+    /// Steps of the curve the physics flagged as faulty (and rolled back).
+    pub fn faulty_steps(&self) -> usize {
+        self.points.iter().filter(|p| p.physics_faults != 0).count()
     }
 
     /// Largest distance of a force-carrying contact from the tip centre over the curve, m.
@@ -246,6 +254,7 @@ pub fn press(
                     contacts: 0,
                     active_contacts: 0,
                     active_reach_m: 0.0,
+                    physics_faults: 0,
                 });
             }
             None => {
@@ -267,6 +276,7 @@ pub fn press(
             contacts,
             active_contacts: active,
             active_reach_m: reach,
+            physics_faults: sim.contact_frame().physics_faults,
         });
         if travel - t0 >= opts.depth_m - 1e-12 {
             break;

@@ -32,6 +32,16 @@ pub enum Command {
     /// Write a generated experiment folder from a higher-fidelity truth with injected
     /// effects (the truth goes to a separate file outside the folder).
     Reality(RealityArgs),
+    /// Press the probe quasi-statically along a probing site's normal and print the tissue
+    /// force against probe displacement (and the error against a force–displacement table).
+    ProbeCurve(ProbeCurveArgs),
+    /// Blinded degeneration-grade training: a session of N specimens with hidden grades;
+    /// probe each, answer its grade (page or Touch buttons; the emulated operator answers by
+    /// a stiffness policy), see the confusion matrix and accuracy; results go to SQLite.
+    Train(TrainArgs),
+    /// Trainee records: the learning-curve report.
+    #[command(subcommand)]
+    Trainees(TraineesCommand),
     /// Run one node in this process (used by `run`).
     #[command(subcommand, hide = true)]
     Node(NodeCommand),
@@ -92,7 +102,8 @@ pub struct ReplayArgs {
 
 #[derive(Debug, Subcommand)]
 pub enum RecordingsCommand {
-    /// Topics, counts, rates, duration and gaps of a recording.
+    /// Topics, counts, rates, duration and gaps of a recording (FILE.mcap with its parts
+    /// FILE.1.mcap, … written by a restarted recorder, or a session folder).
     Info {
         file: PathBuf,
         #[arg(long)]
@@ -132,6 +143,8 @@ pub enum NodeCommand {
     Bridge(viz_bridge::NodeArgs),
     /// The MCAP recorder.
     Recorder(recordings::recorder::NodeArgs),
+    /// The live viewer (Foxglove WebSocket and the trainee page).
+    Viewer(viewer::NodeArgs),
 }
 
 #[derive(Debug, Args)]
@@ -166,6 +179,16 @@ pub struct GapArgs {
     /// Print the verdict as one JSON line.
     #[arg(long)]
     pub json: bool,
+    /// Also write a launch file whose scene carries the verdict as physics (modulus →
+    /// modulus_scale, support → support_stiffness, friction → friction, …; see the README).
+    /// A force–displacement table is then fitted in the base scene (mid-body press,
+    /// displacement as measured, first row as offset, tissue keys reset), not the study's.
+    #[arg(long, value_name = "OUT.toml")]
+    pub calibrate: Option<PathBuf>,
+    /// Launch file the calibration starts from (default: the embedded default; for a
+    /// session recording, the launch file it recorded).
+    #[arg(long, value_name = "BASE.toml", requires = "calibrate")]
+    pub launch: Option<PathBuf>,
 }
 
 #[derive(Debug, Subcommand)]
@@ -211,4 +234,71 @@ pub struct RealityArgs {
     /// Truth file (must be outside the experiment folder).
     #[arg(long, value_name = "FILE")]
     pub truth: PathBuf,
+}
+
+#[derive(Debug, Args)]
+pub struct ProbeCurveArgs {
+    /// Launch file (TOML) whose scene is pressed. Without one, the embedded default session.
+    pub file: Option<PathBuf>,
+    /// Probing region: the middle one of its protocol sites.
+    #[arg(long, default_value = "mid", value_parser = ["posterior", "mid", "anterior"])]
+    pub site: String,
+    /// Probe displacement from first touch to reach, with a unit (`8mm`, `0.008m`; a bare
+    /// number is mm). With --table, at least the table's last displacement is reached.
+    #[arg(long, default_value = "8mm")]
+    pub depth: String,
+    /// Degeneration grade 0..=2 instead of the scene's (grade 2: −41% modulus).
+    #[arg(long)]
+    pub grade: Option<f64>,
+    /// Probe travel per 10 ms step, mm (quasi-static).
+    #[arg(long, default_value_t = 0.02)]
+    pub step_mm: f64,
+    /// A force–displacement table (`displacement_mm,force_N`, first row the offset to
+    /// subtract, as the cadaver table): print the error at each of its points.
+    #[arg(long, value_name = "FILE.csv")]
+    pub table: Option<PathBuf>,
+    /// Print one JSON document instead of text.
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct TrainArgs {
+    /// Trainee name (created on first use; no path separators or control characters).
+    #[arg(long, value_name = "NAME")]
+    pub trainee: String,
+    /// Number of scored specimens.
+    #[arg(long, default_value_t = 6, value_name = "N")]
+    pub cases: u32,
+    /// Seed of the hidden grade sequence (default: from the clock; stored with the session).
+    #[arg(long, value_name = "S")]
+    pub seed: Option<u64>,
+    /// Trainee database (SQLite). Default: $XDG_DATA_HOME/arthrosim/trainees.sqlite, else
+    /// ~/.local/share/arthrosim/trainees.sqlite.
+    #[arg(long, value_name = "PATH")]
+    pub db: Option<PathBuf>,
+    /// Launch file (TOML). Without one, the embedded default session.
+    pub file: Option<PathBuf>,
+    /// Session folder (default: sessions/<UTC timestamp>).
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
+    /// iceoryx2 session name (default: $ARTHROSIM_SESSION, else `[session] name`).
+    #[arg(long, value_name = "NAME")]
+    pub session: Option<String>,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum TraineesCommand {
+    /// Write a self-contained HTML report (learning curve, confusion, response time and
+    /// force per grade, links to each session's recording and gap report).
+    Report {
+        /// The trainee (default: every trainee, one page each plus an index).
+        name: Option<String>,
+        /// Folder for the report.
+        #[arg(long, value_name = "DIR")]
+        out: PathBuf,
+        /// Trainee database (default as for `train`).
+        #[arg(long, value_name = "PATH")]
+        db: Option<PathBuf>,
+    },
 }

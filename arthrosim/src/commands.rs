@@ -1,8 +1,8 @@
 //! What each subcommand does. Returns the process exit code.
 
 use crate::cli::{
-    Cli, Command, GapArgs, GapCommand, NodeCommand, RealityArgs, RecordingsCommand, ReplayArgs,
-    RunArgs, ValidateArgs,
+    Cli, Command, GapArgs, GapCommand, NodeCommand, ProbeCurveArgs, RealityArgs, RecordingsCommand,
+    ReplayArgs, RunArgs, TrainArgs, TraineesCommand, ValidateArgs,
 };
 use anyhow::{bail, Context, Result};
 use gap_diagnosis as gap;
@@ -17,12 +17,16 @@ pub fn dispatch(cli: Cli) -> Result<i32> {
         Command::Recordings(cmd) => recordings(cmd),
         Command::Gap(args) => gap_command(args),
         Command::Reality(args) => reality(args),
+        Command::ProbeCurve(args) => probe_curve(args),
+        Command::Train(args) => train(args),
+        Command::Trainees(cmd) => trainees(cmd),
         Command::Node(node) => {
             match node {
                 NodeCommand::Physics(a) => physics_node::node::run_node(a),
                 NodeCommand::Haptic(a) => haptic_node::run_node(a),
                 NodeCommand::Bridge(a) => viz_bridge::run_node(a),
                 NodeCommand::Recorder(a) => recordings::recorder::run_node(a),
+                NodeCommand::Viewer(a) => viewer::run_node(a),
             }?;
             Ok(0)
         }
@@ -49,9 +53,13 @@ fn validate(args: &ValidateArgs) -> i32 {
     }
 }
 
-/// `arthrosim run [FILE]`.
-fn run(args: RunArgs) -> Result<i32> {
-    let (mut launch, origin) = match &args.file {
+/// The launch file of a session (the given file, or the embedded default), its origin for
+/// messages, and the session name: the flag, then the environment, then the launch file.
+fn session_launch(
+    file: Option<&std::path::Path>,
+    session_flag: &Option<String>,
+) -> Result<(launch_config::LaunchFile, String, String)> {
+    let (mut launch, origin) = match file {
         Some(path) => (launch_config::load(path)?, path.display().to_string()),
         None => (
             launch_config::load_str(
@@ -61,17 +69,27 @@ fn run(args: RunArgs) -> Result<i32> {
             launch_config::DEFAULT_LAUNCH_ORIGIN.to_string(),
         ),
     };
-    // Flag, then environment, then the launch file.
-    let session = match (&args.session, std::env::var(msgs::ipc::SESSION_ENV)) {
+    let session = match (session_flag, std::env::var(msgs::ipc::SESSION_ENV)) {
         (Some(s), _) => s.clone(),
         (None, Ok(s)) => s,
         (None, Err(_)) => launch.session.name.clone(),
     };
     let session = msgs::ipc::session_name(Some(&session))?;
     launch.session.name = session.clone();
+    Ok((launch, origin, session))
+}
+
+/// `arthrosim run [FILE]`.
+fn run(args: RunArgs) -> Result<i32> {
+    let (mut launch, origin, session) = session_launch(args.file.as_deref(), &args.session)?;
     let seconds = match args.seconds {
-        Some(s) if !(s.is_finite() && s >= 0.0) => {
-            bail!("--seconds {s}: must be a finite number ≥ 0")
+        Some(s)
+            if !(s.is_finite() && (0.0..=launch_config::validate::MAX_SESSION_S).contains(&s)) =>
+        {
+            bail!(
+                "--seconds {s}: must be a finite number from 0 to {} (30 days; 0 runs until Ctrl-C)",
+                launch_config::validate::MAX_SESSION_S
+            )
         }
         Some(s) => s,
         None => launch.session.seconds,
@@ -145,7 +163,7 @@ fn replay_from_recording(launch: &mut launch_config::LaunchFile, out_dir: &Path)
     let is_mcap = path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("mcap"));
-    if launch.device.backend != "replay" || !is_mcap {
+    if launch.device.backend != launch_config::device::DeviceBackend::Replay || !is_mcap {
         return Ok(());
     }
     std::fs::create_dir_all(out_dir)
@@ -343,18 +361,50 @@ fn gap_command(args: GapArgs) -> Result<i32> {
         ),
         None => None,
     };
-    let mut report = match (&args.experiment, &args.force_displacement) {
-        (_, Some(table)) => gap::diagnose_force_displacement(table, &opts)
-            .with_context(|| format!("diagnosing {}", table.display()))?,
-        (Some(dir), None) => gap::diagnose_dir(dir, &opts)
-            .with_context(|| format!("diagnosing {}", dir.display()))?,
+    // the calibration's output and base are checked first too
+    let calibrate = match &args.calibrate {
+        Some(out) => {
+            gap::calibrate::check_out_path(out).context("--calibrate")?;
+            let base = match &args.launch {
+                Some(b) => Some(gap::calibrate::load_base(b).context("--launch")?),
+                None => None,
+            };
+            Some((out, base))
+        }
+        None => None,
+    };
+    let input = match (&args.experiment, &args.force_displacement) {
+        (_, Some(table)) => gap::calibrate::Input::Table(table.clone()),
+        (Some(dir), None) => gap::calibrate::Input::Path(dir.clone()),
         (None, None) => bail!("give an EXPERIMENT_DIR or --force-displacement FILE.csv"),
+    };
+    let input_name = match &input {
+        gap::calibrate::Input::Table(p) | gap::calibrate::Input::Path(p) => p.display().to_string(),
+    };
+    let (mut report, calibration) = match (calibrate, &input) {
+        (Some((out, base)), _) => {
+            let (report, cal) = gap::calibrate::calibrate_input(&input, base, &opts)
+                .with_context(|| format!("diagnosing {input_name}"))?;
+            (report, Some((out, cal)))
+        }
+        (None, gap::calibrate::Input::Table(table)) => (
+            gap::diagnose_force_displacement(table, &opts)
+                .with_context(|| format!("diagnosing {input_name}"))?,
+            None,
+        ),
+        (None, gap::calibrate::Input::Path(dir)) => (
+            gap::diagnose_dir(dir, &opts).with_context(|| format!("diagnosing {input_name}"))?,
+            None,
+        ),
     };
     if let Some(g) = rendering {
         report.rendering_gap = Some(g);
     }
     gap::write_report(&report, &out)
         .with_context(|| format!("writing the report to {}", out.display()))?;
+    if let Some((path, cal)) = &calibration {
+        gap::calibrate::write_launch(cal, path).context("--calibrate")?;
+    }
     if args.json {
         println!("{}", serde_json::to_string(&report.verdict)?);
     } else {
@@ -380,6 +430,26 @@ fn gap_command(args: GapArgs) -> Result<i32> {
             None => {}
         }
         println!("report: {}", out.join("report.html").display());
+        if let Some((path, cal)) = &calibration {
+            if cal.unchanged() {
+                println!(
+                    "calibrated launch file: {} (verdict none: its scene is the input scene, unchanged)",
+                    path.display()
+                );
+            } else {
+                println!(
+                    "calibrated launch file: {} (promised held-out RMSE {:.4} N)",
+                    path.display(),
+                    cal.promised_heldout_rmse
+                );
+            }
+            for c in &cal.changes {
+                println!("  {}", c.line());
+            }
+            if cal.notes().next().is_some() {
+                println!("  (effects marked `not written` are comments in the file, not physics)");
+            }
+        }
     }
     Ok(0)
 }
@@ -407,4 +477,259 @@ fn reality(args: RealityArgs) -> Result<i32> {
         args.truth.display()
     );
     Ok(0)
+}
+
+/// A length with a unit (`8mm`, `0.8cm`, `0.008m`; a bare number is mm), in m.
+fn parse_length(s: &str) -> Result<f64> {
+    let t = s.trim();
+    let (num, scale) = if let Some(v) = t.strip_suffix("mm") {
+        (v, 1e-3)
+    } else if let Some(v) = t.strip_suffix("cm") {
+        (v, 1e-2)
+    } else if let Some(v) = t.strip_suffix('m') {
+        (v, 1.0)
+    } else {
+        (t, 1e-3)
+    };
+    let v: f64 = num
+        .trim()
+        .parse()
+        .map_err(|_| anyhow::anyhow!("--depth {s:?}: expected a length such as 8mm"))?;
+    if !(v.is_finite() && v > 0.0) {
+        bail!("--depth {s:?}: must be > 0");
+    }
+    Ok(v * scale)
+}
+
+/// `arthrosim probe-curve [FILE]`.
+fn probe_curve(args: ProbeCurveArgs) -> Result<i32> {
+    use physics_node::probe_curve::{self as pc, ForceTable, ProbeCurveOptions, Region};
+    let launch = match &args.file {
+        Some(path) => launch_config::load(path)?,
+        None => launch_config::load_str(
+            launch_config::DEFAULT_LAUNCH,
+            launch_config::DEFAULT_LAUNCH_ORIGIN,
+        )?,
+    };
+    let origin = args.file.as_ref().map_or_else(
+        || launch_config::DEFAULT_LAUNCH_ORIGIN.to_string(),
+        |p| p.display().to_string(),
+    );
+    let region = Region::parse(&args.site).ok_or_else(|| {
+        anyhow::anyhow!(
+            "--site {:?}: expected posterior, mid or anterior",
+            args.site
+        )
+    })?;
+    let table = match &args.table {
+        Some(p) => Some(ForceTable::load(p)?),
+        None => None,
+    };
+    let mut depth = parse_length(&args.depth)?;
+    if let Some(t) = &table {
+        depth = depth.max(t.max_displacement_m());
+    }
+    let mut opts = ProbeCurveOptions::new(region, depth);
+    opts.step_m = args.step_mm * 1e-3;
+    opts.grade = args.grade;
+    let data = launch_config::data_dir();
+    let curve = pc::run(&launch.scene, &data, &opts)
+        .with_context(|| format!("probe curve of the scene of {origin}"))?;
+    let comparison = match &table {
+        Some(t) => Some(pc::compare(&curve, t)?),
+        None => None,
+    };
+    if args.json {
+        let doc = serde_json::json!({
+            "launch": origin,
+            "mesh": launch.scene.meniscus.mesh,
+            "curve": curve,
+            "table": comparison,
+        });
+        println!("{}", serde_json::to_string_pretty(&doc)?);
+        return Ok(0);
+    }
+    let s = &curve;
+    println!(
+        "probe curve: {origin}, mesh {}, {} site #{} at ({:.2}, {:.2}, {:.2}) mm, normal ({:.3}, {:.3}, {:.3}), grade {}",
+        launch.scene.meniscus.mesh,
+        s.region.name(),
+        s.site_index,
+        s.site_point_m[0] * 1e3,
+        s.site_point_m[1] * 1e3,
+        s.site_point_m[2] * 1e3,
+        s.site_normal[0],
+        s.site_normal[1],
+        s.site_normal[2],
+        s.degeneration_grade
+    );
+    println!("displacement_mm,force_N,active_contacts,active_reach_mm,physics_faults");
+    // One line per 0.25 mm (and the last point).
+    let mut next = 0.0;
+    for (i, p) in s.points.iter().enumerate() {
+        if p.displacement_m + 1e-12 >= next || i + 1 == s.points.len() {
+            println!(
+                "{:.3},{:.4},{},{:.2},{:#x}",
+                p.displacement_m * 1e3,
+                p.force_n,
+                p.active_contacts,
+                p.active_reach_m * 1e3,
+                p.physics_faults
+            );
+            next = p.displacement_m + 0.25e-3;
+        }
+    }
+    if let Some(first) = s.points.iter().find(|p| p.physics_faults != 0) {
+        // A rolled-back step's force is not the tissue's response: say where they start.
+        println!(
+            "physics faults: {} steps rolled back, the first at {:.3} mm (bits {:#x})",
+            s.faulty_steps(),
+            first.displacement_m * 1e3,
+            first.physics_faults
+        );
+    }
+    if let Some(c) = &comparison {
+        println!(
+            "\ntable {} (offset {:.2} N subtracted, peak {:.2} N)",
+            c.table.display(),
+            c.offset_n,
+            c.peak_n
+        );
+        println!("displacement_mm,table_N,simulated_N,error_N,error_%_of_peak");
+        for p in &c.points {
+            println!(
+                "{:.2},{:.3},{:.3},{:+.3},{:+.1}",
+                p.displacement_m * 1e3,
+                p.table_n,
+                p.simulated_n,
+                p.error_n,
+                p.error_percent_of_peak
+            );
+        }
+        println!(
+            "max error {:.3} N = {:.1}% of the table's peak",
+            c.max_error_n, c.max_error_percent_of_peak
+        );
+    }
+    Ok(0)
+}
+
+/// `arthrosim train`: the session runs under the launcher on a second thread while the
+/// training driver runs the cases on this one; the driver's end (or Ctrl-C) stops the session.
+fn train(args: TrainArgs) -> Result<i32> {
+    training::check_trainee_name(&args.trainee)?;
+    if args.cases == 0 {
+        bail!("--cases 0: at least one specimen");
+    }
+    let db_path = args.db.clone().unwrap_or_else(training::default_path);
+    // Open (and refuse) the database before anything starts.
+    let mut db = training::Db::open(&db_path)?;
+    let (mut launch, origin, session) = session_launch(args.file.as_deref(), &args.session)?;
+    let operator = training::prepare_launch(&mut launch);
+    let issues = launch_config::validate(&launch);
+    if !issues.is_empty() {
+        let text: Vec<String> = issues.iter().map(|i| i.to_string()).collect();
+        bail!("{origin}: {}", text.join("; "));
+    }
+    let seed = args
+        .seed
+        .unwrap_or_else(|| msgs::clock::realtime_ns() ^ u64::from(std::process::id()));
+    let out_dir = args.out.clone().unwrap_or_else(launcher::default_out_dir);
+    let request = training::TrainRequest {
+        trainee: args.trainee.clone(),
+        cases: args.cases,
+        seed,
+        db: db_path.clone(),
+        session: session.clone(),
+        out_dir: out_dir.clone(),
+        launch_origin: origin.clone(),
+    };
+    println!(
+        "training {:?}: {} specimens, seed {seed}, operator {}, database {}",
+        args.trainee,
+        args.cases,
+        operator.name(),
+        db_path.display()
+    );
+    if launch.viewer.enabled {
+        println!(
+            "trainee page: http://{}:{}/",
+            launch.viewer.bind, launch.viewer.http_port
+        );
+    }
+    let mut opts = RunOptions::for_current_exe(launch.clone(), origin, session, out_dir, None)?;
+    opts.live = LiveMode::Quiet;
+    let stop = msgs::lifecycle::install_stop_flag();
+    let session_thread = std::thread::spawn(move || launcher::run(&opts));
+    let mut progress = |line: &str| println!("{line}");
+    let result = training::train(&request, &launch, operator, &mut db, stop, &mut progress);
+    // The cases are done (or failed): end the session.
+    stop.store(true, std::sync::atomic::Ordering::SeqCst);
+    let report = session_thread
+        .join()
+        .map_err(|_| anyhow::anyhow!("the session thread panicked"))?;
+    let text = result?;
+    println!();
+    print!("{text}");
+    match report {
+        Ok(r) => {
+            println!("files: {}", r.out_dir);
+            Ok(0)
+        }
+        Err(e) => {
+            eprintln!("warning: the session did not end cleanly: {e}");
+            Ok(1)
+        }
+    }
+}
+
+/// `arthrosim trainees report [NAME] --out DIR`.
+fn trainees(cmd: TraineesCommand) -> Result<i32> {
+    match cmd {
+        TraineesCommand::Report { name, out, db } => {
+            let db_path = db.unwrap_or_else(training::default_path);
+            if !db_path.exists() {
+                bail!("trainee database {} does not exist", db_path.display());
+            }
+            let db = training::Db::open(&db_path)?;
+            let names = match name {
+                Some(n) => {
+                    training::check_trainee_name(&n)?;
+                    vec![n]
+                }
+                None => db.trainee_names()?,
+            };
+            if names.is_empty() {
+                bail!("no trainees in {}", db_path.display());
+            }
+            let single = names.len() == 1;
+            let mut index = String::from(
+                "<!doctype html><html><head><meta charset=\"utf-8\"><title>arthrosim trainees</title></head><body><h1>Trainees</h1><ul>",
+            );
+            for (i, n) in names.iter().enumerate() {
+                let sessions = db.sessions_of(n)?;
+                let dir = if single {
+                    out.clone()
+                } else {
+                    out.join(format!("trainee-{}", i + 1))
+                };
+                let path = training::write_report(n, &sessions, &dir)?;
+                println!("{n}: {} sessions → {}", sessions.len(), path.display());
+                let html_name = n
+                    .replace('&', "&amp;")
+                    .replace('<', "&lt;")
+                    .replace('>', "&gt;");
+                index.push_str(&format!(
+                    "<li><a href=\"trainee-{}/index.html\">{html_name}</a></li>",
+                    i + 1
+                ));
+            }
+            if !single {
+                index.push_str("</ul></body></html>\n");
+                std::fs::write(out.join("index.html"), index)
+                    .with_context(|| format!("writing {}", out.join("index.html").display()))?;
+            }
+            Ok(0)
+        }
+    }
 }

@@ -29,8 +29,9 @@ fn main() {
     let mut lambda = [0.0f64; MAX_ROWS];
     let mut delta = [0.0f64; MAX_ROWS];
     let mut seed = 0x2545_f491_4f6c_dd1du64;
-    let mut times = Vec::with_capacity(solves as usize);
-    let mut cold = Vec::new();
+    // Solve times up to 1 s, in the workspace's one latency histogram.
+    let mut times = msgs::timing::LatencyHistogram::new(1_000_000_000);
+    let mut cold = msgs::timing::LatencyHistogram::new(1_000_000_000);
     let mut iterations = 0u64;
     let mut cold_iterations = 0u64;
     let mut checksum = 0.0;
@@ -59,10 +60,10 @@ fn main() {
         let t = Instant::now();
         let s = solve(&problem, &mut lambda[..rows], &settings).unwrap();
         let ns = t.elapsed().as_nanos() as u64;
-        times.push(ns);
+        times.record(ns);
         iterations += s.iterations as u64;
         if i % 10 == 0 {
-            cold.push(ns);
+            cold.record(ns);
             cold_iterations += s.iterations as u64;
         }
         checksum += lambda[..rows].iter().sum::<f64>();
@@ -92,19 +93,15 @@ fn main() {
             errors_force.push(norm([f[0] - g[0], f[1] - g[1], f[2] - g[2]]) / norm(g));
         }
     }
-    let q = |v: &mut Vec<u64>, f: f64| {
-        v.sort_unstable();
-        v[((v.len() - 1) as f64 * f) as usize] as f64 / 1e3
-    };
-    let mean = times.iter().sum::<u64>() as f64 / times.len() as f64 / 1e3;
+    let mean = times.mean_ns() / 1e3;
     println!(
         "contacts {n}: p50 {:.2} µs p99 {:.2} µs mean {:.2} µs, iterations mean {:.2}; cold starts p50 {:.2} µs, iterations {:.2}; checksum {checksum:.15e}",
-        q(&mut times, 0.5),
-        q(&mut times, 0.99),
+        times.quantile_us(0.5),
+        times.quantile_us(0.99),
         mean,
         iterations as f64 / solves as f64,
-        q(&mut cold, 0.5),
-        cold_iterations as f64 / cold.len() as f64,
+        cold.quantile_us(0.5),
+        cold_iterations as f64 / cold.count() as f64,
     );
     if every > 0 {
         for (what, e) in [("λ", &mut errors_lambda), ("force", &mut errors_force)] {

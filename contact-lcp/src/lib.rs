@@ -33,7 +33,8 @@ use std::time::Instant;
 pub const MAX_CONTACTS: usize = 32;
 /// Rows per contact: normal, tangent 1, tangent 2 (mirrors `msgs::ROWS_PER_CONTACT`).
 pub const ROWS_PER_CONTACT: usize = 3;
-/// Row stride of W (mirrors `msgs::MAX_ROWS`).
+/// Row stride of W (mirrors `msgs::MAX_ROWS`; haptic-node and physics-node assert at compile
+/// time that the copies agree, since this crate has no dependencies).
 pub const MAX_ROWS: usize = MAX_CONTACTS * ROWS_PER_CONTACT;
 
 pub mod synthetic;
@@ -142,6 +143,10 @@ pub struct Solution {
     pub converged: bool,
     /// The deadline stopped the solve before convergence.
     pub deadline_hit: bool,
+    /// Contacts left out because their 3×3 diagonal block of W is not positive definite
+    /// (normal compliance ≤ 0, or an indefinite block): their impulse is zero, the other
+    /// contacts are solved as if they were absent.
+    pub dropped_contacts: u32,
 }
 
 /// Dot product of two equal-length slices with four independent accumulators, so the
@@ -209,11 +214,24 @@ pub fn solve(
     let dfree = problem.free_violation;
     let contacts = rows / ROWS_PER_CONTACT;
 
+    // A contact whose own block cannot be solved (not positive definite) is dropped, not
+    // the whole problem: one bad contact (often a separated one) must not cost every other
+    // contact its force.
+    let mut dropped = [false; MAX_CONTACTS];
+    let mut dropped_contacts = 0u32;
+    for (k, d) in dropped[..contacts].iter_mut().enumerate() {
+        let block = block_at(w, 3 * k);
+        if block.iter().flatten().all(|v| v.is_finite()) && !block_usable(&block, mu) {
+            *d = true;
+            dropped_contacts += 1;
+        }
+    }
+
     // Warm start: must be finite and feasible, otherwise the first sweep's "others'
     // contribution" would carry garbage.
     for k in 0..contacts {
         let l = &mut lambda[3 * k..3 * k + 3];
-        if !l.iter().all(|v| v.is_finite()) || l[0] <= 0.0 {
+        if dropped[k] || !l.iter().all(|v| v.is_finite()) || l[0] <= 0.0 {
             l.fill(0.0);
             continue;
         }
@@ -265,11 +283,17 @@ pub fn solve(
     }
 
     let check_every = settings.deadline_check_every.max(1);
-    let mut solution = Solution::default();
+    let mut solution = Solution {
+        dropped_contacts,
+        ..Solution::default()
+    };
     for iteration in 1..=settings.max_iterations {
         let mut max_change = 0.0f64;
         let mut max_lambda = 0.0f64;
         for (k, local) in locals[..contacts].iter().enumerate() {
+            if dropped[k] {
+                continue;
+            }
             let r = 3 * k;
             let block = &local.block;
             let old = [lambda[r], lambda[r + 1], lambda[r + 2]];
@@ -449,6 +473,31 @@ impl Local {
         finite: false,
         lift: [0.0; 3],
     };
+}
+
+/// A finite contact block the solver can use: positive normal compliance and, with friction,
+/// positive semi-definite (every principal minor ≥ 0 up to rounding; a singular tangential
+/// part is solved row-wise). An indefinite block would let Gauss–Seidel grow the impulse
+/// without bound.
+fn block_usable(b: &[[f64; 3]; 3], mu: f64) -> bool {
+    if !(b[0][0] > 0.0) {
+        return false;
+    }
+    if mu == 0.0 {
+        return true;
+    }
+    let scale = b[0][0].abs().max(b[1][1].abs()).max(b[2][2].abs());
+    let tol = 1e-9;
+    let minor = |i: usize, j: usize| b[i][i] * b[j][j] - b[i][j] * b[j][i];
+    let det = b[0][0] * (b[1][1] * b[2][2] - b[1][2] * b[2][1])
+        - b[0][1] * (b[1][0] * b[2][2] - b[1][2] * b[2][0])
+        + b[0][2] * (b[1][0] * b[2][1] - b[1][1] * b[2][0]);
+    b[1][1] >= -tol * scale
+        && b[2][2] >= -tol * scale
+        && minor(0, 1) >= -tol * scale * scale
+        && minor(0, 2) >= -tol * scale * scale
+        && minor(1, 2) >= -tol * scale * scale
+        && det >= -tol * scale * scale * scale
 }
 
 /// The 3×3 diagonal block of contact rows r..r+3.
@@ -703,6 +752,33 @@ mod tests {
         set(&mut w, 0, 3, c);
         set(&mut w, 3, 0, c);
         w
+    }
+
+    /// One contact with W_nn ≤ 0 (or an indefinite friction block) drops that contact; the
+    /// other is solved as if it were alone (closed form λ = −δ/W_nn).
+    #[test]
+    fn a_degenerate_contact_block_drops_that_contact_only() {
+        for (bad_wnn, bad_t_coupling, mu) in [(0.0, 0.0, 0.0), (-1.0, 0.0, 0.0), (1.0, 3.0, 0.4)] {
+            let mut w = two_contacts(2.0, bad_wnn, 0.0);
+            // Contact 1: indefinite with friction when its normal couples strongly to a tangent.
+            set(&mut w, 3, 4, bad_t_coupling);
+            set(&mut w, 4, 3, bad_t_coupling);
+            let dfree = [-1.0, 0.0, 0.0, -2.0, 0.0, 0.0];
+            let mut lambda = [0.0, 0.0, 0.0, 5.0, 0.0, 0.0];
+            let p = Problem {
+                compliance: &w,
+                free_violation: &dfree,
+                friction_mu: mu,
+                row_count: 6,
+            };
+            let s = solve(&p, &mut lambda, &tight()).unwrap();
+            assert_eq!(
+                s.dropped_contacts, 1,
+                "W_nn {bad_wnn}, W_nt {bad_t_coupling}"
+            );
+            assert!((lambda[0] - 0.5).abs() < 1e-12, "{lambda:?}");
+            assert_eq!(&lambda[3..], &[0.0; 3]);
+        }
     }
 
     #[test]
@@ -962,10 +1038,11 @@ mod tests {
             friction_mu: 0.0,
             row_count: 3,
         };
-        assert_eq!(
-            solve(&p, &mut lambda, &tight()),
-            Err(LcpError::DegenerateBlock { contact: 0 })
-        );
+        // A zero block is dropped (no impulse), not an error.
+        lambda = [1.0, 0.0, 0.0];
+        let s = solve(&p, &mut lambda, &tight()).unwrap();
+        assert_eq!(s.dropped_contacts, 1);
+        assert_eq!(lambda, [0.0; 3]);
 
         let p = Problem {
             compliance: &p_ok,

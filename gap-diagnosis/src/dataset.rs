@@ -3,7 +3,7 @@
 use super::effects::Effect;
 use super::experiment::{Experiment, Region, Trial};
 use super::metrics::{depth_series, phases, trial_normal, Phase};
-use super::model::{replay, ForceModel, ProbePath, Variant};
+use super::model::{replay_checked, ForceModel, ProbePath, Replayed, Variant};
 use super::signal::{interp, nlerp, norm, sample_uniform};
 use super::GapError;
 use msgs::Pose;
@@ -23,11 +23,16 @@ pub struct TrialData {
     pub depth_grid: Vec<f64>,
     /// Baseline replay on the grid.
     pub base: Vec<[f64; 3]>,
-    /// Re-simulations per effect, in the order of `Effect::resims`. A diverged one (see
-    /// [`diverged`]) is replaced by the baseline and flagged in `resim_ok`.
+    /// Re-simulations per effect, in the order of `Effect::resims`. A diverged one (the
+    /// physics flagged a faulty step: [`Replayed::diverged`]) is replaced by the baseline and
+    /// flagged in `resim_ok`.
     pub resims: HashMap<Effect, Vec<Vec<[f64; 3]>>>,
     /// Per effect and knot: the re-simulation is usable (absent: all usable).
     pub resim_ok: HashMap<Effect, Vec<bool>>,
+    /// Re-simulations added at fitted parameter values (calibration's refinement, see
+    /// `calibrate::refine`): (parameter value, force on the grid) per piecewise-linear effect.
+    /// Empty for a plain diagnosis.
+    pub extra_knots: HashMap<Effect, Vec<(f64, Vec<[f64; 3]>)>>,
     /// Contact normal (outward), depth (mm) and phase at the measurement times.
     pub normal: [f64; 3],
     pub depth: Vec<f64>,
@@ -68,26 +73,6 @@ impl TrialData {
         }
         out
     }
-}
-
-/// Largest peak force of a re-simulation, in multiples of the larger of the baseline's and the
-/// measured peak (and 1 N), still taken as a solution. The contact solver can blow up under a
-/// deep indentation (a tilted specimen pressed 2 mm further: 10⁵–10⁶ N at the hold); one such
-/// replay outweighed every other trial and hid the tilt it was meant to measure.
-pub const DIVERGED_PEAK_FACTOR: f64 = 20.0;
-
-fn peak(f: &[[f64; 3]]) -> f64 {
-    f.iter().map(|v| norm(*v)).fold(0.0, f64::max)
-}
-
-/// A replay that did not converge to a physical solution: non-finite values, or a peak
-/// force far above both the baseline's and the measurement's (see [`DIVERGED_PEAK_FACTOR`]).
-pub fn diverged(replay: &[[f64; 3]], base: &[[f64; 3]], measured: &[[f64; 3]]) -> bool {
-    if replay.iter().flatten().any(|v| !v.is_finite()) {
-        return true;
-    }
-    let scale = peak(base).max(peak(measured)).max(1.0);
-    peak(replay) > DIVERGED_PEAK_FACTOR * scale
 }
 
 /// The probe path of a trial on a uniform grid starting at its first sample.
@@ -178,10 +163,10 @@ pub fn build(
         .flat_map(|v| (0..paths.len()).map(move |t| (v, t)))
         .collect();
     let bar = progress_bar(opts.progress, jobs.len() as u64, "replaying");
-    let results: Vec<Result<Vec<[f64; 3]>, GapError>> = jobs
+    let results: Vec<Result<Replayed, GapError>> = jobs
         .par_iter()
         .map(|&(v, t)| {
-            let r = replay(model, &variants[v].1, &paths[t]).map_err(|e| {
+            let r = replay_checked(model, &variants[v].1, &paths[t]).map_err(|e| {
                 GapError::Sim(format!(
                     "trial {} ({}), {}: {e}",
                     exp.trials[t].name,
@@ -198,33 +183,41 @@ pub fn build(
     if let Some(b) = bar {
         b.finish_and_clear();
     }
-    let mut forces: Vec<Vec<Option<Vec<[f64; 3]>>>> = vec![vec![None; paths.len()]; variants.len()];
+    let mut forces: Vec<Vec<Option<Replayed>>> = vec![vec![None; paths.len()]; variants.len()];
     for ((v, t), r) in jobs.into_iter().zip(results) {
         forces[v][t] = Some(r?);
     }
     let mut out = Vec::with_capacity(paths.len());
     for (ti, (trial, path)) in exp.trials.iter().zip(paths).enumerate() {
-        let base = forces[0][ti].take().unwrap();
+        let base = forces[0][ti].take().unwrap().forces;
         let mut resims: HashMap<Effect, Vec<Vec<[f64; 3]>>> = HashMap::new();
+        let mut usable: HashMap<Effect, Vec<bool>> = HashMap::new();
         for (vi, (e, _)) in variants.iter().enumerate().skip(1) {
-            resims
-                .entry(e.unwrap())
-                .or_default()
-                .push(forces[vi][ti].take().unwrap());
+            let r = forces[vi][ti].take().unwrap();
+            usable.entry(e.unwrap()).or_default().push(!r.diverged());
+            resims.entry(e.unwrap()).or_default().push(r.forces);
         }
         let mut td = prepare(trial, path, base, resims);
-        flag_diverged(&mut td);
+        flag_diverged(&mut td, &usable);
         out.push(td);
     }
     Ok(out)
 }
 
-/// Replace diverged re-simulations by the baseline and flag them in `resim_ok` (the effects'
-/// interpolation then uses the remaining knots).
-pub fn flag_diverged(td: &mut TrialData) {
+/// Replace diverged re-simulations (`usable[e][k]` false: the physics flagged a faulty step)
+/// by the baseline and flag them in `resim_ok` (the effects' interpolation then uses the
+/// remaining knots).
+pub fn flag_diverged(td: &mut TrialData, usable: &HashMap<Effect, Vec<bool>>) {
     let mut flags: HashMap<Effect, Vec<bool>> = HashMap::new();
     for (e, rs) in td.resims.iter_mut() {
-        let ok: Vec<bool> = rs.iter().map(|r| !diverged(r, &td.base, &td.f)).collect();
+        let ok: Vec<bool> = (0..rs.len())
+            .map(|k| {
+                usable
+                    .get(e)
+                    .and_then(|u| u.get(k).copied())
+                    .unwrap_or(true)
+            })
+            .collect();
         if ok.iter().all(|&b| b) {
             continue;
         }
@@ -340,6 +333,7 @@ pub fn prepare(
         base,
         resims,
         resim_ok: HashMap::new(),
+        extra_knots: HashMap::new(),
         normal,
         depth,
         phase,

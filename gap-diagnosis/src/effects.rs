@@ -149,6 +149,29 @@ impl Effect {
     pub fn needs_tangential(self) -> bool {
         matches!(self, Effect::Friction)
     }
+    /// The re-simulation at parameter value `x` of an effect interpolated piecewise-linearly
+    /// between knots (`friction`: μ; `support`: compliance, m/N per node); None for the others.
+    pub fn knot_variant(self, x: f64) -> Option<Variant> {
+        match self {
+            Effect::Friction => Some(Variant {
+                friction: x,
+                ..Variant::default()
+            }),
+            Effect::Support if x > 0.0 => Some(Variant {
+                support_stiffness: 1.0 / x,
+                ..Variant::default()
+            }),
+            _ => None,
+        }
+    }
+    /// The default knots of a piecewise-linear effect (see [`Effect::knot_variant`]).
+    pub fn default_knots(self) -> &'static [f64] {
+        match self {
+            Effect::Friction => &FRICTION_KNOTS,
+            Effect::Support => &SUPPORT_KNOTS,
+            _ => &[],
+        }
+    }
     /// Re-simulations this effect interpolates between (in order).
     pub fn resims(self) -> Vec<Variant> {
         let v = Variant::default();
@@ -233,29 +256,39 @@ fn axpy(dst: &mut [[f64; 3]], a: f64, x: &[[f64; 3]], y: Option<&[[f64; 3]]>) {
     }
 }
 
-/// Piecewise-linear interpolation in a parameter with re-simulations at two knots (the
-/// baseline at 0); beyond the last knot, the last segment extended. A diverged knot is left
-/// out: the secant through the other one.
-fn piecewise_two_knots(
-    grid: &mut [[f64; 3]],
-    td: &TrialData,
-    e: Effect,
-    x: f64,
-    [x1, x2]: [f64; 2],
-) {
+/// Piecewise-linear interpolation in a parameter between re-simulated knots: the baseline at
+/// 0, the two default knots, and any knots calibration added at fitted values
+/// ([`TrialData::extra_knots`]); beyond the last knot, the last segment extended. A diverged
+/// knot is left out (with two default knots: the secant through the other one).
+fn piecewise_knots(grid: &mut [[f64; 3]], td: &TrialData, e: Effect, x: f64, defaults: [f64; 2]) {
     let r = td.resim(e);
-    match (td.resim_valid(e, 0), td.resim_valid(e, 1)) {
-        (true, true) => {
-            if x <= x1 {
-                axpy(grid, x / x1, &r[0], Some(&td.base));
-            } else {
-                axpy(grid, 1.0, &r[0], Some(&td.base));
-                axpy(grid, (x - x1) / (x2 - x1), &r[1], Some(&r[0]));
-            }
+    let mut knots: Vec<(f64, &[[f64; 3]])> = Vec::with_capacity(4);
+    for (k, &xk) in defaults.iter().enumerate() {
+        if td.resim_valid(e, k) {
+            knots.push((xk, &r[k]));
         }
-        (true, false) => axpy(grid, x / x1, &r[0], Some(&td.base)),
-        (false, true) => axpy(grid, x / x2, &r[1], Some(&td.base)),
-        (false, false) => {}
+    }
+    if let Some(extra) = td.extra_knots.get(&e) {
+        knots.extend(extra.iter().map(|(xk, f)| (*xk, f.as_slice())));
+    }
+    knots.sort_by(|a, b| a.0.total_cmp(&b.0));
+    knots.dedup_by(|a, b| a.0 == b.0);
+    if knots.is_empty() {
+        return;
+    }
+    // the segment holding x: (0, baseline) to the first knot, or between two knots, or the
+    // last one extended
+    let i = knots
+        .iter()
+        .position(|k| x <= k.0)
+        .unwrap_or(knots.len() - 1);
+    if i == 0 {
+        let (x1, r1) = knots[0];
+        axpy(grid, x / x1, r1, Some(&td.base));
+    } else {
+        let ((xa, ra), (xb, rb)) = (knots[i - 1], knots[i]);
+        axpy(grid, 1.0, ra, Some(&td.base));
+        axpy(grid, (x - xa) / (xb - xa), rb, Some(ra));
     }
 }
 
@@ -277,10 +310,8 @@ pub fn predict(
         let th = &theta[k..k + np];
         k += np;
         match e {
-            Effect::Friction => {
-                piecewise_two_knots(grid, td, Effect::Friction, th[0], FRICTION_KNOTS)
-            }
-            Effect::Support => piecewise_two_knots(grid, td, Effect::Support, th[0], SUPPORT_KNOTS),
+            Effect::Friction => piecewise_knots(grid, td, Effect::Friction, th[0], FRICTION_KNOTS),
+            Effect::Support => piecewise_knots(grid, td, Effect::Support, th[0], SUPPORT_KNOTS),
             Effect::Tilt => {
                 let r = td.resim(Effect::Tilt);
                 let h = TILT_STEP;

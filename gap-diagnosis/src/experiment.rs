@@ -23,6 +23,8 @@
 //! the force the tissue exerts on the probe as the sensor measured it and the pose of the probe
 //! tip frame. Sampling may be irregular.
 use super::GapError;
+use launch_config::scene::MaterialPreset;
+use msgs::csv_input::{self, Order, Spec};
 use msgs::Pose;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -72,15 +74,16 @@ impl Default for SpecimenSpec {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct MaterialSpec {
+    /// The launch file's preset choice (an unknown value is a parse error naming the line).
     #[serde(default = "default_preset")]
-    pub preset: String,
+    pub preset: MaterialPreset,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub youngs_modulus: Option<f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub poisson_ratio: Option<f64>,
 }
-fn default_preset() -> String {
-    "lateral".into()
+fn default_preset() -> MaterialPreset {
+    MaterialPreset::Lateral
 }
 impl Default for MaterialSpec {
     fn default() -> Self {
@@ -289,12 +292,6 @@ pub fn load_experiment(dir: &Path, data_dir: &Path) -> Result<Experiment, GapErr
 }
 
 fn check_material(spec: &ExperimentSpec) -> Result<(), String> {
-    if !["lateral", "medial", "custom"].contains(&spec.material.preset.as_str()) {
-        return Err(format!(
-            "unknown material preset {:?}",
-            spec.material.preset
-        ));
-    }
     if let Some(e) = spec.material.youngs_modulus {
         if !(e.is_finite() && e > 0.0) {
             return Err(format!("youngs_modulus must be > 0, got {e}"));
@@ -356,89 +353,86 @@ pub fn check_mesh(s: &SpecimenSpec, dir: &Path, data_dir: &Path) -> Result<(), S
 
 type TrialColumns = (Vec<f64>, Vec<[f64; 3]>, Vec<Pose>);
 
-/// Strict CSV reader: every required column, finite numbers, strictly increasing time.
+/// Longest trial, s: each trial is re-simulated step by step (and several times over for
+/// the effect knots), so its span bounds the work and the memory of a diagnosis.
+pub const MAX_TRIAL_SPAN_S: f64 = 600.0;
+/// Largest |t| of a trial sample, s.
+pub const MAX_TRIAL_TIME_S: f64 = 1.0e7;
+/// Closest two samples may be, s (1 MHz; the study's sensor sampled at 38 Hz).
+pub const MIN_TRIAL_INTERVAL_S: f64 = 1.0e-6;
+/// Largest |coordinate| of a probe position, m (the specimen is centimetres across).
+pub const MAX_TRIAL_POSITION_M: f64 = 10.0;
+
+/// Reads a trial CSV under the workspace's CSV rules (`msgs::csv_input`: every required
+/// column, finite numbers, strictly increasing time, unit quaternions; errors name file and
+/// line).
 pub fn read_trial_csv(path: &Path) -> Result<TrialColumns, GapError> {
     let text = std::fs::read_to_string(path).map_err(|e| GapError::Io(path.to_path_buf(), e))?;
     parse_trial_csv(&text, path)
 }
 
 pub fn parse_trial_csv(text: &str, path: &Path) -> Result<TrialColumns, GapError> {
+    let spec = Spec {
+        columns: &CSV_COLUMNS,
+        order: Some((0, Order::Increasing, "time")),
+        quaternion: Some([7, 8, 9, 10]),
+        dropouts: &[],
+        magnitude: &[
+            (0, MAX_TRIAL_TIME_S),
+            (4, MAX_TRIAL_POSITION_M),
+            (5, MAX_TRIAL_POSITION_M),
+            (6, MAX_TRIAL_POSITION_M),
+        ],
+    };
+    let table = csv_input::parse(text, path, &spec)?;
+    if table.len() < 5 {
+        return Err(GapError::Line {
+            file: path.to_path_buf(),
+            line: table.header_line,
+            msg: format!("only {} samples (need at least 5)", table.len()),
+        });
+    }
+    let (mut t, mut f, mut p) = (Vec::new(), Vec::new(), Vec::new());
     let err = |line: usize, msg: String| GapError::Line {
         file: path.to_path_buf(),
         line,
         msg,
     };
-    let mut lines = text
-        .lines()
-        .enumerate()
-        .filter(|(_, l)| !l.trim().is_empty());
-    let (hline, header) = lines.next().ok_or_else(|| err(1, "empty file".into()))?;
-    let names: Vec<&str> = header.split(',').map(|s| s.trim()).collect();
-    let mut idx = [0usize; 11];
-    let mut missing = Vec::new();
-    for (k, col) in CSV_COLUMNS.iter().enumerate() {
-        match names.iter().position(|n| n == col) {
-            Some(i) => idx[k] = i,
-            None => missing.push(*col),
-        }
-    }
-    if !missing.is_empty() {
-        return Err(err(
-            hline + 1,
-            format!("missing column(s) {}", missing.join(", ")),
-        ));
-    }
-    let (mut t, mut f, mut p) = (Vec::new(), Vec::new(), Vec::new());
-    for (ln, line) in lines {
-        let lineno = ln + 1;
-        let cells: Vec<&str> = line.split(',').map(|s| s.trim()).collect();
-        if cells.len() != names.len() {
-            return Err(err(
-                lineno,
-                format!("{} fields, header has {}", cells.len(), names.len()),
-            ));
-        }
-        let mut v = [0.0f64; 11];
-        for k in 0..11 {
-            let c = cells[idx[k]];
-            let x: f64 = c.parse().map_err(|_| {
-                err(
-                    lineno,
-                    format!("column {}: not a number: {c:?}", CSV_COLUMNS[k]),
-                )
-            })?;
-            if !x.is_finite() {
-                return Err(err(
-                    lineno,
-                    format!("column {}: non-finite value {c}", CSV_COLUMNS[k]),
-                ));
-            }
-            v[k] = x;
-        }
+    for (i, v) in table.rows().enumerate() {
+        // Bounds beyond the CSV rules (time and position magnitudes are checked by the
+        // reader): the trial is re-simulated step by step, so its time span and sample
+        // spacing bound the work of a diagnosis.
+        let lineno = table.line(i);
         if let Some(&last) = t.last() {
-            if v[0] <= last {
+            if v[0] - last < MIN_TRIAL_INTERVAL_S {
                 return Err(err(
                     lineno,
-                    format!("time not increasing: {} after {}", v[0], last),
+                    format!(
+                        "column t_s: {} s after the previous sample; samples must be at least \
+                         {MIN_TRIAL_INTERVAL_S} s apart",
+                        v[0] - last
+                    ),
                 ));
             }
         }
-        let qn = (v[7] * v[7] + v[8] * v[8] + v[9] * v[9] + v[10] * v[10]).sqrt();
-        if qn < 1e-6 {
-            return Err(err(lineno, "zero quaternion".into()));
+        if let Some(&first) = t.first() {
+            if v[0] - first > MAX_TRIAL_SPAN_S {
+                return Err(err(
+                    lineno,
+                    format!(
+                        "column t_s: the trial spans {} s up to here; at most {MAX_TRIAL_SPAN_S} s \
+                         (each trial is re-simulated step by step)",
+                        v[0] - first
+                    ),
+                ));
+            }
         }
         t.push(v[0]);
         f.push([v[1], v[2], v[3]]);
         p.push(Pose {
             position: [v[4], v[5], v[6]],
-            orientation: [v[7] / qn, v[8] / qn, v[9] / qn, v[10] / qn],
+            orientation: [v[7], v[8], v[9], v[10]],
         });
-    }
-    if t.len() < 5 {
-        return Err(err(
-            hline + 1,
-            format!("only {} samples (need at least 5)", t.len()),
-        ));
     }
     Ok((t, f, p))
 }
@@ -485,67 +479,24 @@ pub struct ForceDisplacement {
     pub force_n: Vec<f64>,
 }
 
+/// Reads the table under the workspace's CSV rules (`msgs::csv_input`), displacement not
+/// decreasing.
 pub fn read_force_displacement(path: &Path) -> Result<ForceDisplacement, GapError> {
     let text = std::fs::read_to_string(path).map_err(|e| GapError::Io(path.to_path_buf(), e))?;
-    let err = |line: usize, msg: String| GapError::Line {
-        file: path.to_path_buf(),
-        line,
-        msg,
+    let spec = Spec {
+        order: Some((0, Order::NonDecreasing, "displacement")),
+        ..Spec::columns(&["displacement_mm", "force_N"])
     };
-    let mut lines = text
-        .lines()
-        .enumerate()
-        .filter(|(_, l)| !l.trim().is_empty());
-    let (hl, header) = lines.next().ok_or_else(|| err(1, "empty file".into()))?;
-    let names: Vec<&str> = header.split(',').map(|s| s.trim()).collect();
-    let di = names.iter().position(|n| *n == "displacement_mm");
-    let fi = names.iter().position(|n| *n == "force_N");
-    let (di, fi) = match (di, fi) {
-        (Some(a), Some(b)) => (a, b),
-        _ => {
-            return Err(err(
-                hl + 1,
-                "missing column(s): need displacement_mm,force_N".into(),
-            ))
-        }
-    };
-    let (mut d, mut f) = (Vec::new(), Vec::new());
-    for (ln, line) in lines {
-        let cells: Vec<&str> = line.split(',').map(|s| s.trim()).collect();
-        if cells.len() != names.len() {
-            return Err(err(
-                ln + 1,
-                format!("{} fields, header has {}", cells.len(), names.len()),
-            ));
-        }
-        let parse = |c: &str, col: &str| -> Result<f64, GapError> {
-            let x: f64 = c
-                .parse()
-                .map_err(|_| err(ln + 1, format!("column {col}: not a number: {c:?}")))?;
-            if !x.is_finite() {
-                return Err(err(ln + 1, format!("column {col}: non-finite value {c}")));
-            }
-            Ok(x)
-        };
-        let dv = parse(cells[di], "displacement_mm")?;
-        let fv = parse(cells[fi], "force_N")?;
-        if let Some(&last) = d.last() {
-            if dv < last {
-                return Err(err(
-                    ln + 1,
-                    format!("displacement decreasing: {dv} after {last}"),
-                ));
-            }
-        }
-        d.push(dv);
-        f.push(fv);
+    let table = csv_input::parse(&text, path, &spec)?;
+    if table.len() < 4 {
+        return Err(GapError::Line {
+            file: path.to_path_buf(),
+            line: table.header_line,
+            msg: format!("only {} rows (need at least 4)", table.len()),
+        });
     }
-    if d.len() < 4 {
-        return Err(err(
-            hl + 1,
-            format!("only {} rows (need at least 4)", d.len()),
-        ));
-    }
+    let d = table.rows().map(|v| v[0]).collect();
+    let f = table.rows().map(|v| v[1]).collect();
     Ok(ForceDisplacement {
         file: path.to_path_buf(),
         displacement_mm: d,

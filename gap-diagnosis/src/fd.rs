@@ -49,6 +49,52 @@ pub fn diagnose_force_displacement(file: &Path, opts: &Options) -> Result<Report
     let mut scene = launch_config::SceneConfig::default();
     scene.meniscus.mesh = conv.mesh.clone();
     let model = SimForceModel::from_scene(scene, &data);
+    diagnose_table_at_mid_site(file, &conv, &model, opts)
+}
+
+impl TableConvention {
+    /// Issue 13's convention for calibrating a scene to a table: displacement as measured
+    /// (no ×2/3), the first row's force as the offset, a press at the mid-body site of the
+    /// scene's own mesh.
+    pub fn as_measured(mesh: &str) -> TableConvention {
+        TableConvention {
+            displacement_scale: 1.0,
+            mesh: mesh.to_string(),
+            ..TableConvention::default()
+        }
+    }
+}
+
+/// Diagnose a table against `scene` (its mesh, material, probe and support) with
+/// [`TableConvention::as_measured`]: what `gap --force-displacement --calibrate` fits.
+pub fn diagnose_table_in_scene(
+    file: &Path,
+    scene: &launch_config::SceneConfig,
+    opts: &Options,
+) -> Result<Report, GapError> {
+    let conv = TableConvention::as_measured(&scene.meniscus.mesh);
+    let model = SimForceModel::from_scene(scene.clone(), &super::data_dir());
+    diagnose_table_at_mid_site(file, &conv, &model, opts)
+}
+
+fn diagnose_table_at_mid_site(
+    file: &Path,
+    conv: &TableConvention,
+    model: &SimForceModel,
+    opts: &Options,
+) -> Result<Report, GapError> {
+    let site = mid_site(file, conv, model)?;
+    diagnose_table_with(file, conv, model, site.point, site.normal, opts)
+}
+
+/// The middle probing site of the convention's region on the model's specimen.
+pub fn mid_site(
+    file: &Path,
+    conv: &TableConvention,
+    model: &SimForceModel,
+) -> Result<super::reality::Site, GapError> {
+    // the table is read first: a bad file fails before the specimen is built
+    read_force_displacement(file)?;
     let sites = model.sites().map_err(|e| GapError::Input {
         file: file.to_path_buf(),
         msg: format!("{} ({e})", conv.mesh),
@@ -61,7 +107,7 @@ pub fn diagnose_force_displacement(file: &Path, opts: &Options) -> Result<Report
             conv.mesh
         ))
     })?;
-    diagnose_table_with(file, &conv, &model, site.point, site.normal, opts)
+    Ok(**site)
 }
 
 /// Same with any model and probing site (point on the surface, outward normal).
@@ -74,6 +120,23 @@ pub fn diagnose_table_with(
     opts: &Options,
 ) -> Result<Report, GapError> {
     let start = std::time::Instant::now();
+    let (exp, input) = table_experiment(file, conv, model, point, normal, opts.dt)?;
+    let mut r = super::diagnose(&exp, model, opts)?;
+    r.input = input;
+    r.elapsed_s = start.elapsed().as_secs_f64();
+    Ok(r)
+}
+
+/// The table as a one-trial quasi-static experiment pressed at `point` along −`normal`
+/// (replay step `dt`), and the label a report gives it.
+pub fn table_experiment(
+    file: &Path,
+    conv: &TableConvention,
+    model: &dyn ForceModel,
+    point: [f64; 3],
+    normal: [f64; 3],
+    dt: f64,
+) -> Result<(Experiment, String), GapError> {
     let table = read_force_displacement(file)?;
     let offset = if conv.subtract_first_row {
         table.force_n[0]
@@ -87,7 +150,6 @@ pub fn diagnose_table_with(
         .collect();
     let dmax = *depth_m.last().unwrap();
     // approach sweep: from 4 mm above to dmax + 1 mm below the site point
-    let dt = opts.dt;
     let above = 4.0e-3;
     let n_steps = ((above + dmax + 1.0e-3) / conv.speed / dt).ceil() as usize + 1;
     let sweep = ProbePath {
@@ -173,8 +235,7 @@ pub fn diagnose_table_with(
         trials: vec![trial],
         quasi_static: true,
     };
-    let mut r = super::diagnose(&exp, model, opts)?;
-    r.input = format!(
+    let input = format!(
         "{} (force–displacement table: depth = displacement × {:.3}, offset {:.3} N removed, {} site, {})",
         file.display(),
         conv.displacement_scale,
@@ -182,6 +243,5 @@ pub fn diagnose_table_with(
         conv.region.name(),
         conv.mesh
     );
-    r.elapsed_s = start.elapsed().as_secs_f64();
-    Ok(r)
+    Ok((exp, input))
 }

@@ -27,6 +27,10 @@
 //!     if json { println!("{}", serde_json::to_string(&r.summary())?) }  // cases, correct, accuracy, heldout_shrink_mean
 //! arthrosim gap bench [--effect NAME] [--seed S]       // one JSON line with diagnose_s
 //!     println!("{}", gap_diagnosis::selftest::bench("hardening", seed, &gap_diagnosis::Options::default())?);
+//! arthrosim gap INPUT … --out REPORT_DIR --calibrate OUT.toml [--launch BASE.toml]
+//!     calibrate::check_out_path(out)?;                  // before the replays
+//!     let (report, cal) = calibrate::calibrate_input(&input, base, &opts)?;
+//!     calibrate::write_launch(&cal, out)?;              // the verdict as scene keys, validated
 //! arthrosim reality --effect NAME[=STRENGTH] [--effect ...] --seed S --out DIR --truth FILE
 //!     let spec = gap_diagnosis::reality::RealitySpec::from_effects(&["friction=0.3", "sensor"], seed)?;
 //!     gap_diagnosis::reality::write_experiment(&spec, dir, truth_file)?;   // truth file must lie outside DIR
@@ -36,6 +40,7 @@
 //! The replay model is [`SimForceModel`] (the physics node's `Simulation` driven kinematically);
 //! statistics and effects are written against the [`ForceModel`] trait.
 
+pub mod calibrate;
 pub mod dataset;
 pub mod effects;
 pub mod experiment;
@@ -86,6 +91,16 @@ pub enum GapError {
     Recording(#[from] recordings::RecordingError),
     #[error("{0}")]
     Other(String),
+}
+
+impl From<msgs::csv_input::CsvError> for GapError {
+    fn from(e: msgs::csv_input::CsvError) -> Self {
+        GapError::Line {
+            file: e.file,
+            line: e.line,
+            msg: e.problem,
+        }
+    }
 }
 
 /// Study data folder: `ARTHROSIM_DATA`, else `../shared/data` next to the workspace.
@@ -237,14 +252,22 @@ pub mod sim_model;
 /// model; with device ticks, the report also carries the rendering gap.
 pub fn diagnose_session(mcap: &Path, opts: &Options) -> Result<Report, GapError> {
     let rec = session::read_session(mcap)?;
-    let exp = session::experiment_from_session(&rec)?;
+    diagnose_recording(&rec, opts)
+}
+
+/// [`diagnose_session`] on a recording already read.
+pub fn diagnose_recording(
+    rec: &session::SessionRecording,
+    opts: &Options,
+) -> Result<Report, GapError> {
+    let exp = session::experiment_from_session(rec)?;
     // the rendering gap is cheap: computed first so its input errors come before the replays
     let rendering = if rec.ticks.is_empty() {
         None
     } else {
-        Some(session::rendering_gap(&rec)?)
+        Some(session::rendering_gap(rec)?)
     };
-    let model = SimForceModel::for_session(&rec, &data_dir())?;
+    let model = SimForceModel::for_session(rec, &data_dir())?;
     let mut report = diagnose(&exp, &model, opts)?;
     report.rendering_gap = rendering;
     Ok(report)
@@ -273,14 +296,7 @@ pub fn diagnose(
     opts: &Options,
 ) -> Result<Report, GapError> {
     let start = std::time::Instant::now();
-    let effects: Vec<Effect> = opts
-        .effects
-        .iter()
-        .copied()
-        .filter(|&e| {
-            fit::applicable(e, exp.quasi_static) && (e != Effect::Mesh || model.has_refinement())
-        })
-        .collect();
+    let effects = candidate_effects(exp, model, opts);
     let data = dataset::build(
         exp,
         model,
@@ -298,6 +314,17 @@ pub fn diagnose(
         opts,
         start,
     )
+}
+
+/// The candidate effects [`diagnose`] considers for `exp` with `model`.
+pub fn candidate_effects(exp: &Experiment, model: &dyn ForceModel, opts: &Options) -> Vec<Effect> {
+    opts.effects
+        .iter()
+        .copied()
+        .filter(|&e| {
+            fit::applicable(e, exp.quasi_static) && (e != Effect::Mesh || model.has_refinement())
+        })
+        .collect()
 }
 
 fn baseline_study_error(data: &[TrialData]) -> f64 {

@@ -86,11 +86,38 @@ pub trait ForceModel: Sync + Send {
         variant: &Variant,
         path: &ProbePath,
     ) -> Result<Vec<[f64; 3]>, GapError>;
+    /// The replay with the number of steps the model itself flagged as faulty (the physics'
+    /// per-step checks: a diverged contact solve, energy growth, ...). Models without such
+    /// checks report none.
+    fn replay_untilted_checked(
+        &self,
+        variant: &Variant,
+        path: &ProbePath,
+    ) -> Result<Replayed, GapError> {
+        Ok(Replayed {
+            forces: self.replay_untilted(variant, path)?,
+            faulty_steps: 0,
+        })
+    }
     /// Short description for reports.
     fn describe(&self) -> String;
     /// A refined discretisation exists (the `mesh` effect can be assessed).
     fn has_refinement(&self) -> bool {
         true
+    }
+}
+
+/// A replay's forces and how many of its steps the model flagged as faulty.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Replayed {
+    pub forces: Vec<[f64; 3]>,
+    pub faulty_steps: u64,
+}
+
+impl Replayed {
+    /// The physics flagged a step, or a force is not finite: not a solution.
+    pub fn diverged(&self) -> bool {
+        self.faulty_steps > 0 || self.forces.iter().flatten().any(|v| !v.is_finite())
     }
 }
 
@@ -101,8 +128,17 @@ pub fn replay(
     variant: &Variant,
     path: &ProbePath,
 ) -> Result<Vec<[f64; 3]>, GapError> {
+    replay_checked(model, variant, path).map(|r| r.forces)
+}
+
+/// [`replay`] with the model's count of faulty steps.
+pub fn replay_checked(
+    model: &dyn ForceModel,
+    variant: &Variant,
+    path: &ProbePath,
+) -> Result<Replayed, GapError> {
     if variant.tilt == [0.0; 2] {
-        return model.replay_untilted(variant, path);
+        return model.replay_untilted_checked(variant, path);
     }
     let r = quat_tilt(variant.tilt[0], variant.tilt[1]);
     let ri = quat_conj(r);
@@ -120,6 +156,9 @@ pub fn replay(
     };
     let mut v = variant.clone();
     v.tilt = [0.0; 2];
-    let f = model.replay_untilted(&v, &local)?;
-    Ok(f.into_iter().map(|x| quat_rotate(r, x)).collect())
+    let mut out = model.replay_untilted_checked(&v, &local)?;
+    for x in out.forces.iter_mut() {
+        *x = quat_rotate(r, *x);
+    }
+    Ok(out)
 }

@@ -37,6 +37,9 @@ pub struct SessionRecording {
     pub device: DeviceConfig,
     /// Where `device` came from (`launch.toml` or why defaults were used).
     pub device_source: String,
+    /// The recorded launch file (`launch.toml` attachment), when readable: the base of a
+    /// calibrated launch file.
+    pub launch: Option<LaunchFile>,
     pub steps: Vec<ContactStep>,
     pub ticks: Vec<DeviceTick>,
 }
@@ -166,6 +169,7 @@ pub fn read_session(path: &Path) -> Result<SessionRecording, GapError> {
             }
         },
     };
+    let recorded_launch = launch.as_ref().and_then(|l| l.as_ref().ok()).cloned();
     let (device, device_source) = match launch {
         Some(Ok(l)) => (l.device, format!("{ATTACHMENT_LAUNCH} attachment")),
         Some(Err(e)) => (
@@ -182,6 +186,7 @@ pub fn read_session(path: &Path) -> Result<SessionRecording, GapError> {
         scene,
         device,
         device_source,
+        launch: recorded_launch,
         steps,
         ticks,
     })
@@ -447,7 +452,7 @@ fn trials_from_session(
             }),
         },
         material: MaterialSpec {
-            preset: sc.material.preset.clone(),
+            preset: sc.material.preset,
             youngs_modulus: sc.material.youngs_modulus,
             poisson_ratio: sc.material.poisson_ratio,
         },
@@ -614,11 +619,8 @@ pub fn rendering_gap(rec: &SessionRecording) -> Result<RenderingGap, GapError> {
     }
     let d = &rec.device;
     let peak = d.peak_force_n;
-    let scale = if d.force_scale > 0.0 {
-        d.force_scale
-    } else {
-        1.0
-    };
+    // The scale the session rendered with (`force_scale = 0` is the automatic choice).
+    let scale = d.rendering().force_scale;
     let mut by_key: Vec<((u64, u64), usize)> = rec
         .steps
         .iter()
@@ -856,6 +858,7 @@ mod tests {
             scene: SceneConfig::default(),
             device: DeviceConfig::default(),
             device_source: "defaults".into(),
+            launch: None,
             steps,
             ticks,
         }

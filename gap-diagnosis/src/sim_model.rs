@@ -1,6 +1,6 @@
 //! The shipped replay model: the physics node's `Simulation`, probe driven kinematically.
 use super::experiment::Experiment;
-use super::model::{ForceModel, ProbePath, Variant};
+use super::model::{ForceModel, ProbePath, Replayed, Variant};
 use super::GapError;
 use launch_config::SceneConfig;
 use physics_node::sim::Simulation;
@@ -60,7 +60,7 @@ impl SimForceModel {
             scene.meniscus.transform.rotation_deg = t.rotation_deg;
             scene.meniscus.transform.translation = t.translation;
         }
-        scene.material.preset = s.material.preset.clone();
+        scene.material.preset = s.material.preset;
         scene.material.youngs_modulus = s.material.youngs_modulus;
         scene.material.poisson_ratio = s.material.poisson_ratio;
         scene.probe.tip_radius = s.probe.tip_radius;
@@ -93,7 +93,7 @@ impl SimForceModel {
         sc.dt = dt;
         sc.material.modulus_scale *= v.modulus_scale;
         if v.neo_hookean {
-            sc.material.model = "neo-hookean".into();
+            sc.material.model = launch_config::scene::MaterialModel::StableNeoHookean;
         }
         // effects add to the nominal scene (a recorded session may already have friction or
         // an elastic support; experiment folders start from zero for both)
@@ -137,6 +137,9 @@ impl SimForceModel {
 
 impl ForceModel for SimForceModel {
     fn replay_untilted(&self, v: &Variant, path: &ProbePath) -> Result<Vec<[f64; 3]>, GapError> {
+        self.replay_untilted_checked(v, path).map(|r| r.forces)
+    }
+    fn replay_untilted_checked(&self, v: &Variant, path: &ProbePath) -> Result<Replayed, GapError> {
         let mut sim = self.simulation(v, path.dt)?;
         let mut out = Vec::with_capacity(path.poses.len());
         if let Some(p0) = path.poses.first() {
@@ -147,7 +150,12 @@ impl ForceModel for SimForceModel {
             sim.step().map_err(|e| GapError::Sim(e.to_string()))?;
             out.push(sim.contact_force());
         }
-        Ok(out)
+        // The physics' own per-step checks (force bound, penetration, LCP/CG convergence,
+        // energy) decide whether the replay diverged.
+        Ok(Replayed {
+            forces: out,
+            faulty_steps: sim.physics_faults(),
+        })
     }
     fn describe(&self) -> String {
         format!(

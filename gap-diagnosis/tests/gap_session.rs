@@ -31,7 +31,10 @@ struct Render {
     /// Write device ticks at all.
     ticks: bool,
     force_scale: f64,
-    peak: f64,
+    /// The device's peak force as a fraction of the scaled model peak of the session: the
+    /// synthetic renderer saturates on the top of every press whatever the scene's stiffness
+    /// (a fixed 30 N stopped saturating when the hook began to press tip first).
+    peak_fraction: f64,
     /// Ticks render the frame this many physics steps old.
     delay_steps: usize,
 }
@@ -58,6 +61,8 @@ struct Written {
     steps: Vec<Step>,
     ticks: Vec<Tick>,
     probings: usize,
+    /// The device's peak force written to the launch file, N.
+    peak: f64,
 }
 
 fn norm(a: [f64; 3]) -> f64 {
@@ -123,9 +128,23 @@ fn write_session(dir: &Path, render: Render) -> Written {
             plan.push((pose_at(high), 0, 0, 0));
         }
     }
+    // The model's peak contact force over the plan (a first pass in a fresh simulation),
+    // for the device's peak.
+    let model_peak = {
+        let mut pre = Simulation::new(&scene, &data).expect("default scene builds");
+        pre.teleport_probe(&plan[0].0);
+        let mut peak: f64 = 0.0;
+        for (pose, ..) in &plan {
+            pre.set_probe_kinematic(pose);
+            pre.step().unwrap();
+            peak = peak.max(norm(pre.contact_frame().contact_force));
+        }
+        peak
+    };
+    let device_peak = render.peak_fraction * render.force_scale * model_peak;
     let launch_text = format!(
         "[device]\nforce_scale = {}\npeak_force_n = {}\n",
-        render.force_scale, render.peak
+        render.force_scale, device_peak
     );
     let info = SessionInfo {
         session: "gap-session".into(),
@@ -161,9 +180,9 @@ fn write_session(dir: &Path, render: Render) -> Written {
                     let f = steps[u].force;
                     let c = f.map(|v| v * render.force_scale);
                     let n = norm(c);
-                    let r = if n > render.peak {
+                    let r = if n > device_peak {
                         d.faults |= fault::FORCE_CLAMPED;
-                        c.map(|v| v * render.peak / n)
+                        c.map(|v| v * device_peak / n)
                     } else {
                         c
                     };
@@ -208,6 +227,7 @@ fn write_session(dir: &Path, render: Render) -> Written {
         steps,
         ticks,
         probings: sites.len(),
+        peak: device_peak,
     }
 }
 
@@ -215,7 +235,7 @@ const RENDER: Render = Render {
     annotate: true,
     ticks: true,
     force_scale: 0.8,
-    peak: 30.0,
+    peak_fraction: 0.9,
     delay_steps: 2,
 };
 
@@ -232,7 +252,7 @@ fn session_probings_become_trials_with_the_recorded_force_and_pose() {
 
     let rec = session::read_session(&w.file).unwrap();
     assert_eq!(rec.steps.len(), w.steps.len());
-    assert_eq!(rec.device.peak_force_n, 30.0, "limits from launch.toml");
+    assert_eq!(rec.device.peak_force_n, w.peak, "limits from launch.toml");
     let exp = session::experiment_from_session(&rec).unwrap();
     assert_eq!(exp.trials.len(), w.probings);
     let regions: Vec<Option<Region>> = exp.trials.iter().map(|t| t.region).collect();
@@ -306,7 +326,7 @@ fn rendering_gap_measures_scale_saturation_and_lag() {
     assert_eq!(g.contact_ticks, contact.len());
     let saturated = contact
         .iter()
-        .filter(|t| norm(t.model.unwrap()) * RENDER.force_scale >= RENDER.peak * (1.0 - 1e-3))
+        .filter(|t| norm(t.model.unwrap()) * RENDER.force_scale >= w.peak * (1.0 - 1e-3))
         .count();
     assert!(
         saturated > 0 && saturated < contact.len() / 2,
@@ -386,7 +406,7 @@ fn session_diagnosis_reports_the_rendering_gap_in_json_and_html() {
     let rg = &json["rendering_gap"];
     assert_eq!(rg["contact_ticks"].as_u64(), Some(g.contact_ticks as u64));
     assert!(rg["force_scale_fit"].as_f64().is_some());
-    assert_eq!(rg["limits"]["peak_force_n"].as_f64(), Some(30.0));
+    assert_eq!(rg["limits"]["peak_force_n"].as_f64(), Some(w.peak));
     for field in [
         "verdict",
         "heldout",

@@ -11,6 +11,8 @@ pub enum ConfigError {
         value: String,
         problem: &'static str,
     },
+    #[error("{0}")]
+    LimitRaised(String),
     #[error("launch file {path}: {detail}")]
     Parse { path: String, detail: String },
 }
@@ -20,7 +22,15 @@ pub enum ConfigError {
 pub struct Limits {
     pub rate_hz: f64,
     pub period_ns: u64,
+    /// Rendered force per tissue force (see `launch_config::device::Rendering`).
     pub force_scale: f64,
+    /// Virtual coupling in series with the contact compliance, tissue side, m/N (1/k_c):
+    /// bounds the felt stiffness by `force_scale / coupling_compliance_m_per_n`.
+    pub coupling_compliance_m_per_n: f64,
+    /// That bound, N/m.
+    pub felt_stiffness_limit_n_per_m: f64,
+    /// Per-axis play of the rendered stylus position, m.
+    pub position_hysteresis_m: f64,
     pub peak_force_n: f64,
     pub continuous_force_n: f64,
     pub continuous_window_s: f64,
@@ -64,17 +74,8 @@ impl Limits {
                 problem: "must be ≤ 10 s",
             });
         }
-        let reference_is_probe_free = match c.displacement_reference.as_str() {
-            "proxy" => false,
-            "probe_free" => true,
-            other => {
-                return Err(ConfigError::Field {
-                    field: "displacement_reference",
-                    value: other.to_string(),
-                    problem: "must be `proxy` or `probe_free`",
-                })
-            }
-        };
+        let reference_is_probe_free =
+            c.displacement_reference == launch_config::device::DisplacementReference::ProbeFree;
         if !(c.lcp_tolerance.is_finite() && c.lcp_tolerance >= 0.0) {
             return Err(ConfigError::Field {
                 field: "lcp_tolerance",
@@ -89,13 +90,26 @@ impl Limits {
                 problem: "must be ≥ 1",
             });
         }
-        if !(c.force_scale.is_finite() && c.force_scale >= 0.0) {
+        if !(c.force_scale.is_finite() && (0.0..=1.0).contains(&c.force_scale)) {
             return Err(ConfigError::Field {
                 field: "force_scale",
                 value: c.force_scale.to_string(),
-                problem: "must be finite and ≥ 0",
+                problem: "must be within 0..=1 (0 = automatic)",
             });
         }
+        // The device's hard limits: checked here too, so a node started without the
+        // launcher's validation cannot be given a raised limit either.
+        if let Some(raise) = c.limit_raises().into_iter().next() {
+            return Err(ConfigError::LimitRaised(raise.to_string()));
+        }
+        for (field, v) in [
+            ("max_stiffness_n_per_m", c.max_stiffness_n_per_m),
+            ("tissue_force_range_n", c.tissue_force_range_n),
+            ("tissue_stiffness_n_per_m", c.tissue_stiffness_n_per_m),
+        ] {
+            positive(field, v)?;
+        }
+        let rendering = c.rendering();
         if !(c.stale_ramp_s.is_finite() && c.stale_ramp_s >= 0.0) {
             return Err(ConfigError::Field {
                 field: "stale_ramp_s",
@@ -106,7 +120,20 @@ impl Limits {
         Ok(Limits {
             rate_hz,
             period_ns: (1e9 / rate_hz).round() as u64,
-            force_scale: c.force_scale,
+            force_scale: rendering.force_scale,
+            coupling_compliance_m_per_n: 1.0 / rendering.coupling_stiffness_n_per_m,
+            felt_stiffness_limit_n_per_m: rendering.felt_stiffness_limit_n_per_m,
+            position_hysteresis_m: {
+                let h = c.position_hysteresis_m;
+                if !(h.is_finite() && (0.0..=1e-3).contains(&h)) {
+                    return Err(ConfigError::Field {
+                        field: "position_hysteresis_m",
+                        value: h.to_string(),
+                        problem: "must be within 0..=0.001 m",
+                    });
+                }
+                h
+            },
             peak_force_n: positive("peak_force_n", c.peak_force_n)?,
             continuous_force_n: positive("continuous_force_n", c.continuous_force_n)?,
             continuous_window_s: window,
@@ -150,11 +177,6 @@ mod tests {
         };
         let e = Limits::from_config(&c).unwrap_err().to_string();
         assert!(e.contains("peak_force_n"), "{e}");
-        let c = DeviceConfig {
-            displacement_reference: "probe".into(),
-            ..DeviceConfig::default()
-        };
-        assert!(Limits::from_config(&c).is_err());
     }
 
     #[test]
@@ -173,7 +195,7 @@ mod tests {
         )
         .unwrap();
         let c = load_device_config(Some(&p)).unwrap();
-        assert_eq!(c.backend, "replay");
+        assert_eq!(c.backend, launch_config::device::DeviceBackend::Replay);
         assert!(c.replay.path.ends_with("x.csv"), "{}", c.replay.path);
         assert_eq!(c.peak_force_n, 3.3);
         std::fs::write(&p, "[device]\nbogus = 1\n").unwrap();

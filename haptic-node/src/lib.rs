@@ -19,26 +19,29 @@ pub mod servo;
 pub mod stats;
 pub mod transport;
 
+// The contact frame's W is laid out with msgs' row stride and solved by contact-lcp, which
+// has no dependencies and so keeps its own copy of the capacities: check they agree.
+const _: () = assert!(
+    msgs::MAX_CONTACTS == contact_lcp::MAX_CONTACTS
+        && msgs::ROWS_PER_CONTACT == contact_lcp::ROWS_PER_CONTACT
+        && msgs::MAX_ROWS == contact_lcp::MAX_ROWS,
+    "msgs and contact-lcp disagree on the contact capacity"
+);
+
 use std::path::PathBuf;
 
 /// Command-line arguments of the haptic node (also used by `arthrosim node haptic`).
 #[derive(Debug, Clone, Default, clap::Args)]
 pub struct NodeArgs {
-    /// Launch file (TOML); its `[device]` section configures this node. None: defaults.
-    #[arg(long, value_name = "FILE")]
-    pub launch: Option<PathBuf>,
-    /// Session name (iceoryx2 service prefix). Default: $ARTHROSIM_SESSION or `default`.
-    #[arg(long, value_name = "NAME")]
-    pub session: Option<String>,
-    /// Directory for the run summary (`haptic-stats.json`).
-    #[arg(long, value_name = "DIR")]
-    pub out: Option<PathBuf>,
+    /// `--launch` (its `[device]` section), `--session`, `--out` (`haptic-stats.json`).
+    #[command(flatten)]
+    pub common: launch_config::node::CommonArgs,
     /// Stop after this many seconds (default: until SIGINT/SIGTERM or the device ends).
     #[arg(long)]
     pub seconds: Option<f64>,
     /// Override `[device] backend` (touch | emulated | replay).
     #[arg(long, value_name = "BACKEND")]
-    pub device: Option<String>,
+    pub device: Option<launch_config::device::DeviceBackend>,
     /// Replay this CSV trajectory (sets the backend to `replay`).
     #[arg(long, value_name = "CSV")]
     pub replay: Option<PathBuf>,
@@ -57,12 +60,7 @@ pub fn run_node(args: NodeArgs) -> anyhow::Result<()> {
     node::run(args)
 }
 
-/// Logs to stderr (stdout carries the READY line); `RUST_LOG` filters.
+/// Logs to stderr at `info` (the nodes' shared setup).
 pub fn init_tracing() {
-    let _ = tracing_subscriber::fmt()
-        .with_writer(std::io::stderr)
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
-        )
-        .try_init();
+    launch_config::node::init_tracing("info");
 }

@@ -4,10 +4,11 @@ use crate::config::{load_device_config, Limits};
 use crate::device::{self, operator, DeviceSample};
 use crate::render::{boxed_frame, norm, Renderer, TickOutput};
 use crate::servo;
-use crate::stats::{Histogram, LoopStats};
+use crate::stats::{LatencyHistogram, LoopStats, TRANSPORT_MAX_NS};
 use crate::transport;
 use crate::NodeArgs;
 use anyhow::Context;
+use launch_config::device::{DeviceBackend, SiteSource};
 use msgs::haptic_to_monitor::HapticStats;
 use msgs::haptic_to_physics::{fault, DeviceState};
 use msgs::ipc::{self, Queue};
@@ -23,12 +24,12 @@ pub fn resolve_sites(
     launch: Option<&Path>,
 ) -> anyhow::Result<Vec<operator::Site>> {
     let e = &config.emulated;
-    match e.sites.as_str() {
-        "plane" => Ok(operator::plane_sites(
+    match e.sites {
+        SiteSource::Plane => Ok(operator::plane_sites(
             e.plane_height_m,
             e.probings_per_region,
         )),
-        "scene" => {
+        SiteSource::Scene => {
             let scene = match launch {
                 Some(p) => {
                     launch_config::load(p)
@@ -55,7 +56,6 @@ pub fn resolve_sites(
                 })
                 .collect())
         }
-        other => anyhow::bail!("[device.emulated] sites = {other:?}: expected `scene` or `plane`"),
     }
 }
 
@@ -95,7 +95,7 @@ pub struct Summary {
 fn fill_stats(
     s: &mut HapticStats,
     st: &LoopStats,
-    transport: &Histogram,
+    transport: &LatencyHistogram,
     elapsed_s: f64,
     last_force: [f64; 3],
 ) {
@@ -168,21 +168,21 @@ fn publish_state(
 
 /// Runs the haptic node until SIGINT/SIGTERM, `--seconds`, or the device's end.
 pub fn run(args: NodeArgs) -> anyhow::Result<()> {
-    let session = ipc::session_name(args.session.as_deref())?;
-    let mut config = load_device_config(args.launch.as_deref())?;
-    if let Some(b) = &args.device {
-        config.backend = b.clone();
+    let session = ipc::session_name(args.common.session.as_deref())?;
+    let mut config = load_device_config(args.common.launch.as_deref())?;
+    if let Some(b) = args.device {
+        config.backend = b;
     }
     if let Some(p) = &args.replay {
-        config.backend = "replay".into();
+        config.backend = DeviceBackend::Replay;
         config.replay.path = p.display().to_string();
     }
     if args.no_realtime {
         config.realtime = false;
     }
     let limits = Limits::from_config(&config)?;
-    let sites = if config.backend == "emulated" {
-        resolve_sites(&config, args.launch.as_deref())?
+    let sites = if config.backend == DeviceBackend::Emulated {
+        resolve_sites(&config, args.common.launch.as_deref())?
     } else {
         Vec::new()
     };
@@ -199,7 +199,7 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
     let kind = device.kind() as u32;
     let instance = msgs::clock::new_instance_id();
 
-    let transport = Arc::new(Mutex::new(Histogram::new(50_000, 100)));
+    let transport = Arc::new(Mutex::new(LatencyHistogram::new(TRANSPORT_MAX_NS)));
     let probe_counters = Arc::new(transport::ProbeCounters::default());
     let probe_stop = Arc::new(AtomicBool::new(false));
     // Below the servo thread, so the probe never delays a tick.
@@ -228,10 +228,11 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
 
     // Everything the loop touches is allocated here.
     let mut renderer = Renderer::new(limits.clone());
+    renderer.set_device_instance(instance);
     let mut incoming = boxed_frame();
     let mut sample = DeviceSample::default();
     let mut stats = LoopStats::new();
-    let mut transport_snapshot = Histogram::new(50_000, 100);
+    let mut transport_snapshot = LatencyHistogram::new(TRANSPORT_MAX_NS);
     let mut stats_msg: Box<HapticStats> = Box::new(HapticStats {
         instance_id: instance,
         sequence: 0,
@@ -290,9 +291,11 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
                 false
             }
         };
+        // Ticks up to sequence − 1 have been published: a frame can use no later sample.
+        renderer.set_device_sequence(sequence - 1);
         match ipc::take_newest(&frames, &mut incoming) {
             Ok(0) => {}
-            Ok(_) => renderer.accept_frame(&mut incoming),
+            Ok(_) => renderer.accept_frame(&mut incoming, now),
             Err(e) => {
                 if !logged_link {
                     tracing::warn!("contact frame link (logged once): {e}");
@@ -403,7 +406,7 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
     let transport_final = transport
         .lock()
         .map(|h| h.clone())
-        .unwrap_or_else(|_| Histogram::new(1, 1));
+        .unwrap_or_else(|_| LatencyHistogram::new(2));
     fill_stats(
         &mut stats_msg,
         &stats,
@@ -439,7 +442,7 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
         realtime: realtime.fifo && realtime.locked,
     };
     tracing::info!(?summary, "haptic node stopped, force zero");
-    if let Some(dir) = &args.out {
+    if let Some(dir) = &args.common.out {
         std::fs::create_dir_all(dir)
             .with_context(|| format!("creating output directory {}", dir.display()))?;
         let path = dir.join("haptic-stats.json");

@@ -12,6 +12,10 @@ use std::time::{Duration, Instant};
 
 /// Norm of a 3-vector.
 #[inline]
+fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
 pub fn norm(v: [f64; 3]) -> f64 {
     (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
 }
@@ -200,6 +204,96 @@ pub struct TickOutput {
     pub contact_count: u32,
 }
 
+/// How far in the future (on this host's monotonic clock) a frame's `publish_ns` may lie:
+/// sampling `now` and taking the frame are not atomic, so a frame published between them is
+/// a few µs "ahead". Anything more is a wrong clock, and would make the frame never stale.
+pub const FUTURE_PUBLISH_TOLERANCE_NS: u64 = 1_000_000;
+
+/// Relative tolerance of W's symmetry (W = H A⁻¹ Hᵀ is symmetric; the physics builds it in
+/// double precision, so anything beyond rounding is a corrupt frame).
+const SYMMETRY_TOLERANCE: f64 = 1e-6;
+
+/// Why a contact frame was refused before any tick used it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FrameProblem {
+    Counts,
+    TimeStep,
+    Friction,
+    Pose,
+    FromTheFuture,
+    NonFinite,
+    NonPositiveDiagonal,
+    Asymmetric,
+}
+
+impl FrameProblem {
+    pub fn describe(self) -> &'static str {
+        match self {
+            FrameProblem::Counts => "contact or row count beyond capacity or inconsistent",
+            FrameProblem::TimeStep => "time step not finite and > 0",
+            FrameProblem::Friction => "friction coefficient not finite and ≥ 0",
+            FrameProblem::Pose => "a pose (proxy, probe free, probe) is not finite",
+            FrameProblem::FromTheFuture => "publish time later than now",
+            FrameProblem::NonFinite => "non-finite violation, direction or compliance",
+            FrameProblem::NonPositiveDiagonal => "compliance W has a diagonal entry ≤ 0",
+            FrameProblem::Asymmetric => "compliance W is not symmetric",
+        }
+    }
+}
+
+/// Every check a frame passes before a tick uses it (the contents the tick reads, at
+/// `now_ns`). Costs O(rows²) once per frame (~10 µs at 96 rows), not per tick.
+pub fn check_frame(frame: &ContactFrame, now_ns: u64) -> Result<(), FrameProblem> {
+    let rows = frame.row_count as usize;
+    let contacts = frame.contact_count as usize;
+    if contacts > msgs::MAX_CONTACTS || rows > MAX_ROWS || rows != contacts * msgs::ROWS_PER_CONTACT
+    {
+        return Err(FrameProblem::Counts);
+    }
+    if !(frame.dt_s.is_finite() && frame.dt_s > 0.0) {
+        return Err(FrameProblem::TimeStep);
+    }
+    if !(frame.friction_mu.is_finite() && frame.friction_mu >= 0.0) {
+        return Err(FrameProblem::Friction);
+    }
+    if !(frame.proxy_pose.is_finite()
+        && frame.probe_free_pose.is_finite()
+        && frame.probe_pose.is_finite())
+    {
+        return Err(FrameProblem::Pose);
+    }
+    if frame.publish_ns > now_ns.saturating_add(FUTURE_PUBLISH_TOLERANCE_NS) {
+        return Err(FrameProblem::FromTheFuture);
+    }
+    for i in 0..rows {
+        if !(frame.free_violation[i].is_finite()
+            && frame.constraint_directions[i].iter().all(|v| v.is_finite())
+            && frame.lambda[i].is_finite())
+        {
+            return Err(FrameProblem::NonFinite);
+        }
+        if !frame.compliance[i * MAX_ROWS..i * MAX_ROWS + rows]
+            .iter()
+            .all(|v| v.is_finite())
+        {
+            return Err(FrameProblem::NonFinite);
+        }
+        if !(frame.w(i, i) > 0.0) {
+            return Err(FrameProblem::NonPositiveDiagonal);
+        }
+    }
+    for i in 0..rows {
+        for j in i + 1..rows {
+            let (a, b) = (frame.w(i, j), frame.w(j, i));
+            let scale = (frame.w(i, i) * frame.w(j, j)).sqrt();
+            if (a - b).abs() > SYMMETRY_TOLERANCE * scale {
+                return Err(FrameProblem::Asymmetric);
+            }
+        }
+    }
+    Ok(())
+}
+
 /// Which fault kinds were already logged (log once each).
 #[derive(Debug, Default)]
 struct Logged(u32);
@@ -210,6 +304,15 @@ impl Logged {
         self.0 |= bit;
         first
     }
+}
+
+/// What the felt stiffness bound compares a tick with.
+#[derive(Debug, Clone, Copy)]
+struct PreviousTick {
+    instance: u64,
+    sequence: u64,
+    played: [f64; 3],
+    commanded: [f64; 3],
 }
 
 /// The per-tick contact force renderer.
@@ -229,6 +332,18 @@ pub struct Renderer {
     pub invalid_frames: u64,
     /// Faults raised on frame acceptance, reported with the next tick.
     pending_faults: u32,
+    /// This node's device instance (0: frames are not checked against it) and its newest
+    /// published tick: a frame must have been computed for one of our own samples.
+    device_instance: u64,
+    device_sequence: u64,
+    /// Non-zero while the newest frame may not be rendered (its fault bits): ramp to zero.
+    unrenderable: u32,
+    /// The stylus position the force is rendered for: the reading with per-axis play
+    /// (`position_hysteresis_m`); None until a finite reading.
+    played: Option<[f64; 3]>,
+    /// The previous tick's frame, played position and commanded force, for the felt
+    /// stiffness bound (None after any tick that did not render a solved force).
+    previous: Option<PreviousTick>,
 }
 
 /// A zeroed boxed frame without a large stack temporary.
@@ -253,7 +368,51 @@ impl Renderer {
             restarts: 0,
             invalid_frames: 0,
             pending_faults: 0,
+            device_instance: 0,
+            device_sequence: 0,
+            unrenderable: 0,
+            played: None,
+            previous: None,
         }
+    }
+
+    /// Render only frames computed for this device instance's samples.
+    pub fn set_device_instance(&mut self, instance: u64) {
+        self.device_instance = instance;
+    }
+
+    /// The newest device tick this node published (frames may not claim a later one).
+    pub fn set_device_sequence(&mut self, sequence: u64) {
+        self.device_sequence = sequence;
+    }
+
+    /// Why `frame` must not be rendered (fault bits; 0: it may be): a physics fault flag, a
+    /// probe driven by an external target, another device's (or a future) sample, or a
+    /// sample older than the staleness limit.
+    fn refusal(&self, frame: &ContactFrame) -> u32 {
+        use msgs::physics_to_haptic::drive;
+        let mut bits = 0;
+        if frame.physics_faults != 0 {
+            bits |= fault::PHYSICS_FAULT;
+        }
+        if frame.drive & drive::EXTERNAL_TARGET != 0 {
+            bits |= fault::FOREIGN_FRAME;
+        }
+        if self.device_instance != 0 {
+            let used = frame.device_sequence_used;
+            if frame.device_instance_used != self.device_instance
+                || used == 0
+                || used > self.device_sequence
+            {
+                bits |= fault::FOREIGN_FRAME;
+            } else {
+                let lag_ns = (self.device_sequence - used) as f64 * 1e9 / self.limits.rate_hz;
+                if lag_ns > self.limits.stale_frame_ns as f64 {
+                    bits |= fault::STALE_FRAME;
+                }
+            }
+        }
+        bits
     }
 
     pub fn limits(&self) -> &Limits {
@@ -278,17 +437,37 @@ impl Renderer {
         self.limiter.ramp_down(now_ns)
     }
 
-    /// Offers a newly received frame. `incoming` is swapped with the current frame when it
-    /// is valid (no copy, no allocation); an invalid frame is quarantined and the previous
-    /// one kept (it will age out and ramp the force down if nothing valid follows).
-    pub fn accept_frame(&mut self, incoming: &mut Box<ContactFrame>) {
-        if !incoming.is_valid() {
+    /// Offers a newly received frame at `now_ns`. `incoming` is swapped with the current
+    /// frame when it is this device's own and passes [`check_frame`] (no copy, no
+    /// allocation); an invalid frame is quarantined and the previous one kept (it will age
+    /// out and ramp the force down if nothing valid follows). The accepted frame's W gets
+    /// the virtual coupling.
+    pub fn accept_frame(&mut self, incoming: &mut Box<ContactFrame>, now_ns: u64) {
+        let refused = self.refusal(incoming);
+        if refused != 0 {
+            // Not swapped in, and the frame in use stops being rendered too: the force ramps
+            // to zero until a frame computed for this device's own state arrives.
+            self.unrenderable = refused;
+            self.pending_faults |= refused;
+            let new_kinds = refused & !self.logged.0;
+            self.logged.0 |= refused;
+            if new_kinds != 0 {
+                tracing::warn!(
+                    sequence = incoming.sequence,
+                    faults = refused,
+                    "contact frame not for this device's state or physically faulty: ramping force to zero (logged once)"
+                );
+            }
+            return;
+        }
+        if let Err(problem) = check_frame(incoming, now_ns) {
             self.invalid_frames += 1;
             self.pending_faults |= fault::INVALID_FRAME;
             if self.logged.first(fault::INVALID_FRAME) {
                 tracing::warn!(
                     sequence = incoming.sequence,
-                    "contact frame with non-finite or out-of-range content quarantined (logged once)"
+                    "contact frame quarantined: {} (logged once)",
+                    problem.describe()
                 );
             }
             return;
@@ -306,10 +485,38 @@ impl Renderer {
         }
         core::mem::swap(incoming, &mut self.current);
         self.have_frame = true;
+        self.unrenderable = 0;
+        self.add_coupling();
         // Warm start from the physics solution of this frame (same rows, solved at δ_free);
         // the solver discards non-finite entries.
         let rows = self.current.row_count as usize;
         self.lambda[..rows].copy_from_slice(&self.current.lambda[..rows]);
+    }
+
+    /// The virtual coupling: a spring of stiffness k_c between the stylus and the rigid
+    /// probe, in series with the contact compliance. Over a step, a force F on the spring
+    /// stretches it F/k_c, an impulse λ moves every contact row i by hᵢ·(Σⱼ hⱼλⱼ)/(k_c·dt)
+    /// (translational parts): W' = W + H_t H_tᵀ/(k_c·dt), a positive semi-definite rank-3
+    /// term. Whatever the tissue (even rigid, W = 0), the probe's translation under the
+    /// stylus then has a compliance of at least 1/k_c: the rendered tissue force changes by
+    /// at most k_c per metre of stylus travel, the felt force by at most scale·k_c, the
+    /// device's stiffness limit. Each contact's own spring would multiply that by the number
+    /// of contacts in touch; one spring for the probe does not.
+    fn add_coupling(&mut self) {
+        let frame = &mut *self.current;
+        let c = self.limits.coupling_compliance_m_per_n / frame.dt_s;
+        if !(c > 0.0) {
+            return;
+        }
+        let rows = frame.row_count as usize;
+        for i in 0..rows {
+            let hi = frame.constraint_directions[i];
+            let row = &mut frame.compliance[i * MAX_ROWS..i * MAX_ROWS + rows];
+            for (j, w) in row.iter_mut().enumerate() {
+                let hj = &frame.constraint_directions[j];
+                *w += c * (hi[0] * hj[0] + hi[1] * hj[1] + hi[2] * hj[2]);
+            }
+        }
     }
 
     /// One tick at time `now_ns` (CLOCK_MONOTONIC) with the device's proxy pose (scene frame).
@@ -318,7 +525,10 @@ impl Renderer {
             faults: core::mem::take(&mut self.pending_faults),
             ..TickOutput::default()
         };
+        // Only a tick that renders a solved force sets it again.
+        let previous = self.previous.take();
         if !proxy.is_finite() || !velocity_finite {
+            self.played = None;
             out.faults |= fault::NONFINITE_DEVICE;
             if self.logged.first(fault::NONFINITE_DEVICE) {
                 tracing::warn!("non-finite device position quarantined: zero force (logged once)");
@@ -332,6 +542,18 @@ impl Renderer {
             out.faults |= faults;
             return out;
         }
+        // Play: a reading that reverses by less than the hysteresis (one encoder quantum)
+        // leaves the rendered position where it was; larger moves drag it along.
+        let h = self.limits.position_hysteresis_m;
+        let mut played = self.played.unwrap_or(proxy.position);
+        for (p, m) in played.iter_mut().zip(proxy.position) {
+            *p = p.clamp(m - h, m + h);
+        }
+        self.played = Some(played);
+        let proxy = &Pose {
+            position: played,
+            orientation: proxy.orientation,
+        };
         let frame = &*self.current;
         out.frame_age_ns = now_ns.saturating_sub(frame.publish_ns);
         out.frame_sequence = frame.sequence;
@@ -345,6 +567,11 @@ impl Renderer {
                     "contact frame stale: ramping force to zero (logged once)"
                 );
             }
+            out.rendered = self.limiter.ramp_down(now_ns);
+            return out;
+        }
+        if self.unrenderable != 0 {
+            out.faults |= self.unrenderable;
             out.rendered = self.limiter.ramp_down(now_ns);
             return out;
         }
@@ -397,8 +624,8 @@ impl Renderer {
                 force[2] += h[2] * l;
             }
         }
-        out.commanded = force;
         if !force.iter().all(|v| v.is_finite()) {
+            out.commanded = force;
             out.faults |= fault::NONFINITE_FORCE;
             if self.logged.first(fault::NONFINITE_FORCE) {
                 tracing::warn!("non-finite contact force quarantined: zero force (logged once)");
@@ -406,10 +633,50 @@ impl Renderer {
             out.rendered = self.limiter.zero(now_ns);
             return out;
         }
+        let force = self.bound_felt_stiffness(previous, force, proxy.position);
+        out.commanded = force;
         let (f, faults) = self.limiter.limit(now_ns, force);
         out.rendered = f;
         out.faults |= faults;
         out
+    }
+
+    /// Within one contact frame the force may change only as the stylus moves, by at most
+    /// the device's felt stiffness limit times the move. The virtual coupling already bounds
+    /// the exact LCP solution so; this holds the bound where the solver does not: a
+    /// frictional LCP has more than one solution, and a warm-started solver can jump between
+    /// them at a still or slowly moving hand (render_props: 7 contacts at μ 0.86 gave
+    /// 1.6 N/mm against the Touch's 1.02 N/mm). A new frame lifts the bound; the rate limiter
+    /// then governs the change.
+    fn bound_felt_stiffness(
+        &mut self,
+        previous: Option<PreviousTick>,
+        force: [f64; 3],
+        played: [f64; 3],
+    ) -> [f64; 3] {
+        let frame = &*self.current;
+        let mut bounded = force;
+        if let Some(p) = previous {
+            if p.instance == frame.instance_id && p.sequence == frame.sequence {
+                let moved = norm(sub(played, p.played));
+                let change = sub(force, p.commanded);
+                let allowed = self.limits.felt_stiffness_limit_n_per_m * moved;
+                let changed = norm(change);
+                if changed > allowed {
+                    let keep = allowed / changed;
+                    for k in 0..3 {
+                        bounded[k] = p.commanded[k] + change[k] * keep;
+                    }
+                }
+            }
+        }
+        self.previous = Some(PreviousTick {
+            instance: frame.instance_id,
+            sequence: frame.sequence,
+            played,
+            commanded: bounded,
+        });
+        bounded
     }
 
     /// Δx = [translation, rotation vector] of the proxy since the frame's reference pose.
@@ -462,8 +729,31 @@ mod tests {
 
     const MS: u64 = 1_000_000;
 
+    /// Default limits without the position play (these tests compare exact forces at
+    /// exact positions; the play has a test of its own).
     fn limits() -> Limits {
-        Limits::from_config(&launch_config::DeviceConfig::default()).unwrap()
+        Limits {
+            position_hysteresis_m: 0.0,
+            ..Limits::from_config(&launch_config::DeviceConfig::default()).unwrap()
+        }
+    }
+
+    /// Limits with an explicit force scale (the coupling follows: k_c = limit / scale).
+    fn scaled(force_scale: f64) -> Limits {
+        Limits {
+            position_hysteresis_m: 0.0,
+            ..Limits::from_config(&launch_config::DeviceConfig {
+                force_scale,
+                ..launch_config::DeviceConfig::default()
+            })
+            .unwrap()
+        }
+    }
+
+    /// Closed form: the half-space spring k in series with the coupling k_c, pressed `depth`,
+    /// times the scale.
+    fn felt(l: &Limits, k: f64, depth: f64) -> f64 {
+        l.force_scale * depth.max(0.0) / (1.0 / k + l.coupling_compliance_m_per_n)
     }
 
     /// A flat elastic half-space z = 0 of stiffness k under a point probe at `proxy_z`:
@@ -511,36 +801,39 @@ mod tests {
         (0..n).map(|i| r.tick(t0 + i * MS, &at(z), true)).collect()
     }
 
-    /// Re-publishes the current frame content as fresh (new sequence, publish time `t`).
-    fn refresh(r: &mut Renderer, f: &mut Box<ContactFrame>, t: u64) {
-        **f = *r.frame();
-        f.sequence += 1;
-        f.publish_ns = t;
-        r.accept_frame(f);
+    /// Re-publishes the half-space frame (k, computed at proxy height `z`) as fresh.
+    fn refresh(r: &mut Renderer, f: &mut Box<ContactFrame>, k: f64, z: f64, t: u64) {
+        let seq = r.frame().sequence + 1;
+        halfspace_frame(f, k, z, t, r.frame().instance_id, seq);
+        r.accept_frame(f, t);
     }
 
     #[test]
     fn renders_the_physics_force_at_the_frame_proxy_and_updates_with_displacement() {
-        let mut r = Renderer::new(limits());
+        let l = scaled(1.0);
+        let mut r = Renderer::new(l.clone());
         let mut f = boxed_frame();
-        halfspace_frame(&mut f, 500.0, -1e-3, 0, 7, 1);
-        r.accept_frame(&mut f);
-        // Rate limit 400 N/s → 0.4 N per tick: after 10 ticks the 0.5 N target is reached.
+        let k = 500.0;
+        halfspace_frame(&mut f, k, -1e-3, 0, 7, 1);
+        r.accept_frame(&mut f, 0);
+        // Rate limit 400 N/s → 0.4 N per tick: after 10 ticks the target is reached.
         let out = run(&mut r, MS, 10, -1e-3);
         let last = out.last().unwrap();
+        let want = felt(&l, k, 1e-3);
+        assert!((want - 1e-3 / (1.0 / 500.0 + 1.0 / 1000.0)).abs() < 1e-12);
         assert!(
-            (last.commanded[2] - 0.5).abs() < 1e-9,
-            "{:?}",
+            (last.commanded[2] - want).abs() < 1e-9,
+            "{:?} vs {want}",
             last.commanded
         );
-        assert!((last.rendered[2] - 0.5).abs() < 1e-9);
-        // 1 mm deeper than the frame's proxy: δ = δ_free + H·Δx → 1 N.
-        refresh(&mut r, &mut f, 10 * MS);
+        assert!((last.rendered[2] - want).abs() < 1e-9);
+        // 1 mm deeper than the frame's proxy: δ = δ_free + H·Δx → twice the force.
+        refresh(&mut r, &mut f, k, -1e-3, 10 * MS);
         let out = run(&mut r, 11 * MS, 10, -2e-3);
-        assert!((out.last().unwrap().rendered[2] - 1.0).abs() < 1e-9);
-        assert!((out.last().unwrap().commanded[2] - 1.0).abs() < 1e-9);
+        assert!((out.last().unwrap().rendered[2] - 2.0 * want).abs() < 1e-9);
+        assert!((out.last().unwrap().commanded[2] - 2.0 * want).abs() < 1e-9);
         // Lifted above the surface: no force.
-        refresh(&mut r, &mut f, 20 * MS);
+        refresh(&mut r, &mut f, k, -1e-3, 20 * MS);
         let out = run(&mut r, 21 * MS, 10, 1e-3);
         assert_eq!(out.last().unwrap().commanded, [0.0; 3]);
         assert_eq!(out.last().unwrap().rendered, [0.0; 3]);
@@ -548,19 +841,19 @@ mod tests {
 
     #[test]
     fn stale_frame_ramps_to_zero_within_the_ramp_time_and_holds_zero() {
-        let mut r = Renderer::new(limits());
+        let mut r = Renderer::new(scaled(1.0));
         let mut f = boxed_frame();
-        halfspace_frame(&mut f, 2000.0, -1e-3, 0, 7, 1); // 2 N target
-        r.accept_frame(&mut f);
+        halfspace_frame(&mut f, 2000.0, -3e-3, 0, 7, 1); // 2 N target through the coupling
+        r.accept_frame(&mut f, 0);
         // Let the force build up (rate limit) but stay fresh: ticks at 1..=15 ms.
-        let built = run(&mut r, MS, 15, -1e-3);
+        let built = run(&mut r, MS, 15, -3e-3);
         let before = norm(built.last().unwrap().rendered);
         assert!(before > 1.0, "{before}");
         // From 21 ms on the frame (published at 0) is stale (> 20 ms).
         let mut t_stale = None;
         for i in 16..100u64 {
             let t = i * MS + MS / 3;
-            let o = r.tick(t, &at(-1e-3), true);
+            let o = r.tick(t, &at(-3e-3), true);
             assert!(norm(o.rendered) <= 3.3);
             if o.faults & fault::STALE_FRAME != 0 {
                 let t0 = *t_stale.get_or_insert(t);
@@ -588,7 +881,7 @@ mod tests {
                 t += MS;
                 seq += 1;
                 halfspace_frame(&mut f, k, -5e-3, t - MS / 2, 3, seq);
-                r.accept_frame(&mut f);
+                r.accept_frame(&mut f, t);
                 let o = r.tick(t, &at(-8e-3), true);
                 assert!(o.faults & fault::STALE_FRAME == 0);
                 assert!(norm(o.rendered) <= 3.3, "{:?}", o.rendered);
@@ -619,12 +912,12 @@ mod tests {
 
     #[test]
     fn physics_restart_resumes_without_a_step_above_the_rate_limit() {
-        let lim = limits();
+        let lim = scaled(1.0);
         let max_step = lim.max_force_rate_n_per_s * 1e-3 + 1e-12;
         let mut r = Renderer::new(lim);
         let mut f = boxed_frame();
         halfspace_frame(&mut f, 1500.0, -1e-3, 0, 11, 500);
-        r.accept_frame(&mut f);
+        r.accept_frame(&mut f, 0);
         let mut prev = [0.0; 3];
         let mut t = 0;
         let check = |o: &TickOutput, prev: &mut [f64; 3]| {
@@ -649,12 +942,12 @@ mod tests {
         assert_eq!(r.last_force(), [0.0; 3]);
         prev = r.last_force();
         // A new instance with sequence 1 and a larger force.
-        halfspace_frame(&mut f, 3000.0, -1e-3, t, 12, 1);
-        r.accept_frame(&mut f);
+        halfspace_frame(&mut f, 3000.0, -2e-3, t, 12, 1);
+        r.accept_frame(&mut f, t);
         assert_eq!(r.restarts, 1);
         for _ in 0..15 {
             t += MS;
-            let o = r.tick(t, &at(-1e-3), true);
+            let o = r.tick(t, &at(-2e-3), true);
             assert_eq!(o.frame_instance, 12);
             assert!(
                 check(&o, &mut prev) <= max_step,
@@ -664,7 +957,7 @@ mod tests {
         assert!(norm(r.last_force()) > 0.8, "resumed: {:?}", r.last_force());
         // Same instance, sequence going back also counts as a restart.
         halfspace_frame(&mut f, 3000.0, -1e-3, t, 12, 0);
-        r.accept_frame(&mut f);
+        r.accept_frame(&mut f, t);
         assert_eq!(r.restarts, 2);
     }
 
@@ -673,7 +966,7 @@ mod tests {
         let mut r = Renderer::new(limits());
         let mut f = boxed_frame();
         halfspace_frame(&mut f, 500.0, -1e-3, 0, 7, 1);
-        r.accept_frame(&mut f);
+        r.accept_frame(&mut f, 0);
         run(&mut r, MS, 5, -1e-3);
         assert!(norm(r.last_force()) > 0.0);
         // NaN proxy position → zero now.
@@ -692,7 +985,7 @@ mod tests {
         // NaN frame content → frame rejected, previous kept.
         halfspace_frame(&mut f, 500.0, -1e-3, 8 * MS, 7, 2);
         f.compliance[0] = f64::NAN;
-        r.accept_frame(&mut f);
+        r.accept_frame(&mut f, 8 * MS);
         assert_eq!(r.invalid_frames, 1);
         assert_eq!(r.frame().sequence, 1);
         let o = r.tick(9 * MS, &at(-1e-3), true);
@@ -700,12 +993,170 @@ mod tests {
         assert!(o.rendered.iter().all(|v| v.is_finite()));
         // A frame whose impulse overflows to infinity is zeroed or clamped, never rendered.
         halfspace_frame(&mut f, 1e300, -1e10, 9 * MS, 7, 3);
-        r.accept_frame(&mut f);
+        r.accept_frame(&mut f, 9 * MS);
         for i in 10..20 {
             let o = r.tick(i * MS, &at(-1e10), true);
             assert!(o.rendered.iter().all(|v| v.is_finite()));
             assert!(norm(o.rendered) <= 3.3);
         }
+    }
+
+    /// `n` contacts in a row under the probe (the hook's arm flat on the surface), all with
+    /// normal +z, each a half-space spring k (W = 1/(k·dt) per row), computed at `proxy_z`.
+    fn flat_arm_frame(frame: &mut ContactFrame, n: usize, k: f64, proxy_z: f64, t: u64, seq: u64) {
+        halfspace_frame(frame, k, proxy_z, t, 5, seq);
+        frame.contact_count = n as u32;
+        frame.row_count = 3 * n as u32;
+        for c in 0..n {
+            let r = 3 * c;
+            frame.constraint_directions[r] = [0.0, 0.0, 1.0, 0.0, 0.0, 0.0];
+            frame.constraint_directions[r + 1] = [1.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+            frame.constraint_directions[r + 2] = [0.0, 1.0, 0.0, 0.0, 0.0, 0.0];
+            frame.free_violation[r] = proxy_z;
+            frame.free_violation[r + 1] = 0.0;
+            frame.free_violation[r + 2] = 0.0;
+            for q in 0..3 {
+                frame.compliance[(r + q) * MAX_ROWS + r + q] = 1.0 / (k * frame.dt_s);
+            }
+        }
+    }
+
+    /// The felt stiffness (rendered force change per stylus displacement, one encoder
+    /// quantum at a time) never exceeds the device limit, on any tissue, however many
+    /// contacts touch; and on soft tissue the coupling barely changes it.
+    #[test]
+    fn felt_stiffness_never_exceeds_the_device_limit() {
+        for mut l in [limits(), scaled(1.0), scaled(0.05)] {
+            // The coupling's bound, not the 200 µs budget, is under test: a solve cut short
+            // by a loaded machine is feasible but not converged.
+            l.lcp_budget_ns = 1_000_000_000;
+            let limit = l.felt_stiffness_limit_n_per_m;
+            assert!(
+                limit <= 1020.0
+                    && (l.force_scale / l.coupling_compliance_m_per_n - limit).abs() < 1e-6
+            );
+            let mut worst: f64 = 0.0;
+            for (n, k) in [
+                (1, 300.0),
+                (1, 3e3),
+                (1, 1e5),
+                (1, 1e9),
+                (32, 5e4),
+                (32, 1e9),
+            ] {
+                let mut r = Renderer::new(l.clone());
+                let mut f = boxed_frame();
+                flat_arm_frame(&mut f, n, k, 0.0, 0, 1);
+                r.accept_frame(&mut f, 0);
+                let q = 0.055e-3;
+                let mut prev: Option<f64> = None;
+                for i in 0..40u64 {
+                    let z = -(i as f64) * q;
+                    // Fresh frame content each step (same frame), commanded before limits.
+                    let o = r.tick(MS, &at(z), true);
+                    let fz = o.commanded[2];
+                    if let Some(p) = prev {
+                        let k_felt = (fz - p) / q;
+                        worst = worst.max(k_felt);
+                        assert!(
+                            k_felt <= limit * (1.0 + 1e-9),
+                            "{n} contacts, k {k}: felt {k_felt} N/m above {limit}"
+                        );
+                    }
+                    prev = Some(fz);
+                }
+                if n == 1 && k == 300.0 {
+                    // Soft tissue: scale × series(k, k_c), within a few % of scale × k.
+                    let series = 1.0 / (1.0 / k + l.coupling_compliance_m_per_n);
+                    let at_depth = felt(&l, k, 39.0 * q);
+                    assert!((prev.unwrap() - at_depth).abs() < 1e-9);
+                    assert!(series > 0.9 * k || l.force_scale == 1.0, "{series}");
+                }
+            }
+            // A rigid tissue is felt at the limit itself.
+            assert!(worst > 0.95 * limit, "worst {worst} vs {limit}");
+        }
+    }
+
+    #[test]
+    fn frames_with_bad_content_are_refused_and_the_previous_one_kept() {
+        let mut r = Renderer::new(limits());
+        let mut f = boxed_frame();
+        halfspace_frame(&mut f, 500.0, -1e-3, 0, 7, 1);
+        r.accept_frame(&mut f, 0);
+        assert_eq!(r.frame().sequence, 1);
+        type Spoil = fn(&mut ContactFrame);
+        let cases: [(FrameProblem, Spoil); 9] = [
+            (FrameProblem::Pose, |f| f.proxy_pose.position[1] = f64::NAN),
+            (FrameProblem::Pose, |f| {
+                f.probe_pose.orientation[3] = f64::INFINITY
+            }),
+            (FrameProblem::FromTheFuture, |f| f.publish_ns = 50 * MS),
+            (FrameProblem::Friction, |f| f.friction_mu = -0.1),
+            (FrameProblem::NonPositiveDiagonal, |f| {
+                f.compliance[MAX_ROWS + 1] = 0.0
+            }),
+            (FrameProblem::Asymmetric, |f| f.compliance[1] = 1e-3),
+            (FrameProblem::Counts, |f| f.contact_count = 33),
+            (FrameProblem::Counts, |f| f.row_count = 4),
+            (FrameProblem::TimeStep, |f| f.dt_s = 0.0),
+        ];
+        for (i, (problem, spoil)) in cases.iter().enumerate() {
+            let mut f = boxed_frame();
+            halfspace_frame(&mut f, 500.0, -1e-3, 2 * MS, 7, 2 + i as u64);
+            assert_eq!(check_frame(&f, 2 * MS), Ok(()));
+            spoil(&mut f);
+            assert_eq!(check_frame(&f, 2 * MS), Err(*problem), "case {i}");
+            r.accept_frame(&mut f, 2 * MS);
+            assert_eq!(r.frame().sequence, 1, "case {i} kept the previous frame");
+            let o = r.tick(3 * MS, &at(-1e-3), true);
+            assert!(o.faults & fault::INVALID_FRAME != 0);
+        }
+        assert_eq!(r.invalid_frames, cases.len() as u64);
+        // A frame published within the tolerance ahead of `now` is fine.
+        halfspace_frame(
+            &mut f,
+            500.0,
+            -1e-3,
+            2 * MS + FUTURE_PUBLISH_TOLERANCE_NS,
+            7,
+            20,
+        );
+        r.accept_frame(&mut f, 2 * MS);
+        assert_eq!(r.frame().sequence, 20);
+    }
+
+    /// A reading dithering between two neighbouring quanta renders one force; a move of
+    /// two quanta is followed (less the play).
+    #[test]
+    fn position_play_absorbs_a_one_quantum_dither() {
+        let l = Limits::from_config(&launch_config::DeviceConfig::default()).unwrap();
+        let q = 0.055e-3;
+        assert!(l.position_hysteresis_m > q / 2.0 && l.position_hysteresis_m < q);
+        let mut r = Renderer::new(l.clone());
+        let mut f = boxed_frame();
+        halfspace_frame(&mut f, 57e3, -1e-3, 0, 7, 1);
+        r.accept_frame(&mut f, 0);
+        let z0 = -1e-3;
+        let mut forces = Vec::new();
+        for i in 0..16u64 {
+            let z = if i % 2 == 0 { z0 } else { z0 - q };
+            forces.push(r.tick((i + 1) * MS, &at(z), true).commanded[2]);
+        }
+        // The first reversal settles the played position inside the band; from then on the
+        // dither between the two quanta changes nothing.
+        assert!(
+            forces[1..].windows(2).all(|p| p[0] == p[1]),
+            "one force while dithering: {forces:?}"
+        );
+        // Two quanta deeper: followed, less the play.
+        let o = r.tick(17 * MS, &at(z0 - 2.0 * q), true);
+        let want = felt(&l, 57e3, -(z0 - 2.0 * q) - l.position_hysteresis_m);
+        assert!(
+            (o.commanded[2] - want).abs() < 1e-9,
+            "{} vs {want}",
+            o.commanded[2]
+        );
     }
 
     #[test]

@@ -19,7 +19,7 @@
 //! watched: its latency is an upper bound (counted as `unwatched`, still recorded, and the
 //! window margin doubles).
 
-use crate::stats::Histogram;
+use crate::stats::{LatencyHistogram, TRANSPORT_MAX_NS};
 use msgs::ipc::{self, Queue};
 use msgs::physics_to_haptic::ContactFrame;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -95,7 +95,7 @@ pub fn spawn(
     session: String,
     fifo_priority: Option<i32>,
     stop: Arc<AtomicBool>,
-    hist: Arc<Mutex<Histogram>>,
+    hist: Arc<Mutex<LatencyHistogram>>,
     counters: Arc<ProbeCounters>,
 ) -> std::thread::JoinHandle<()> {
     std::thread::spawn(move || {
@@ -190,14 +190,14 @@ fn stopped(stop: &AtomicBool) -> bool {
 fn watch(
     session: &str,
     stop: &AtomicBool,
-    hist: &Mutex<Histogram>,
+    hist: &Mutex<LatencyHistogram>,
     counters: &ProbeCounters,
     mut cpus: KeepOff,
 ) -> anyhow::Result<()> {
     let node = ipc::create_node("haptic-transport")?;
     let sub = ipc::subscriber::<ContactFrame>(&node, session, Queue::Newest)?;
     let fifo = counters.fifo.load(Ordering::Relaxed);
-    let mut local = Histogram::new(50_000, 100);
+    let mut local = LatencyHistogram::new(TRANSPORT_MAX_NS);
     let mut last_merge = msgs::clock::monotonic_ns();
     let mut margin_ns = INITIAL_MARGIN_NS;
     // Watching until this time for the next frame; None: no frame expected (idle polling).

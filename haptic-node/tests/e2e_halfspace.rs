@@ -17,13 +17,32 @@ fn physics(session: &str, stiffness: f64) -> Proc {
     )
 }
 
+/// Force scale 1 and the Touch's default 1000 N/m stiffness limit: the virtual coupling is
+/// 1000 N/m in series with the half-space.
+const COUPLING: f64 = 1000.0;
+
+/// Closed form of the rendered force: the half-space k in series with the coupling.
+fn felt(k: f64, depth: f64) -> f64 {
+    depth.max(0.0) / (1.0 / k + 1.0 / COUPLING)
+}
+
 fn haptic(session: &str, trajectory: &std::path::Path) -> Proc {
+    let launch = trajectory.with_extension("toml");
+    std::fs::write(
+        &launch,
+        format!(
+            "[device]\nforce_scale = 1.0\nmax_stiffness_n_per_m = {COUPLING}\nposition_hysteresis_m = 0.0\n"
+        ),
+    )
+    .unwrap();
     Proc::start(
         "haptic-node",
         &haptic_exe(),
         &[
             "--session",
             session,
+            "--launch",
+            launch.to_str().unwrap(),
             "--replay",
             trajectory.to_str().unwrap(),
         ],
@@ -58,8 +77,8 @@ fn haptic_force_matches_the_physics_force_at_the_same_proxy() {
         "clean stop on SIGTERM"
     );
 
-    // 1. While the proxy rests where the physics frame was computed, the haptic force equals
-    //    the physics force of that frame.
+    // 1. While the proxy rests where the physics frame was computed, the haptic force is the
+    //    physics force of that frame through the coupling: k_c/(k + k_c) of it.
     let mut same_proxy = 0;
     for st in &w.seen_states {
         let Some(f) = w
@@ -72,7 +91,8 @@ fn haptic_force_matches_the_physics_force_at_the_same_proxy() {
         if f.contact_count == 1 && f.proxy == st.proxy_pose.position && st.faults == 0 {
             same_proxy += 1;
             assert!(
-                (st.rendered_force[2] - f.contact_force[2]).abs() < 1e-6,
+                (st.rendered_force[2] - f.contact_force[2] * COUPLING / (k + COUPLING)).abs()
+                    < 1e-6,
                 "haptic {:?} vs physics {:?}",
                 st.rendered_force,
                 f.contact_force
@@ -84,14 +104,14 @@ fn haptic_force_matches_the_physics_force_at_the_same_proxy() {
         "ticks with the frame's proxy: {same_proxy}"
     );
     // 2. While the proxy moves, the local update δ = δ_free + H·Δx gives the force for the
-    //    proxy's *current* position (exact for a half-space).
+    //    proxy's *current* position (exact for a half-space, closed form with the coupling).
     let mut moving = 0;
     for st in &w.seen_states {
         let z = st.proxy_pose.position[2];
         if st.contact_count == 1 && st.faults & fault::STALE_FRAME == 0 && z < -1.05e-3 {
             moving += 1;
             assert!(
-                (st.commanded_force[2] - k * -z).abs() < 1e-6,
+                (st.commanded_force[2] - felt(k, -z)).abs() < 1e-6,
                 "z {z}: {:?}",
                 st.commanded_force
             );
@@ -132,7 +152,7 @@ fn kill9_of_physics_mid_contact_ramps_force_to_zero_within_10ms_of_staleness() {
     let traj = write_trajectory(
         &dir,
         "t.csv",
-        &[(0.0, [0.0, 0.0, -1e-3]), (60.0, [0.0, 0.0, -1e-3])],
+        &[(0.0, [0.0, 0.0, -2e-3]), (60.0, [0.0, 0.0, -2e-3])],
     );
     let mut phys = None;
     let (mut w, _hap) = established_contact(&s, &traj, &mut phys);
@@ -153,7 +173,7 @@ fn restarted_physics_is_picked_up_without_cleanup_and_without_a_force_step() {
     let traj = write_trajectory(
         &dir,
         "t.csv",
-        &[(0.0, [0.0, 0.0, -1e-3]), (60.0, [0.0, 0.0, -1e-3])],
+        &[(0.0, [0.0, 0.0, -2e-3]), (60.0, [0.0, 0.0, -2e-3])],
     );
     let mut phys = None;
     let (mut w, _hap) = established_contact(&s, &traj, &mut phys);
@@ -185,12 +205,12 @@ fn nan_proxy_position_produces_no_force() {
         &dir,
         "t.csv",
         &[
-            (0.0, [0.0, 0.0, -1e-3]),
-            (0.999, [0.0, 0.0, -1e-3]),
-            (1.0, [nan, 0.0, -1e-3]),
-            (1.5, [nan, 0.0, -1e-3]),
-            (1.501, [0.0, 0.0, -1e-3]),
-            (60.0, [0.0, 0.0, -1e-3]),
+            (0.0, [0.0, 0.0, -2e-3]),
+            (0.999, [0.0, 0.0, -2e-3]),
+            (1.0, [nan, 0.0, -2e-3]),
+            (1.5, [nan, 0.0, -2e-3]),
+            (1.501, [0.0, 0.0, -2e-3]),
+            (60.0, [0.0, 0.0, -2e-3]),
         ],
     );
     let mut w = Watcher::new(&s);

@@ -73,7 +73,10 @@ fn servo_tick_does_not_allocate() {
     let mut spare = boxed_frame();
     let mut emulated = EmulatedTouch::new(
         &config.emulated,
-        Protocol::new(&config.emulated, &plane_sites(0.0, 5)).unwrap(),
+        // Pressing to a felt force: the press ends (segments re-timed) inside the loop.
+        Protocol::new(&config.emulated, &plane_sites(0.0, 5))
+            .unwrap()
+            .with_felt_target(0.05),
         0,
     )
     .unwrap();
@@ -94,7 +97,7 @@ fn servo_tick_does_not_allocate() {
             *spare = *frame;
             spare.sequence = i + 1;
             spare.publish_ns = t;
-            renderer.accept_frame(&mut spare);
+            renderer.accept_frame(&mut spare, t);
         }
         emulated.sample(t, &mut sample).unwrap();
         replay.sample(t, &mut sample).unwrap();

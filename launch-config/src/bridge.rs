@@ -10,6 +10,17 @@
 //! [bridge.streams.contacts]
 //! enabled = false
 //! ```
+//!
+//! External control of the probe is off unless asked for:
+//!
+//! ```toml
+//! [bridge]
+//! accept_target_pose = true     # default false: <ns>/probe/target_pose is counted, refused
+//! [bridge.target_pose]
+//! workspace_margin_m = 0.02     # box = the scene's surface bounds grown by this margin
+//! max_jump_m = 0.005            # between consecutive accepted targets (or from the probe)
+//! max_rate_hz = 100             # faster targets are refused
+//! ```
 use serde::{Deserialize, Serialize};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -29,7 +40,50 @@ pub struct BridgeConfig {
     /// Touch base frame relative to the world frame.
     pub touch_base_pose: FramePose,
     pub streams: BridgeStreams,
+    /// Let `<ns>/probe/target_pose` drive the physics probe. Off by default: anyone on the
+    /// DDS domain can publish there, and while the probe follows a remote target the device
+    /// renders no force.
+    pub accept_target_pose: bool,
+    /// Bounds on accepted target poses (used only with `accept_target_pose`).
+    pub target_pose: TargetPoseLimits,
 }
+
+/// What a remote target pose must satisfy to be forwarded to physics; every refusal is
+/// counted and reported on `/diagnostics`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TargetPoseLimits {
+    /// Workspace box corners, world m. Absent: the bounds of the scene's deformed surface
+    /// (the first surface frame physics publishes) grown by `workspace_margin_m`; until that
+    /// frame has arrived, every target is refused.
+    pub workspace_min: Option<[f64; 3]>,
+    pub workspace_max: Option<[f64; 3]>,
+    /// Margin around the scene's surface bounds, m.
+    pub workspace_margin_m: f64,
+    /// Largest distance from the last accepted target (or, when none is recent, from the
+    /// probe's current position), m.
+    pub max_jump_m: f64,
+    /// Largest rate of accepted targets, Hz.
+    pub max_rate_hz: f64,
+}
+
+impl Default for TargetPoseLimits {
+    fn default() -> Self {
+        TargetPoseLimits {
+            workspace_min: None,
+            workspace_max: None,
+            workspace_margin_m: 0.02,
+            max_jump_m: 0.005,
+            max_rate_hz: 100.0,
+        }
+    }
+}
+
+/// Hard ceilings a launch file cannot raise: a jump of 5 cm in one command, a margin of
+/// 20 cm around the specimen, 1 kHz.
+pub const MAX_TARGET_JUMP_M: f64 = 0.05;
+pub const MAX_WORKSPACE_MARGIN_M: f64 = 0.2;
+pub const MAX_TARGET_RATE_HZ: f64 = 1000.0;
 
 impl Default for BridgeConfig {
     fn default() -> Self {
@@ -41,6 +95,25 @@ impl Default for BridgeConfig {
             meniscus_pose: FramePose::default(),
             touch_base_pose: FramePose::default(),
             streams: BridgeStreams::default(),
+            accept_target_pose: false,
+            target_pose: TargetPoseLimits::default(),
+        }
+    }
+}
+
+impl BridgeConfig {
+    /// The session → ROS 2 mapping these settings describe (namespace, world frame, fixed
+    /// frames); the bridge publishes and the recorder records through it.
+    pub fn ros_mapping(&self) -> msgs::ros_mapping::Mapping {
+        let pose = |f: &FramePose| msgs::Pose {
+            position: f.position,
+            orientation: f.orientation,
+        };
+        msgs::ros_mapping::Mapping {
+            namespace: self.namespace.clone(),
+            world_frame: self.world_frame.clone(),
+            meniscus_pose: pose(&self.meniscus_pose),
+            touch_base_pose: pose(&self.touch_base_pose),
         }
     }
 }
@@ -194,6 +267,10 @@ pub enum BridgeConfigError {
     Rate(&'static str, f64),
     #[error("bridge.{0}: orientation must be a finite unit quaternion [x, y, z, w]")]
     Frame(&'static str),
+    #[error("bridge.target_pose.{0} = {1}: must be finite, > 0 and at most {2}")]
+    TargetLimit(&'static str, f64, f64),
+    #[error("bridge.target_pose: workspace_min and workspace_max must both be given, finite, with min < max on every axis")]
+    Workspace,
 }
 
 impl BridgeConfig {
@@ -223,6 +300,27 @@ impl BridgeConfig {
             if !(frame.position.iter().all(|v| v.is_finite()) && (norm - 1.0).abs() < 1e-6) {
                 return Err(BridgeConfigError::Frame(name));
             }
+        }
+        let t = &self.target_pose;
+        for (name, value, max) in [
+            (
+                "workspace_margin_m",
+                t.workspace_margin_m,
+                MAX_WORKSPACE_MARGIN_M,
+            ),
+            ("max_jump_m", t.max_jump_m, MAX_TARGET_JUMP_M),
+            ("max_rate_hz", t.max_rate_hz, MAX_TARGET_RATE_HZ),
+        ] {
+            if !(value.is_finite() && value > 0.0 && value <= max) {
+                return Err(BridgeConfigError::TargetLimit(name, value, max));
+            }
+        }
+        match (t.workspace_min, t.workspace_max) {
+            (None, None) => {}
+            (Some(lo), Some(hi))
+                if lo.iter().chain(hi.iter()).all(|v| v.is_finite())
+                    && (0..3).all(|k| lo[k] < hi[k]) => {}
+            _ => return Err(BridgeConfigError::Workspace),
         }
         for (name, stream) in self.streams.named() {
             if stream.depth == 0 {
@@ -290,5 +388,35 @@ mod tests {
         cfg.validate().unwrap();
         cfg.streams.tf.rate_hz = -1.0;
         assert_eq!(cfg.validate(), Err(BridgeConfigError::Rate("tf", -1.0)));
+    }
+
+    #[test]
+    fn target_poses_are_refused_by_default_and_limits_are_bounded() {
+        let cfg: BridgeConfig = toml::from_str("").unwrap();
+        assert!(!cfg.accept_target_pose);
+        let cfg: BridgeConfig = toml::from_str(
+            "accept_target_pose = true\n[target_pose]\nmax_jump_m = 0.002\n\
+             workspace_min = [-0.1, -0.1, -0.05]\nworkspace_max = [0.1, 0.1, 0.1]\n",
+        )
+        .unwrap();
+        cfg.validate().unwrap();
+        assert!(cfg.accept_target_pose);
+        assert_eq!(cfg.target_pose.max_jump_m, 0.002);
+        let mut bad = cfg.clone();
+        bad.target_pose.max_jump_m = 1.0;
+        assert_eq!(
+            bad.validate(),
+            Err(BridgeConfigError::TargetLimit(
+                "max_jump_m",
+                1.0,
+                MAX_TARGET_JUMP_M
+            ))
+        );
+        let mut bad = cfg.clone();
+        bad.target_pose.workspace_max = None;
+        assert_eq!(bad.validate(), Err(BridgeConfigError::Workspace));
+        let mut bad = cfg;
+        bad.target_pose.workspace_min = Some([0.2, -0.1, -0.05]);
+        assert_eq!(bad.validate(), Err(BridgeConfigError::Workspace));
     }
 }

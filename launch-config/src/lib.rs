@@ -12,11 +12,15 @@
 //! loaded, so the [`LaunchFile`] a node receives only holds absolute paths.
 
 pub mod bridge;
+pub mod choices;
 pub mod device;
 pub mod load;
+pub mod node;
 pub mod recording;
 pub mod scene;
+pub mod training;
 pub mod validate;
+pub mod viewer;
 
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
@@ -26,7 +30,9 @@ pub use device::DeviceConfig;
 pub use load::{load, load_str, parse_str, Issue, LaunchError};
 pub use recording::RecordingConfig;
 pub use scene::SceneConfig;
+pub use training::TrainingConfig;
 pub use validate::validate;
+pub use viewer::ViewerConfig;
 
 /// The default session (parametric lateral meniscus, emulated Touch performing the study's
 /// probing protocol, bridge and recorder on), compiled into every binary so `arthrosim run`
@@ -63,6 +69,8 @@ pub struct LaunchFile {
     pub device: DeviceConfig,
     pub bridge: BridgeConfig,
     pub recording: RecordingConfig,
+    pub viewer: ViewerConfig,
+    pub training: TrainingConfig,
 }
 
 /// `[session]`: names and bounds of the session.

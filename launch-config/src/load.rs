@@ -101,7 +101,7 @@ pub fn load(path: impl AsRef<Path>) -> Result<LaunchFile, LaunchError> {
 pub fn load_str(text: &str, origin: impl AsRef<Path>) -> Result<LaunchFile, LaunchError> {
     let origin = origin.as_ref();
     let origin_name = origin.display().to_string();
-    let mut file = parse_str(text, &origin_name)?;
+    let (mut file, choice_issues) = parse_collecting(text, &origin_name)?;
     let base = origin
         .parent()
         .filter(|p| !p.as_os_str().is_empty())
@@ -109,7 +109,7 @@ pub fn load_str(text: &str, origin: impl AsRef<Path>) -> Result<LaunchFile, Laun
         .unwrap_or_else(|| PathBuf::from("."));
     resolve_paths(&mut file, &base);
     let mut issues = crate::validate(&file);
-    if issues.is_empty() {
+    if issues.is_empty() && choice_issues.is_empty() {
         return Ok(file);
     }
     // The text parsed above, so the spanned document parses too.
@@ -123,55 +123,134 @@ pub fn load_str(text: &str, origin: impl AsRef<Path>) -> Result<LaunchFile, Laun
             }
         }
     }
+    // Choice issues come first, in file order.
+    let mut all = choice_issues;
+    all.append(&mut issues);
     Err(LaunchError::Invalid {
         origin: origin_name,
-        issues,
+        issues: all,
     })
 }
 
 /// Parses and type-checks launch-file text without resolving paths or checking values.
 pub fn parse_str(text: &str, origin: &str) -> Result<LaunchFile, LaunchError> {
-    let invalid = |issue: Issue| LaunchError::Invalid {
+    match parse_collecting(text, origin)? {
+        (file, issues) if issues.is_empty() => Ok(file),
+        (_, issues) => Err(LaunchError::Invalid {
+            origin: origin.to_string(),
+            issues,
+        }),
+    }
+}
+
+/// Most unknown choices one parse collects before it gives up.
+const MAX_CHOICE_ISSUES: usize = 64;
+
+/// Parses and type-checks the text. A choice (an enum such as `[device] backend`) with an
+/// unknown value becomes an issue and is read as its default, so parsing goes on and every
+/// bad choice, and every other problem, is reported at once; any other type error ends the
+/// parse with that one issue.
+fn parse_collecting(text: &str, origin: &str) -> Result<(LaunchFile, Vec<Issue>), LaunchError> {
+    let invalid = |issues: Vec<Issue>| LaunchError::Invalid {
         origin: origin.to_string(),
-        issues: vec![issue],
+        issues,
     };
-    let doc = match DeTable::parse(text) {
-        Ok(doc) => doc,
-        Err(e) => return Err(invalid(syntax_issue(text, &e))),
-    };
-    match toml::from_str::<LaunchFile>(text) {
-        Ok(file) => Ok(file),
-        Err(e) => {
-            let index = SpanIndex::new(doc.get_ref());
-            let (key, span) = match e.span() {
-                Some(span) => (index.key_at(span.start), Some(span)),
-                None => ("<document>".to_string(), None),
-            };
-            let (line, column) = match span {
-                Some(s) => {
-                    let (l, c) = line_column(text, s.start);
-                    (Some(l), Some(c))
+    if let Err(e) = DeTable::parse(text) {
+        return Err(invalid(vec![syntax_issue(text, &e)]));
+    }
+    let defaults = toml::Value::try_from(LaunchFile::default()).ok();
+    let mut patched = text.to_string();
+    let mut issues = Vec::new();
+    loop {
+        let e = match toml::from_str::<LaunchFile>(&patched) {
+            Ok(file) => {
+                // serde meets the keys in struct order: report them in file order.
+                issues.sort_by_key(|i: &Issue| (i.line, i.column));
+                return Ok((file, issues));
+            }
+            Err(e) => e,
+        };
+        // The patched text still parses: only quoted values were replaced by quoted values.
+        let doc = DeTable::parse(&patched).map_err(|e| invalid(vec![syntax_issue(text, &e)]))?;
+        let index = SpanIndex::new(doc.get_ref());
+        let key = match e.span() {
+            Some(span) => index.key_at(span.start),
+            None => "<document>".to_string(),
+        };
+        let message = e.message().trim_end();
+        let unknown_choice = unknown_variant(message);
+        // A bad choice is located at its key, like the value checks of `crate::validate`;
+        // other errors where toml found them.
+        let at = match unknown_choice {
+            Some(_) => index.locate_key(&key).or(e.span()),
+            None => e.span(),
+        };
+        let (line, column) = match at {
+            Some(span) => {
+                let (l, c) = line_column(&patched, span.start);
+                (Some(l), Some(c))
+            }
+            None => (None, None),
+        };
+        issues.push(Issue {
+            key: key.clone(),
+            line,
+            column,
+            message: match &unknown_choice {
+                Some((value, allowed)) => {
+                    crate::choices::not_allowed(value, allowed.iter().map(String::as_str))
                 }
-                None => (None, None),
-            };
-            Err(invalid(Issue {
-                key,
-                line,
-                column,
-                message: explain(e.message()),
-            }))
+                None => explain(message),
+            },
+        });
+        // Read an unknown choice as its default (else its first allowed value) and go on.
+        let replacement = match (unknown_choice, e.span()) {
+            (Some((_, allowed)), Some(span))
+                if issues.len() < MAX_CHOICE_ISSUES
+                    && patched
+                        .get(span.clone())
+                        .is_some_and(|v| v.starts_with(['"', '\'']) && !v.contains('\n')) =>
+            {
+                let default = defaults
+                    .as_ref()
+                    .and_then(|d| default_string(d, &key))
+                    .or(allowed.into_iter().next());
+                default.map(|d| (span, d))
+            }
+            _ => None,
+        };
+        match replacement {
+            Some((span, value)) => patched.replace_range(span, &format!("{value:?}")),
+            None => return Err(invalid(issues)),
         }
     }
 }
 
+/// serde's "unknown variant `x`, expected one of `a`, `b`" (or "expected `a` or `b`"):
+/// the value and the allowed values.
+fn unknown_variant(message: &str) -> Option<(String, Vec<String>)> {
+    if !message.starts_with("unknown variant") {
+        return None;
+    }
+    let mut quoted = message.split('`').skip(1).step_by(2).map(str::to_string);
+    let value = quoted.next()?;
+    let allowed: Vec<String> = quoted.collect();
+    (!allowed.is_empty()).then_some((value, allowed))
+}
+
+/// The string at a dotted key of the defaults document.
+fn default_string(defaults: &toml::Value, key: &str) -> Option<String> {
+    key.split('.')
+        .try_fold(defaults, |v, k| v.get(k))?
+        .as_str()
+        .map(str::to_string)
+}
+
 /// toml/serde messages, with the allowed alternatives spelled out where serde does not.
 fn explain(message: &str) -> String {
-    let message = message.trim_end();
     if message.starts_with("unknown field") {
         // serde already says "expected one of `a`, `b`": the allowed keys.
         format!("{message} (unknown keys are errors)")
-    } else if message.starts_with("unknown variant") {
-        format!("{message} (allowed values listed after `expected`)")
     } else {
         message.to_string()
     }

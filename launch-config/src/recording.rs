@@ -30,7 +30,8 @@ pub struct RecordingConfig {
     /// How often the recorder drains its shared-memory queues, s. The device-state queue
     /// holds 2048 ticks (2 s at 1 kHz), so anything well below that loses nothing.
     pub drain_period_s: f64,
-    /// Rate of the meniscus surface marker in the file, Hz (0: not recorded).
+    /// Rate of the viewer-only topics in the file (meniscus surface marker, contact
+    /// markers), Hz (0: only the first).
     pub mesh_rate_hz: f64,
     /// Also record each physics step's contact problem (H rows, δ_free, W, λ for the active
     /// rows) in the ContactStep messages. Lossless for the haptic re-solve and the gap

@@ -4,6 +4,7 @@
 //! (the project's parametric meniscus), `study:lateral` / `study:medial` (the study's meshes
 //! from `ARTHROSIM_DATA`, with the study's scale and, for the lateral, its fixed nodes), or a
 //! path to a `.msh` file.
+pub use crate::choices::{CgMatrix, MaterialModel, MaterialPreset, RotationMethod, SolverKind};
 use serde::{Deserialize, Serialize};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -18,6 +19,10 @@ pub struct SceneConfig {
     pub solver: SolverConfig,
     pub contact: ContactConfig,
     pub probe: ProbeConfig,
+    pub faults: FaultConfig,
+    /// Material (degeneration grade) changes are prepared off the real-time loop and swapped
+    /// in; at most one change starts per this interval, s (later commands are coalesced).
+    pub material_change_interval_s: f64,
 }
 
 impl Default for SceneConfig {
@@ -30,6 +35,44 @@ impl Default for SceneConfig {
             solver: SolverConfig::default(),
             contact: ContactConfig::default(),
             probe: ProbeConfig::default(),
+            faults: FaultConfig::default(),
+            material_change_interval_s: 1.0,
+        }
+    }
+}
+
+/// `[scene.faults]`: the checks every physics step passes before its frame may be rendered.
+/// A step that fails one is published with a fault flag, rolled back and counted.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct FaultConfig {
+    /// Largest contact force on the probe that is physical for the scene, N. The study's
+    /// probings stay below 25 N and the Touch renders at most 3.3 N; a diverging contact
+    /// solve reaches 10⁴–10⁶ N.
+    pub max_contact_force_n: f64,
+    /// Deepest probe penetration left after the contact correction, m (a converged solve
+    /// leaves ~0; the contact distance is 1.1 mm).
+    pub max_penetration_m: f64,
+    /// Largest relative residual ‖b − AΔv‖/‖b‖ of the free-motion CG. The truncated CG (25
+    /// iterations) does not reach its tolerance by design; a residual of this size means it
+    /// made no progress at all.
+    pub max_cg_residual: f64,
+    /// Relative slack of the energy check: without contact, the tissue's kinetic energy may
+    /// not exceed the mechanical energy it had when the last contact ended by more than this.
+    pub energy_tolerance: f64,
+    /// After this many faulty steps in a row, roll back to the rest state instead of the last
+    /// good one.
+    pub rest_after_faults: u32,
+}
+
+impl Default for FaultConfig {
+    fn default() -> Self {
+        FaultConfig {
+            max_contact_force_n: 200.0,
+            max_penetration_m: 3e-3,
+            max_cg_residual: 1.0,
+            energy_tolerance: 0.05,
+            rest_after_faults: 3,
         }
     }
 }
@@ -89,11 +132,18 @@ impl Default for MeniscusConfig {
     }
 }
 
+/// Largest `[scene.material] strain_stiffening` rate (per unit strain): beyond it the
+/// modulus grows more than e^10 over a strain of 0.2, far stiffer than any soft tissue.
+pub const MAX_STRAIN_STIFFENING: f64 = 50.0;
+/// Largest `[scene.meniscus] support_stiffness`, N/m per node (a support this stiff is
+/// indistinguishable from holding the nodes).
+pub const MAX_SUPPORT_STIFFNESS: f64 = 1.0e7;
+
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct MaterialConfig {
     /// `lateral` (E 3.50 MPa, ν 0.29), `medial` (E 3.84 MPa, ν 0.26) or `custom`.
-    pub preset: String,
+    pub preset: MaterialPreset,
     /// Young's modulus, Pa; overrides the preset.
     pub youngs_modulus: Option<f64>,
     /// Poisson's ratio; overrides the preset.
@@ -101,11 +151,15 @@ pub struct MaterialConfig {
     /// Density, kg/m³.
     pub density: f64,
     /// `corotational` (linear corotational) or `neo-hookean` (stable neo-Hookean).
-    pub model: String,
+    pub model: MaterialModel,
     /// Degeneration grade 0..=2: modulus × (1 − 0.205 · grade), grade 2 = −41%.
     pub degeneration_grade: f64,
-    /// Extra global modulus scale (specimen variability).
+    /// Extra global modulus scale (specimen variability; fitted to measured probing in the
+    /// default scene).
     pub modulus_scale: f64,
+    /// Strain stiffening: element modulus × exp(rate · ε_eq) (ε_eq the element's von Mises
+    /// equivalent strain), 0 = linear. Allowed 0..=[`MAX_STRAIN_STIFFENING`].
+    pub strain_stiffening: f64,
     /// Rayleigh damping coefficients (mass, stiffness).
     pub rayleigh_mass: f64,
     pub rayleigh_stiffness: f64,
@@ -114,13 +168,14 @@ pub struct MaterialConfig {
 impl Default for MaterialConfig {
     fn default() -> Self {
         MaterialConfig {
-            preset: "lateral".into(),
+            preset: MaterialPreset::Lateral,
             youngs_modulus: None,
             poisson_ratio: None,
             density: 1090.0,
-            model: "corotational".into(),
+            model: MaterialModel::Corotational,
             degeneration_grade: 0.0,
             modulus_scale: 1.0,
+            strain_stiffening: 0.0,
             rayleigh_mass: 0.0,
             rayleigh_stiffness: 0.0,
         }
@@ -132,15 +187,15 @@ impl Default for MaterialConfig {
 pub struct SolverConfig {
     /// `cg` (SOFA's CG), `cg-jacobi`, `cg-cholesky`, `cg-warped-cholesky` (CG preconditioned
     /// by the rest factor, rotation-warped) or `direct` (faer sparse Cholesky every step).
-    pub kind: String,
+    pub kind: SolverKind,
     pub cg_iterations: u32,
     pub cg_tolerance: f64,
     /// Element rotation of the corotational FEM: `qr` (SOFA's "large", default) or `polar`.
-    pub rotation: String,
+    pub rotation: RotationMethod,
     /// Precision of the matrix the CG products read: `f32` (default; half the memory
     /// traffic, right for SOFA's truncated CG) or `f64` (for a CG that must converge
     /// below ~1e-6).
-    pub cg_matrix: String,
+    pub cg_matrix: CgMatrix,
     /// With the f32 CG matrix: re-rotate an element's stiffness blocks only once its rotation
     /// moved by more than this (≈ rad) since they were built; 0 = every element every step,
     /// as SOFA. Elastic forces always use the current rotation. At most
@@ -151,11 +206,11 @@ pub struct SolverConfig {
 impl Default for SolverConfig {
     fn default() -> Self {
         SolverConfig {
-            kind: "cg".into(),
+            kind: SolverKind::Cg,
             cg_iterations: 25,
             cg_tolerance: 1e-9,
-            rotation: "qr".into(),
-            cg_matrix: "f32".into(),
+            rotation: RotationMethod::Qr,
+            cg_matrix: CgMatrix::F32,
             // 1e-3 rad: a quarter of the default fine mesh's elements turn that far per step
             // while the probe slides; the mean contact force moves by < 1e-4 relative.
             stiffness_rotation_tolerance: 1e-3,

@@ -5,6 +5,7 @@
 //! Paths are checked as they are in the given [`LaunchFile`]; after [`crate::load`] they are
 //! absolute (resolved against the launch file's folder).
 
+use crate::choices::{DeviceBackend, MaterialPreset};
 use crate::load::{is_builtin_spec, Issue};
 use crate::scene::TransformConfig;
 use crate::LaunchFile;
@@ -87,19 +88,21 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
             "`inferior`, `none`, or a path to a file of 0-based node indices",
         );
     }
-    v.non_negative(
-        "scene.meniscus.support_stiffness",
-        m.support_stiffness,
-        "N/m per node; 0 holds the fixed nodes rigidly",
-    );
+    let max_support = crate::scene::MAX_SUPPORT_STIFFNESS;
+    if !(m.support_stiffness.is_finite() && (0.0..=max_support).contains(&m.support_stiffness)) {
+        v.push(
+            "scene.meniscus.support_stiffness",
+            format!(
+                "{} is out of range; allowed: 0 ≤ k ≤ {max_support:e} N/m per node (0 holds the fixed nodes rigidly)",
+                m.support_stiffness
+            ),
+        );
+    }
 
     let mat = &s.material;
-    v.one_of(
-        "scene.material.preset",
-        &mat.preset,
-        &["lateral", "medial", "custom"],
-    );
-    if mat.preset == "custom" {
+    // Choices (preset, model, solver kind, rotation, CG matrix, device backend, displacement
+    // reference, emulated sites) are enums checked when the file is parsed (`crate::load`).
+    if mat.preset == MaterialPreset::Custom {
         if mat.youngs_modulus.is_none() {
             v.push(
                 "scene.material.youngs_modulus",
@@ -133,11 +136,6 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
         mat.density,
         "kg/m³ (meniscus 1090)",
     );
-    v.one_of(
-        "scene.material.model",
-        &mat.model,
-        &["corotational", "neo-hookean"],
-    );
     if !(mat.degeneration_grade.is_finite() && (0.0..=2.0).contains(&mat.degeneration_grade)) {
         v.push(
             "scene.material.degeneration_grade",
@@ -152,6 +150,16 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
         mat.modulus_scale,
         "(1 = nominal)",
     );
+    let max_k = crate::scene::MAX_STRAIN_STIFFENING;
+    if !(mat.strain_stiffening.is_finite() && (0.0..=max_k).contains(&mat.strain_stiffening)) {
+        v.push(
+            "scene.material.strain_stiffening",
+            format!(
+                "{} is out of range; allowed: 0 ≤ rate ≤ {max_k} (per unit strain; 0 = linear)",
+                mat.strain_stiffening
+            ),
+        );
+    }
     v.non_negative("scene.material.rayleigh_mass", mat.rayleigh_mass, "1/s");
     v.non_negative(
         "scene.material.rayleigh_stiffness",
@@ -160,19 +168,6 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
     );
 
     let sol = &s.solver;
-    v.one_of(
-        "scene.solver.kind",
-        &sol.kind,
-        &[
-            "cg",
-            "cg-jacobi",
-            "cg-cholesky",
-            "cg-warped-cholesky",
-            "direct",
-        ],
-    );
-    v.one_of("scene.solver.rotation", &sol.rotation, &["qr", "polar"]);
-    v.one_of("scene.solver.cg_matrix", &sol.cg_matrix, &["f32", "f64"]);
     v.non_negative(
         "scene.solver.stiffness_rotation_tolerance",
         sol.stiffness_rotation_tolerance,
@@ -227,6 +222,33 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
         );
     }
 
+    let fc = &s.faults;
+    v.positive(
+        "scene.faults.max_contact_force_n",
+        fc.max_contact_force_n,
+        "N (a physical bound for the scene's contact force)",
+    );
+    v.positive("scene.faults.max_penetration_m", fc.max_penetration_m, "m");
+    v.positive("scene.faults.max_cg_residual", fc.max_cg_residual, "");
+    v.non_negative("scene.faults.energy_tolerance", fc.energy_tolerance, "");
+    if fc.rest_after_faults == 0 {
+        v.push("scene.faults.rest_after_faults", "must be > 0");
+    }
+    v.positive(
+        "scene.material_change_interval_s",
+        s.material_change_interval_s,
+        "s (material changes are rate-limited)",
+    );
+    if s.material_change_interval_s > 3600.0 {
+        v.push(
+            "scene.material_change_interval_s",
+            format!(
+                "{} s is too long; at most 3600 s",
+                s.material_change_interval_s
+            ),
+        );
+    }
+
     let p = &s.probe;
     if p.model != "default" {
         v.existing_file(
@@ -260,11 +282,6 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
 
     // [device]
     let d = &file.device;
-    v.one_of(
-        "device.backend",
-        &d.backend,
-        &["touch", "emulated", "replay"],
-    );
     v.positive(
         "device.rate_hz",
         d.rate_hz,
@@ -279,7 +296,17 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
             ),
         );
     }
-    v.positive("device.force_scale", d.force_scale, "(1 = physical)");
+    if !(d.force_scale.is_finite() && (0.0..=1.0).contains(&d.force_scale)) {
+        v.push(
+            "device.force_scale",
+            format!(
+                "{} is not allowed; must be within 0..=1 (0 = automatic from the tissue \
+                 reference and the device limits, 1 = physical; the device never amplifies \
+                 the tissue force)",
+                d.force_scale
+            ),
+        );
+    }
     v.positive("device.peak_force_n", d.peak_force_n, "N (Touch: 3.3)");
     v.positive(
         "device.continuous_force_n",
@@ -292,18 +319,48 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
         d.max_force_rate_n_per_s,
         "N/s",
     );
+    v.positive(
+        "device.max_stiffness_n_per_m",
+        d.max_stiffness_n_per_m,
+        "N/m (Touch: 1000)",
+    );
+    if !(d.position_hysteresis_m.is_finite() && (0.0..=1e-3).contains(&d.position_hysteresis_m)) {
+        v.push(
+            "device.position_hysteresis_m",
+            format!(
+                "{} m is out of range; allowed: 0 ≤ position_hysteresis_m ≤ 0.001 m (Touch: 3.3e-5)",
+                d.position_hysteresis_m
+            ),
+        );
+    }
+    // Device limits are invariants: lowering is allowed, raising never.
+    for raise in d.limit_raises() {
+        v.push(raise.key, raise.to_string());
+    }
+    v.positive(
+        "device.tissue_force_range_n",
+        d.tissue_force_range_n,
+        "N (cadaver table: 7.2)",
+    );
+    v.positive(
+        "device.tissue_stiffness_n_per_m",
+        d.tissue_stiffness_n_per_m,
+        "N/m (cadaver table: 3100)",
+    );
+    let (lo, hi) = crate::device::SERVO_WATCHDOG_RANGE_S;
+    let wd = d.touch.servo_watchdog_s;
+    if !(wd.is_finite() && (lo..=hi).contains(&wd)) {
+        v.push(
+            "device.touch.servo_watchdog_s",
+            format!("{wd} s is out of range; allowed: {lo} ≤ servo_watchdog_s ≤ {hi} s"),
+        );
+    }
     v.positive("device.stale_frame_s", d.stale_frame_s, "s");
     v.non_negative("device.stale_ramp_s", d.stale_ramp_s, "s");
     v.positive("device.stats_rate_hz", d.stats_rate_hz, "Hz");
     v.positive("device.workspace_scale", d.workspace_scale, "");
     v.finite_array("device.workspace_offset_m", &d.workspace_offset_m, "m");
-    v.one_of(
-        "device.displacement_reference",
-        &d.displacement_reference,
-        &["proxy", "probe_free"],
-    );
     let e = &d.emulated;
-    v.one_of("device.emulated.sites", &e.sites, &["scene", "plane"]);
     if e.probings_per_region == 0 {
         v.push(
             "device.emulated.probings_per_region",
@@ -322,8 +379,13 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
     );
     v.non_negative("device.emulated.hover_m", e.hover_m, "m");
     v.non_negative("device.emulated.press_depth_m", e.press_depth_m, "m");
+    v.non_negative(
+        "device.emulated.press_force_n",
+        e.press_force_n,
+        "N at the tissue (0 = press to press_depth_m; the study: 4.16)",
+    );
     v.non_negative("device.emulated.hold_s", e.hold_s, "s");
-    if d.backend == "replay" {
+    if d.backend == DeviceBackend::Replay {
         if d.replay.path.is_empty() {
             v.push(
                 "device.replay.path",
@@ -353,8 +415,174 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
     if let Err(e) = file.recording.validate() {
         v.push_owned("recording", e.to_string());
     }
+    if let Err(e) = file.viewer.validate() {
+        v.push_owned("viewer", e.to_string());
+    }
+    if let Err(e) = file.training.validate() {
+        v.push_owned("training", e.to_string());
+    }
 
+    check_upper_bounds(&mut v, file);
     v.issues
+}
+
+/// Longest bounded session, s (30 days): longer runs use `seconds = 0` (until stopped).
+/// Durations beyond what a `Duration` or a lab day can hold never reach the launcher.
+pub const MAX_SESSION_S: f64 = 30.0 * 86_400.0;
+/// Largest physics step, s: above this the implicit step and the haptic transport (which
+/// re-solves the frame of the last step) are far outside what the model was built for.
+pub const MAX_DT_S: f64 = 0.1;
+/// Smallest physics step, s (the physics cannot keep real time below it on any mesh here).
+pub const MIN_DT_S: f64 = 1.0e-5;
+/// Largest launcher waits, s.
+pub const MAX_LAUNCHER_WAIT_S: f64 = 3_600.0;
+/// Largest device servo rate, Hz (the Touch runs at 1 kHz).
+pub const MAX_DEVICE_RATE_HZ: f64 = 10_000.0;
+/// Largest queue / history depth of a bridge stream: bounds what the bridge allocates.
+pub const MAX_BRIDGE_DEPTH: usize = 1 << 16;
+/// Largest recording chunk, bytes (the reader refuses larger chunks).
+pub const MAX_CHUNK_SIZE_BYTES: u64 = 256 << 20;
+
+/// Upper bounds of every duration, rate and step (the lower bounds are checked with each
+/// key above). Each problem names the key; [`crate::load`] adds line and column.
+fn check_upper_bounds(v: &mut Checks, file: &LaunchFile) {
+    v.at_most(
+        "session.seconds",
+        file.session.seconds,
+        MAX_SESSION_S,
+        "s",
+        "30 days; 0 runs until Ctrl-C",
+    );
+    let l = &file.launcher;
+    for (key, value) in [
+        ("launcher.restart_backoff_s", l.restart_backoff_s),
+        ("launcher.ready_timeout_s", l.ready_timeout_s),
+        ("launcher.stop_grace_s", l.stop_grace_s),
+    ] {
+        v.at_most(key, value, MAX_LAUNCHER_WAIT_S, "s", "one hour");
+    }
+    v.at_most(
+        "launcher.status_period_s",
+        l.status_period_s,
+        60.0,
+        "s",
+        "a status line at least every minute",
+    );
+    v.at_most(
+        "scene.dt",
+        file.scene.dt,
+        MAX_DT_S,
+        "s",
+        "the study uses 0.01",
+    );
+    let dt = file.scene.dt;
+    if dt.is_finite() && dt > 0.0 && dt < MIN_DT_S {
+        v.push(
+            "scene.dt",
+            format!("{dt} s is too small; at least {MIN_DT_S} s (the study uses 0.01)"),
+        );
+    }
+    let d = &file.device;
+    v.at_most(
+        "device.rate_hz",
+        d.rate_hz,
+        MAX_DEVICE_RATE_HZ,
+        "Hz",
+        "the Touch servo runs at 1 kHz",
+    );
+    v.at_most(
+        "device.continuous_window_s",
+        d.continuous_window_s,
+        600.0,
+        "s",
+        "ten minutes",
+    );
+    v.at_most("device.stale_frame_s", d.stale_frame_s, 10.0, "s", "");
+    v.at_most("device.stale_ramp_s", d.stale_ramp_s, 10.0, "s", "");
+    v.at_most(
+        "device.lcp_budget_s",
+        d.lcp_budget_s,
+        0.01,
+        "s",
+        "ten servo ticks",
+    );
+    v.at_most(
+        "device.stats_rate_hz",
+        d.stats_rate_hz,
+        MAX_DEVICE_RATE_HZ,
+        "Hz",
+        "at most once per servo tick",
+    );
+    v.at_most(
+        "device.emulated.hold_s",
+        d.emulated.hold_s,
+        MAX_LAUNCHER_WAIT_S,
+        "s",
+        "one hour",
+    );
+    for (key, value) in [
+        (
+            "device.emulated.approach_speed_m_per_s",
+            d.emulated.approach_speed_m_per_s,
+        ),
+        (
+            "device.emulated.press_speed_m_per_s",
+            d.emulated.press_speed_m_per_s,
+        ),
+    ] {
+        v.at_most(key, value, 1.0, "m/s", "a hand moves the stylus slower");
+    }
+    v.at_most(
+        "device.replay.time_scale",
+        d.replay.time_scale,
+        100.0,
+        "",
+        "replays at most 100× the recorded speed",
+    );
+    let r = &file.recording;
+    // Any rate above the physics step rate records every frame (a test that compares the
+    // recording with the live bridge asks for 1e9 Hz: frames of a catch-up burst are
+    // microseconds apart); the bound only keeps the pacing period a finite, positive time.
+    v.at_most(
+        "recording.mesh_rate_hz",
+        r.mesh_rate_hz,
+        1.0e9,
+        "Hz",
+        "a pacing period of 1 ns; above the physics rate every frame is recorded anyway",
+    );
+    if r.chunk_size_bytes > MAX_CHUNK_SIZE_BYTES {
+        v.push(
+            "recording.chunk_size_bytes",
+            format!(
+                "{} is too large; at most {MAX_CHUNK_SIZE_BYTES} bytes",
+                r.chunk_size_bytes
+            ),
+        );
+    }
+    let b = &file.bridge;
+    if b.queue_depth > MAX_BRIDGE_DEPTH {
+        v.push(
+            "bridge.queue_depth",
+            format!("{} is too large; at most {MAX_BRIDGE_DEPTH}", b.queue_depth),
+        );
+    }
+    for (name, stream) in b.streams.named() {
+        if stream.depth > MAX_BRIDGE_DEPTH {
+            v.push(
+                &format!("bridge.streams.{name}.depth"),
+                format!("{} is too large; at most {MAX_BRIDGE_DEPTH}", stream.depth),
+            );
+        }
+        if stream.rate_hz.is_finite() && stream.rate_hz > MAX_DEVICE_RATE_HZ {
+            v.push(
+                &format!("bridge.streams.{name}.rate_hz"),
+                format!(
+                    "{} Hz is too large; at most {MAX_DEVICE_RATE_HZ} Hz (0: every sample)",
+                    stream.rate_hz
+                ),
+            );
+        }
+    }
 }
 
 fn check_mesh_spec(v: &mut Checks, key: &str, spec: &str) {
@@ -431,6 +659,21 @@ impl Checks {
         }
     }
 
+    /// Upper bound (NaN and ±inf are reported by the lower-bound checks).
+    fn at_most(&mut self, key: &str, value: f64, max: f64, unit: &str, why: &str) {
+        if value.is_finite() && value > max {
+            let why = if why.is_empty() {
+                String::new()
+            } else {
+                format!(" ({why})")
+            };
+            self.push(
+                key,
+                format!("{value} {unit} is too large; at most {max} {unit}{why}"),
+            );
+        }
+    }
+
     fn non_negative(&mut self, key: &str, value: f64, unit: &str) {
         if !(value.is_finite() && value >= 0.0) {
             self.push(
@@ -448,16 +691,6 @@ impl Checks {
                     format!("{x} is not allowed; must be finite ({unit})"),
                 );
             }
-        }
-    }
-
-    fn one_of(&mut self, key: &str, value: &str, allowed: &[&str]) {
-        if !allowed.contains(&value) {
-            let list: Vec<String> = allowed.iter().map(|a| format!("`{a}`")).collect();
-            self.push(
-                key,
-                format!("{value:?} is not allowed; allowed: {}", list.join(", ")),
-            );
         }
     }
 

@@ -181,7 +181,10 @@ fn solver_matrix_precision_and_stiffness_tolerance_are_checked() {
     assert!(rendered.contains("too lax"), "{rendered}");
     let ok = "[scene.solver]\ncg_matrix = \"f64\"\nstiffness_rotation_tolerance = 0.0\n";
     let file = load_str(ok, Path::new("solver.toml")).unwrap();
-    assert_eq!(file.scene.solver.cg_matrix, "f64");
+    assert_eq!(
+        file.scene.solver.cg_matrix,
+        launch_config::scene::CgMatrix::F64
+    );
 }
 
 #[test]
@@ -230,7 +233,10 @@ fn embedded_default_validates() {
     )
     .unwrap();
     assert!(file.nodes.physics && file.nodes.haptic && file.nodes.bridge && file.nodes.recorder);
-    assert_eq!(file.device.backend, "emulated");
+    assert_eq!(
+        file.device.backend,
+        launch_config::device::DeviceBackend::Emulated
+    );
 }
 
 fn examples_dir() -> PathBuf {
@@ -293,4 +299,144 @@ fn resolved_file_round_trips_through_toml() {
     let text = toml::to_string(&file).unwrap();
     let again = load_str(&text, Path::new("resolved.toml")).unwrap();
     assert_eq!(again, file);
+}
+
+#[test]
+fn every_bad_choice_is_reported_at_once_with_its_line_and_allowed_values() {
+    let text = "[scene.material]\nmodel = \"mooney\"\n[scene.solver]\nkind = \"gmres\"\nrotation = \"large\"\n\
+                [device]\nbackend = \"joystick\"\ndisplacement_reference = \"probe\"\n\
+                [device.emulated]\nsites = 'mesh'\n[launcher]\nrestart = \"always\"\n";
+    let err = load_str(text, Path::new("choices.toml")).unwrap_err();
+    let keys: Vec<(&str, Option<usize>)> = err
+        .issues()
+        .iter()
+        .map(|i| (i.key.as_str(), i.line))
+        .collect();
+    assert_eq!(
+        keys,
+        [
+            ("scene.material.model", Some(2)),
+            ("scene.solver.kind", Some(4)),
+            ("scene.solver.rotation", Some(5)),
+            ("device.backend", Some(7)),
+            ("device.displacement_reference", Some(8)),
+            ("device.emulated.sites", Some(10)),
+            ("launcher.restart", Some(12)),
+        ]
+    );
+    let rendered = err.to_string();
+    for line in [
+        "choices.toml:2:1: key `scene.material.model`: \"mooney\" is not allowed; allowed: `corotational`, `neo-hookean`",
+        "choices.toml:7:1: key `device.backend`: \"joystick\" is not allowed; allowed: `touch`, `emulated`, `replay`",
+        "choices.toml:10:1: key `device.emulated.sites`: \"mesh\" is not allowed; allowed: `scene`, `plane`",
+        "key `launcher.restart`: \"always\" is not allowed; allowed: `never`, `on-failure`",
+    ] {
+        assert!(rendered.contains(line), "{line}\nnot in\n{rendered}");
+    }
+    // A good choice parses into its enum, once.
+    let file = load_str(
+        "[scene.solver]\nkind = \"cg-warped-cholesky\"\n[device.emulated]\nsites = \"plane\"\n",
+        Path::new("ok.toml"),
+    )
+    .unwrap();
+    assert_eq!(
+        file.scene.solver.kind,
+        launch_config::scene::SolverKind::CgWarpedCholesky
+    );
+    assert_eq!(
+        file.device.emulated.sites,
+        launch_config::device::SiteSource::Plane
+    );
+}
+
+/// Device limits are invariants: a launch file may lower them, a raise is an error naming
+/// the key, the value and the device's limit (the review's `peak_force_n = 30`).
+#[test]
+fn raising_a_device_limit_is_refused_with_key_value_and_limit() {
+    let dir = scratch("limits");
+    for (key, value, limit) in [
+        ("peak_force_n", "30", "3.3"),
+        ("continuous_force_n", "2.5", "0.88"),
+        ("max_force_rate_n_per_s", "5000", "400"),
+        ("max_stiffness_n_per_m", "2310", "1020"),
+    ] {
+        let path = write(&dir, "raise.toml", &format!("[device]\n{key} = {value}\n"));
+        let (issue, text) = only_issue(load(&path).unwrap_err());
+        assert_eq!(issue.key, format!("device.{key}"), "{text}");
+        assert_eq!(issue.line, Some(2), "{text}");
+        assert!(
+            text.contains(value) && text.contains(limit) && text.contains("Touch"),
+            "names the value, the limit and the device: {text}"
+        );
+    }
+    // Lowering is fine, and so is the limit itself.
+    let path = write(
+        &dir,
+        "lower.toml",
+        "[device]\npeak_force_n = 2.0\ncontinuous_force_n = 0.5\nmax_force_rate_n_per_s = 100\nmax_stiffness_n_per_m = 1020\n",
+    );
+    let f = load(&path).unwrap();
+    assert_eq!(f.device.peak_force_n, 2.0);
+    // The rendering follows the lowered limits: felt stiffness bound = scale × coupling.
+    let r = f.device.rendering();
+    assert!((r.force_scale * r.coupling_stiffness_n_per_m - 1020.0).abs() < 1e-9);
+    std::fs::remove_dir_all(dir).ok();
+}
+
+#[test]
+fn servo_watchdog_and_force_scale_are_bounded() {
+    let dir = scratch("watchdog");
+    for (text, key) in [
+        (
+            "[device.touch]\nservo_watchdog_s = 5.0\n",
+            "device.touch.servo_watchdog_s",
+        ),
+        (
+            "[device.touch]\nservo_watchdog_s = 0.0\n",
+            "device.touch.servo_watchdog_s",
+        ),
+        (
+            "[device.touch]\nservo_watchdog_s = nan\n",
+            "device.touch.servo_watchdog_s",
+        ),
+        ("[device]\nforce_scale = 3.0\n", "device.force_scale"),
+        ("[device]\nforce_scale = -1.0\n", "device.force_scale"),
+    ] {
+        let path = write(&dir, "w.toml", text);
+        let (issue, msg) = only_issue(load(&path).unwrap_err());
+        assert_eq!(issue.key, key, "{msg}");
+        assert!(msg.contains("allowed") || msg.contains("within"), "{msg}");
+    }
+    std::fs::remove_dir_all(dir).ok();
+}
+
+/// The automatic force scale from the cadaver table and the Touch: the table's 7.2 N range
+/// inside the 0.88 N continuous range, the coupling 4× stiffer than the table's steepest
+/// 3.1 N/mm, and the felt stiffness bounded by the 1.0 N/mm default limit.
+#[test]
+fn automatic_scale_maps_the_cadaver_table_into_the_touch() {
+    let d = launch_config::DeviceConfig::default();
+    let r = d.rendering();
+    assert!(r.automatic);
+    // Reference numbers from outside the project: table 0.31 → 7.51 N, last segment
+    // 7.20 → 7.51 N over 7.52 → 7.62 mm; Touch 0.88 N continuous.
+    let range = 7.51 - 0.31;
+    let steepest = (7.51 - 7.20) / (7.62e-3 - 7.52e-3);
+    assert!(r.force_scale * range <= 0.88 + 1e-12, "{r:?}");
+    assert!(
+        r.coupling_stiffness_n_per_m >= 4.0 * steepest * (1.0 - 1e-12),
+        "{r:?}"
+    );
+    assert!((r.force_scale * r.coupling_stiffness_n_per_m - 1000.0).abs() < 1e-9);
+    // The steepest table tissue is felt far below the limit.
+    let felt = r.force_scale / (1.0 / steepest + 1.0 / r.coupling_stiffness_n_per_m);
+    assert!(felt < 0.3 * r.felt_stiffness_limit_n_per_m, "{felt}");
+    // An explicit scale keeps the bound through the coupling.
+    let fixed = launch_config::DeviceConfig {
+        force_scale: 0.2,
+        ..d
+    }
+    .rendering();
+    assert!(!fixed.automatic);
+    assert!((fixed.coupling_stiffness_n_per_m - 5000.0).abs() < 1e-9);
 }

@@ -28,21 +28,24 @@ pub enum NodeKind {
     Haptic,
     Bridge,
     Recorder,
+    Viewer,
 }
 
 impl NodeKind {
     /// Physics first (the others read its streams), the recorder before the haptic node so
     /// it sees every tick, haptic last.
-    pub const START_ORDER: [NodeKind; 4] = [
+    pub const START_ORDER: [NodeKind; 5] = [
         NodeKind::Physics,
         NodeKind::Recorder,
         NodeKind::Bridge,
+        NodeKind::Viewer,
         NodeKind::Haptic,
     ];
     /// Haptic first (force ramps to zero while physics still answers), recorder last (it
     /// records the stop and closes its file).
-    pub const STOP_ORDER: [NodeKind; 4] = [
+    pub const STOP_ORDER: [NodeKind; 5] = [
         NodeKind::Haptic,
+        NodeKind::Viewer,
         NodeKind::Bridge,
         NodeKind::Physics,
         NodeKind::Recorder,
@@ -55,6 +58,7 @@ impl NodeKind {
             NodeKind::Haptic => "haptic",
             NodeKind::Bridge => "bridge",
             NodeKind::Recorder => "recorder",
+            NodeKind::Viewer => "viewer",
         }
     }
 
@@ -69,6 +73,7 @@ impl NodeKind {
             NodeKind::Haptic => file.nodes.haptic,
             NodeKind::Bridge => file.nodes.bridge,
             NodeKind::Recorder => file.nodes.recorder && file.recording.enabled,
+            NodeKind::Viewer => file.viewer.enabled,
         }
     }
 }
@@ -195,6 +200,67 @@ pub enum LauncherError {
     InterruptedDuringStart(&'static str),
     #[error("cannot subscribe to the session's streams: {0}")]
     Link(#[from] msgs::ipc::LinkError),
+    #[error(
+        "session {name:?} is already running ({holder}); its nodes would share shared-memory \
+         services with this one. Stop it, or give this run another name (--session NAME or \
+         [session] name)"
+    )]
+    SessionLive { name: String, holder: String },
+}
+
+/// Directory of the per-session lock files.
+fn session_lock_dir() -> PathBuf {
+    std::env::temp_dir().join("arthrosim-sessions")
+}
+
+/// Exclusive claim on a session name for the launcher's lifetime: an advisory `flock` on
+/// `<tmp>/arthrosim-sessions/<name>.lock`. The kernel releases it when the launcher exits
+/// in any way (also `kill -9`), so a dead session never blocks its name.
+#[derive(Debug)]
+pub struct SessionLock {
+    _file: std::fs::File,
+    pub path: PathBuf,
+}
+
+impl SessionLock {
+    /// Claims `name`, or says who holds it.
+    pub fn acquire(name: &str) -> Result<SessionLock, LauncherError> {
+        use std::os::fd::AsRawFd;
+        let dir = session_lock_dir();
+        let io = |what: String| move |source| LauncherError::Io { what, source };
+        std::fs::create_dir_all(&dir).map_err(io(format!("create {}", dir.display())))?;
+        let path = dir.join(format!("{name}.lock"));
+        let mut file = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .open(&path)
+            .map_err(io(format!("open {}", path.display())))?;
+        // SAFETY: flock on a file descriptor we own.
+        let rc = unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) };
+        if rc != 0 {
+            let holder = std::fs::read_to_string(&path)
+                .ok()
+                .map(|t| t.trim().to_string())
+                .filter(|t| !t.is_empty())
+                .unwrap_or_else(|| "holder unknown".into());
+            return Err(LauncherError::SessionLive {
+                name: name.to_string(),
+                holder,
+            });
+        }
+        file.set_len(0)
+            .map_err(io(format!("write {}", path.display())))?;
+        writeln!(
+            file,
+            "launcher pid {}, lock {}",
+            std::process::id(),
+            path.display()
+        )
+        .map_err(io(format!("write {}", path.display())))?;
+        Ok(SessionLock { _file: file, path })
+    }
 }
 
 /// Per-node outcome.
@@ -372,6 +438,17 @@ impl Display {
     }
 }
 
+/// The CLOCK_REALTIME − CLOCK_MONOTONIC offset every node of this launcher's sessions gets
+/// (fixed at the first spawn; an offset already in the environment is passed on).
+fn session_clock_offset_ns() -> i64 {
+    static OFFSET: std::sync::OnceLock<i64> = std::sync::OnceLock::new();
+    *OFFSET.get_or_init(|| {
+        msgs::ros_mapping::StampClock::for_session()
+            .unwrap_or_else(|_| msgs::ros_mapping::StampClock::measure())
+            .offset_ns()
+    })
+}
+
 /// A session in progress.
 struct Session<'a> {
     opts: &'a RunOptions,
@@ -401,6 +478,12 @@ impl Session<'_> {
             .stderr(Stdio::piped())
             // Plain text in the logs and through the launcher's pipes.
             .env("NO_COLOR", "1")
+            // One stamp clock for the session: the bridge and the recorder turn a sample's
+            // publish time into the same ROS stamp.
+            .env(
+                msgs::ros_mapping::CLOCK_OFFSET_ENV,
+                session_clock_offset_ns().to_string(),
+            )
             .process_group(0);
 
         let parent = std::process::id() as libc::pid_t;
@@ -644,13 +727,39 @@ fn forward_lines(
     })
 }
 
-/// `sessions/<UTC timestamp>` relative to the working directory.
+/// `sessions/<UTC timestamp>` relative to the working directory, unique: the folder is
+/// created here, and a run that finds its second's folder taken (another run started in the
+/// same second) takes `<stamp>-2`, `<stamp>-3`, … (`create_dir` is atomic, so two runs never
+/// get the same one).
 pub fn default_out_dir() -> PathBuf {
     let secs = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map(|d| d.as_secs())
         .unwrap_or(0);
-    PathBuf::from("sessions").join(utc_stamp(secs))
+    unique_dir(Path::new("sessions"), &utc_stamp(secs))
+}
+
+/// Creates and returns `parent/stem`, or `parent/stem-N` for the first N ≥ 2 that does not
+/// exist yet. Falls back to the plain path (and lets the session's own create report the
+/// problem) when the parent cannot be created.
+pub fn unique_dir(parent: &Path, stem: &str) -> PathBuf {
+    if std::fs::create_dir_all(parent).is_err() {
+        return parent.join(stem);
+    }
+    for n in 1..10_000u32 {
+        let name = if n == 1 {
+            stem.to_string()
+        } else {
+            format!("{stem}-{n}")
+        };
+        let dir = parent.join(name);
+        match std::fs::create_dir(&dir) {
+            Ok(()) => return dir,
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
+            Err(_) => return dir,
+        }
+    }
+    parent.join(format!("{stem}-{}", std::process::id()))
 }
 
 /// `YYYYMMDD-HHMMSS` (UTC) of a Unix time.
@@ -707,6 +816,9 @@ pub fn run(opts: &RunOptions) -> Result<SessionReport, LauncherError> {
     if kinds.is_empty() {
         return Err(LauncherError::NothingToStart(opts.origin.clone()));
     }
+    // One live session per name: two sessions with the same name would share their
+    // iceoryx2 services (each haptic node rendering the other's physics).
+    let _session_lock = SessionLock::acquire(&opts.session)?;
     let logs = opts.out_dir.join("logs");
     std::fs::create_dir_all(&logs).map_err(|source| LauncherError::Io {
         what: format!("create session folder {}", logs.display()),
@@ -946,7 +1058,19 @@ pub fn run(opts: &RunOptions) -> Result<SessionReport, LauncherError> {
         end,
         nodes,
         frames_missed: monitor.frames_missed,
-        summary: summarize(&record),
+        summary: {
+            let mut s = summarize(&record);
+            if opts.launch.nodes.haptic {
+                let r = opts.launch.device.rendering();
+                s.rendering = Some(session_metrics::summary::RenderingSummary {
+                    force_scale: r.force_scale,
+                    automatic: r.automatic,
+                    coupling_stiffness_n_per_m: r.coupling_stiffness_n_per_m,
+                    felt_stiffness_limit_n_per_m: r.felt_stiffness_limit_n_per_m,
+                });
+            }
+            s
+        },
     };
     let json = serde_json::to_string_pretty(&report).map_err(|e| LauncherError::Io {
         what: "serialise summary.json".into(),
@@ -1011,7 +1135,7 @@ mod tests {
     #[test]
     fn stop_order_is_haptic_first_recorder_last() {
         assert_eq!(NodeKind::STOP_ORDER[0], NodeKind::Haptic);
-        assert_eq!(NodeKind::STOP_ORDER[3], NodeKind::Recorder);
+        assert_eq!(NodeKind::STOP_ORDER[4], NodeKind::Recorder);
         assert_eq!(NodeKind::START_ORDER[0], NodeKind::Physics);
         for k in NodeKind::START_ORDER {
             assert_eq!(NodeKind::from_name(k.name()), Some(k));

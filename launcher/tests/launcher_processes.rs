@@ -70,11 +70,12 @@ fn session_starts_all_nodes_and_stops_them_haptic_first_recorder_last() {
     let report = launcher::run(&opts).unwrap();
     assert_eq!(report.end, EndReason::Completed);
     assert!(report.success(), "{report:?}");
-    assert_eq!(report.nodes.len(), 4);
+    // The default session's five nodes: the viewer (trainee page) is on by default.
+    assert_eq!(report.nodes.len(), 5);
     assert!(report.nodes.iter().all(|n| n.clean_stop && n.restarts == 0));
     assert_eq!(
         lines(&opts.out_dir.join("stops")),
-        ["haptic", "bridge", "physics", "recorder"]
+        ["haptic", "viewer", "bridge", "physics", "recorder"]
     );
     assert_no_node_left(&opts.out_dir);
     // Session folder: resolved launch file, summary, one log per node with its output.
@@ -98,6 +99,7 @@ fn disabled_nodes_are_not_started() {
         l.nodes.haptic = false;
         l.nodes.bridge = false;
         l.recording.enabled = false; // recorder off through [recording] too
+        l.viewer.enabled = false; // and the viewer through [viewer]
     });
     let report = launcher::run(&opts).unwrap();
     assert_eq!(report.nodes.len(), 1);
@@ -133,8 +135,8 @@ fn crashed_node_is_restarted_under_on_failure() {
     assert_eq!(physics.restarts, 1);
     assert!(physics.clean_stop, "the restarted instance stops cleanly");
     assert!(report.success());
-    // Two physics pids: the crashed one and its replacement; all gone now.
-    assert_eq!(lines(&opts.out_dir.join("pids")).len(), 5);
+    // Five nodes and a second physics pid (the crashed one and its replacement); all gone.
+    assert_eq!(lines(&opts.out_dir.join("pids")).len(), 6);
     assert_no_node_left(&opts.out_dir);
 }
 
@@ -160,7 +162,7 @@ fn crashed_node_ends_the_session_under_never() {
     // The others were still stopped in order.
     assert_eq!(
         lines(&opts.out_dir.join("stops")),
-        ["haptic", "bridge", "recorder"]
+        ["haptic", "viewer", "bridge", "recorder"]
     );
     assert_no_node_left(&opts.out_dir);
 }
@@ -221,7 +223,7 @@ fn straggler_is_killed_after_the_grace_period() {
     assert!(!report.success(), "a killed node is not a clean session");
     assert_eq!(
         lines(&opts.out_dir.join("stops")),
-        ["haptic", "physics", "recorder"]
+        ["haptic", "viewer", "physics", "recorder"]
     );
     assert_no_node_left(&opts.out_dir);
 }
@@ -249,7 +251,7 @@ fn node_that_finishes_ends_the_session_cleanly() {
     assert!(report.success(), "{report:?}");
     assert_eq!(
         lines(&opts.out_dir.join("stops")),
-        ["bridge", "physics", "recorder"]
+        ["viewer", "bridge", "physics", "recorder"]
     );
 }
 

@@ -14,10 +14,13 @@
 //! Units: SI (m, s, N, kg), world frame z-up (REP-103). Quaternions are `[x, y, z, w]`.
 
 pub mod clock;
+pub mod csv_input;
 pub mod ipc;
 pub mod lifecycle;
 pub mod protocol;
 pub mod ros;
+pub mod ros_mapping;
+pub mod timing;
 
 use iceoryx2::prelude::ZeroCopySend;
 
@@ -131,6 +134,15 @@ pub mod physics_to_haptic {
         pub lcp_residual: f64,
         /// Sequence of the device state this step consumed (0: none yet).
         pub device_sequence_used: u64,
+        /// Instance of the haptic process whose device state this step consumed (0: none,
+        /// or the probe was driven by an external target): a haptic node renders force only
+        /// from frames computed for its own device.
+        pub device_instance_used: u64,
+        /// [`physics_fault`] bits of this step (0: a good step). A faulty step is published
+        /// for the record and must not be rendered.
+        pub physics_faults: u32,
+        /// [`drive`] bits: what drove the probe in this step.
+        pub drive: u32,
         /// Proxy pose (device) this step was driven toward.
         pub proxy_pose: Pose,
         /// Probe pose after free motion (before contact correction): the linearisation point.
@@ -153,6 +165,46 @@ pub mod physics_to_haptic {
         pub contact_force: [f64; 3],
         /// Contact torque on the probe about its position, N·m.
         pub contact_torque: [f64; 3],
+    }
+
+    /// Bits of [`ContactFrame::physics_faults`]: the checks a physics step failed.
+    pub mod physics_fault {
+        /// Tissue energy grew without input (no contact, no external load).
+        pub const ENERGY_GROWTH: u32 = 1 << 0;
+        /// Contact force beyond the scene's physical bound.
+        pub const FORCE_BOUND: u32 = 1 << 1;
+        /// Probe penetration after the contact correction deeper than the bound.
+        pub const PENETRATION: u32 = 1 << 2;
+        /// The contact LCP did not converge (residual far above its tolerance).
+        pub const LCP_NOT_CONVERGED: u32 = 1 << 3;
+        /// The free-motion CG did not converge (residual far above its bound).
+        pub const CG_NOT_CONVERGED: u32 = 1 << 4;
+        /// A solver error or a non-finite force or position.
+        pub const NUMERICAL: u32 = 1 << 5;
+
+        /// Names of the set bits, for logs and reports.
+        pub fn names(bits: u32) -> impl Iterator<Item = &'static str> {
+            [
+                (ENERGY_GROWTH, "energy growth without input"),
+                (FORCE_BOUND, "contact force beyond the scene bound"),
+                (PENETRATION, "probe penetration beyond the bound"),
+                (LCP_NOT_CONVERGED, "contact LCP not converged"),
+                (CG_NOT_CONVERGED, "free-motion CG not converged"),
+                (NUMERICAL, "numerical failure"),
+            ]
+            .into_iter()
+            .filter(move |(b, _)| bits & b != 0)
+            .map(|(_, n)| n)
+        }
+    }
+
+    /// Bits of [`ContactFrame::drive`].
+    pub mod drive {
+        /// The probe followed an external target (bridge), not the haptic device: no haptic
+        /// node may render force from this frame.
+        pub const EXTERNAL_TARGET: u32 = 1 << 0;
+        /// The state was rolled back after a faulty step and is coming back under a ramp.
+        pub const ROLLED_BACK: u32 = 1 << 1;
     }
 
     impl ContactFrame {
@@ -219,6 +271,11 @@ pub mod haptic_to_physics {
         pub const RATE_LIMITED: u32 = 1 << 5;
         /// The device reported an error.
         pub const DEVICE_ERROR: u32 = 1 << 6;
+        /// The frame was not computed for this device's state (another haptic instance, an
+        /// external target, or a device sample from the future): not rendered, ramp to zero.
+        pub const FOREIGN_FRAME: u32 = 1 << 7;
+        /// The frame carries a physics fault flag: not rendered, ramp to zero.
+        pub const PHYSICS_FAULT: u32 = 1 << 8;
     }
 
     /// One haptic tick: the proxy (device end-effector mapped into the scene) and forces.
@@ -371,6 +428,81 @@ pub mod bridge_to_physics {
 
     impl Topic for MaterialCommand {
         const SERVICE: &'static str = "bridge_to_physics/material";
+        const HISTORY: usize = 1;
+        const MAX_BUFFER: usize = 8;
+    }
+}
+
+pub mod training {
+    //! Blinded grade training (`arthrosim train`): the driver's prompt to the viewer page, and
+    //! the trainee's answer from the page back to the driver. The grade itself is never sent
+    //! before the answer.
+    use super::*;
+
+    /// Training states in [`TrainingPrompt::state`].
+    pub mod state {
+        /// No training running (plain session).
+        pub const IDLE: u32 = 0;
+        /// A specimen is loaded; probe it, then answer.
+        pub const PROBING: u32 = 1;
+        /// The answer of the current case is stored; the next specimen is being loaded.
+        pub const ANSWERED: u32 = 2;
+        /// All cases answered; `correct` holds the score.
+        pub const FINISHED: u32 = 3;
+    }
+
+    /// Published by the training driver whenever its state changes (and once a second).
+    #[repr(C)]
+    #[derive(Debug, Clone, Copy, ZeroCopySend)]
+    #[type_name("arthrosim::TrainingPrompt")]
+    pub struct TrainingPrompt {
+        pub sequence: u64,
+        pub publish_ns: u64,
+        /// Case number, 1-based (0: none yet).
+        pub case_index: u32,
+        pub case_count: u32,
+        /// `state::*`.
+        pub state: u32,
+        /// Grades the trainee may answer: 0..grade_count.
+        pub grade_count: u32,
+        /// Probings counted in the current case.
+        pub probings: u32,
+        /// Correct answers so far (shown only when FINISHED).
+        pub correct: u32,
+        /// Answered cases so far.
+        pub answered: u32,
+        pub _pad: u32,
+    }
+
+    impl Topic for TrainingPrompt {
+        const SERVICE: &'static str = "training/prompt";
+        const HISTORY: usize = 1;
+        const MAX_BUFFER: usize = 8;
+    }
+
+    /// Where an answer came from.
+    pub mod source {
+        pub const PAGE: u32 = 1;
+        pub const BUTTONS: u32 = 2;
+    }
+
+    /// The trainee's answer for one case, from the viewer page.
+    #[repr(C)]
+    #[derive(Debug, Clone, Copy, ZeroCopySend)]
+    #[type_name("arthrosim::TrainingAnswer")]
+    pub struct TrainingAnswer {
+        pub sequence: u64,
+        pub publish_ns: u64,
+        /// The case answered (must match the prompt's `case_index`, else it is ignored).
+        pub case_index: u32,
+        pub grade: u32,
+        /// `source::*`.
+        pub source: u32,
+        pub _pad: u32,
+    }
+
+    impl Topic for TrainingAnswer {
+        const SERVICE: &'static str = "training/answer";
         const HISTORY: usize = 1;
         const MAX_BUFFER: usize = 8;
     }

@@ -1,5 +1,5 @@
-//! Process lifecycle shared by every node binary: a stop flag raised by SIGINT / SIGTERM,
-//! and the readiness line the launcher waits for.
+//! Process lifecycle shared by every node binary: a stop flag raised by SIGINT / SIGTERM /
+//! SIGHUP, and the readiness line the launcher waits for.
 
 use std::io::Write;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -11,14 +11,17 @@ extern "C" fn on_stop_signal(_: libc::c_int) {
     STOP.store(true, Ordering::SeqCst);
 }
 
-/// Installs SIGINT and SIGTERM handlers that raise the stop flag, and returns it. A node's
-/// loop checks the flag each iteration and stops cleanly (force to zero, files closed).
+/// Installs SIGINT, SIGTERM and SIGHUP handlers that raise the stop flag, and returns it. A
+/// node's loop checks the flag each iteration and stops cleanly (force to zero, files
+/// closed). SIGHUP (the terminal closed, the SSH session dropped) stops in order like
+/// SIGTERM instead of killing the process mid-write.
 pub fn install_stop_flag() -> &'static AtomicBool {
     // SAFETY: installing a handler that only performs an atomic store.
     unsafe {
         let handler = on_stop_signal as extern "C" fn(libc::c_int) as libc::sighandler_t;
         libc::signal(libc::SIGINT, handler);
         libc::signal(libc::SIGTERM, handler);
+        libc::signal(libc::SIGHUP, handler);
     }
     &STOP
 }

@@ -110,7 +110,7 @@ fn main() {
             let block24_us = t_bs.elapsed().as_secs_f64() * 1e6;
             let mut forces = vec![Vector3::zeros(); n];
             let steps = 2000;
-            let mut times = Vec::with_capacity(steps);
+            let mut times = msgs::timing::LatencyHistogram::new(10_000_000_000);
             let mut iters = 0usize;
             let t_all = Instant::now();
             for s in 0..steps {
@@ -124,15 +124,14 @@ fn main() {
                 fem.update_node_rotations();
                 let st = fem.free_motion(0.01, &forces).expect("free motion");
                 fem.commit();
-                times.push(t.elapsed().as_secs_f64() * 1e6);
+                times.record(t.elapsed().as_nanos() as u64);
                 iters += st.iterations;
                 if t_all.elapsed().as_secs_f64() > 10.0 {
                     break;
                 }
             }
-            let done = times.len();
-            times.sort_by(f64::total_cmp);
-            let pct = |p: f64| times[((done - 1) as f64 * p) as usize];
+            let done = times.count();
+            let pct = |p: f64| times.quantile_us(p);
             println!(
                 "{{\"mesh\":\"{spec}\",\"solver\":\"{name}\",\"nodes\":{n},\"tets\":{},\"free_nodes\":{},\"steps\":{done},\"free_motion_p50_us\":{:.1},\"free_motion_p99_us\":{:.1},\"cg_iterations_mean\":{:.2},\"build_ms\":{build_ms:.1},\"rest_factor_ms\":{rest_factor_ms:.1},\"block24_solve_us\":{block24_us:.0},\"rest_factor_nnz\":{}}}",
                 fem.tet_count(),

@@ -328,7 +328,7 @@ impl ContactDetector {
             tracked: vec![NO_TRIANGLE; spheres],
             // Several features per sphere (a sphere in a dent touches a few triangles).
             candidates: Vec::with_capacity(spheres * 16),
-            contacts: Vec::with_capacity(params.max_contacts.min(spheres).max(1)),
+            contacts: Vec::with_capacity(params.max_contacts.max(1)),
         }
     }
 

@@ -11,10 +11,21 @@
 pub mod compliance;
 pub mod contact;
 pub mod error;
+pub mod faults;
 pub mod fem;
 pub mod node;
 pub mod probe;
+pub mod probe_curve;
 pub mod sim;
+
+// The contact frame's W is laid out with msgs' row stride and solved by contact-lcp, which
+// has no dependencies and so keeps its own copy of the capacities: check they agree.
+const _: () = assert!(
+    msgs::MAX_CONTACTS == contact_lcp::MAX_CONTACTS
+        && msgs::ROWS_PER_CONTACT == contact_lcp::ROWS_PER_CONTACT
+        && msgs::MAX_ROWS == contact_lcp::MAX_ROWS,
+    "msgs and contact-lcp disagree on the contact capacity"
+);
 
 // Meshes, probing sites and the visual mapping live below the physics (the haptic node's
 // emulated operator needs the sites without the FEM); re-exported under their old paths.

@@ -1,12 +1,17 @@
 //! The physics node process: steps the [`Simulation`] in real time (one step per dt of wall
-//! time, absolute deadlines), driven by the newest device state (or an external probe
-//! target, which overrides the device while it keeps arriving), publishes the contact frame
-//! every step and the deformed surface at ~30 Hz.
+//! time, absolute deadlines), driven by the newest device state (or, only with
+//! `[bridge] accept_target_pose`, an external probe target, which overrides the device while
+//! it keeps arriving; its frames name no device sample, so no haptic node renders them),
+//! publishes the contact frame every step and the deformed surface at ~30 Hz.
+//!
+//! A material (degeneration grade) change is prepared on a worker thread and swapped in at a
+//! step boundary; at most one starts per `[scene] material_change_interval_s`, and commands
+//! in between are coalesced (the newest wins), so a flood of them cannot stall the loop.
 //!
 //! Lifecycle: new (load scene, build simulation) → start (open ports, READY) → step loop →
 //! stop (on the stop flag or the optional time bound; the CSV is flushed).
 
-use crate::sim::{ContactForceCsv, Simulation};
+use crate::sim::{ContactForceCsv, MaterialParts, Simulation};
 use anyhow::Context;
 use msgs::bridge_to_physics::{MaterialCommand, ProbeTarget};
 use msgs::haptic_to_physics::DeviceState;
@@ -28,15 +33,9 @@ const MAX_LAG_STEPS: u32 = 5;
 
 #[derive(clap::Args, Debug, Clone, Default)]
 pub struct NodeArgs {
-    /// Launch file (TOML); its `[scene]` section configures this node. None: defaults.
-    #[arg(long)]
-    pub launch: Option<PathBuf>,
-    /// Session prefix of the shared-memory services (default: $ARTHROSIM_SESSION or `default`).
-    #[arg(long)]
-    pub session: Option<String>,
-    /// Folder for the contact-force CSV (`contact_force.csv`); none: no CSV.
-    #[arg(long)]
-    pub out: Option<PathBuf>,
+    /// `--launch` (its `[scene]` section), `--session`, `--out` (`contact_force.csv`).
+    #[command(flatten)]
+    pub common: launch_config::node::CommonArgs,
     /// Study data folder (default: $ARTHROSIM_DATA, else ../shared/data).
     #[arg(long)]
     pub data: Option<PathBuf>,
@@ -47,19 +46,23 @@ pub struct NodeArgs {
 
 /// Runs the physics node until the stop flag is raised (SIGINT/SIGTERM) or `--seconds` pass.
 pub fn run_node(args: NodeArgs) -> anyhow::Result<()> {
+    launch_config::node::init_tracing("info");
     let stop = msgs::lifecycle::install_stop_flag();
-    let session = ipc::session_name(args.session.as_deref())?;
-    let scene = match &args.launch {
+    let session = ipc::session_name(args.common.session.as_deref())?;
+    let (scene, accept_target_pose) = match &args.common.launch {
         Some(path) => {
-            launch_config::load(path)
-                .with_context(|| format!("loading launch file {}", path.display()))?
-                .scene
+            let file = launch_config::load(path)
+                .with_context(|| format!("loading launch file {}", path.display()))?;
+            (file.scene, file.bridge.accept_target_pose)
         }
-        None => launch_config::SceneConfig::default(),
+        None => (launch_config::SceneConfig::default(), false),
     };
     let data_dir = args.data.clone().unwrap_or_else(launch_config::data_dir);
-    let mut sim = Simulation::new(&scene, &data_dir).context("building the physics scene")?;
-    let mut csv = match &args.out {
+    // Real time: a partial compliance cache is filled ahead of the probe on a worker thread,
+    // never solved inside a step.
+    let mut sim = Simulation::with_filling(&scene, &data_dir, crate::compliance::Filling::Prefetch)
+        .context("building the physics scene")?;
+    let mut csv = match &args.common.out {
         Some(dir) => {
             std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
             let path = dir.join("contact_force.csv");
@@ -76,7 +79,16 @@ pub fn run_node(args: NodeArgs) -> anyhow::Result<()> {
     let frame_pub = ipc::publisher::<ContactFrame>(&node, &session)?;
     let surface_pub = ipc::publisher::<SurfaceFrame>(&node, &session)?;
     let device_sub = ipc::subscriber::<DeviceState>(&node, &session, Queue::Newest)?;
-    let target_sub = ipc::subscriber::<ProbeTarget>(&node, &session, Queue::Newest)?;
+    // External targets are opt-in: without `[bridge] accept_target_pose` nothing listens.
+    let target_sub = if accept_target_pose {
+        Some(ipc::subscriber::<ProbeTarget>(
+            &node,
+            &session,
+            Queue::Newest,
+        )?)
+    } else {
+        None
+    };
     let material_sub = ipc::subscriber::<MaterialCommand>(&node, &session, Queue::Newest)?;
 
     let instance_id = msgs::clock::new_instance_id();
@@ -86,6 +98,9 @@ pub fn run_node(args: NodeArgs) -> anyhow::Result<()> {
     let mut target = boxed_zeroed::<ProbeTarget>();
     let mut material = boxed_zeroed::<MaterialCommand>();
     let mut last_target_time: Option<f64> = None;
+    let mut materials = MaterialWorker::spawn(scene.clone(), data_dir.clone())?;
+    let change_interval = Duration::from_secs_f64(scene.material_change_interval_s.max(0.0));
+
     let mut surface_seq = 0u64;
     let mut next_surface_time = 0.0;
 
@@ -101,13 +116,15 @@ pub fn run_node(args: NodeArgs) -> anyhow::Result<()> {
             break;
         }
         if ipc::take_newest(&material_sub, &mut material)? > 0 {
-            if let Err(e) = sim.set_degeneration_grade(material.degeneration_grade) {
-                tracing::warn!("material command rejected: {e}");
-            }
+            materials.request(material.degeneration_grade, sim.degeneration_grade());
         }
-        if ipc::take_newest(&target_sub, &mut target)? > 0 && target.pose.is_finite() {
-            sim.set_proxy_pose(&target.pose);
-            last_target_time = Some(sim.time());
+        materials.poll(&mut sim, change_interval);
+        if let Some(target_sub) = &target_sub {
+            if ipc::take_newest(target_sub, &mut target)? > 0 && target.pose.is_finite() {
+                sim.set_proxy_pose(&target.pose);
+                sim.set_external_drive();
+                last_target_time = Some(sim.time());
+            }
         }
         let target_active = last_target_time.is_some_and(|t| sim.time() - t < TARGET_HOLD_S);
         if ipc::take_newest(&device_sub, &mut device)? > 0
@@ -115,12 +132,13 @@ pub fn run_node(args: NodeArgs) -> anyhow::Result<()> {
             && device.proxy_pose.is_finite()
         {
             sim.set_proxy_pose(&device.proxy_pose);
-            sim.set_device_sequence(device.sequence);
+            sim.set_device_sample(device.instance_id, device.sequence);
         }
 
         let t0 = Instant::now();
         sim.step().context("physics step")?;
         let step_ns = t0.elapsed().as_nanos() as u64;
+
         // Absolute deadlines: step k ends at anchor + k·dt.
         let deadline = anchor + Duration::from_secs_f64(dt * (steps_since_anchor + 1) as f64);
         ipc::send_with(&frame_pub, |f| {
@@ -158,7 +176,11 @@ pub fn run_node(args: NodeArgs) -> anyhow::Result<()> {
     if let Some(csv) = csv.as_mut() {
         csv.flush()?;
     }
-    tracing::info!(steps = (sim.time() / dt).round(), "physics node stopped");
+    tracing::info!(
+        steps = (sim.time() / dt).round(),
+        physics_faults = sim.physics_faults(),
+        "physics node stopped"
+    );
     Ok(())
 }
 
@@ -193,4 +215,132 @@ pub fn fill_surface(sim: &Simulation, s: &mut SurfaceFrame, instance_id: u64, se
     s.sim_time_s = sim.time();
     s.vertex_count = nv as u32;
     s.triangle_count = nt as u32;
+}
+
+/// Requests to the material worker.
+enum MaterialJob {
+    Prepare(f64),
+    /// Old parts handed back after a swap: dropped here, not in the real-time loop.
+    Retire(Box<MaterialParts>),
+}
+
+/// Prepares material changes on its own thread and hands them to the loop, rate-limited.
+struct MaterialWorker {
+    jobs: std::sync::mpsc::Sender<MaterialJob>,
+    done: std::sync::mpsc::Receiver<Result<Box<MaterialParts>, String>>,
+    /// A preparation is under way.
+    busy: bool,
+    /// Newest requested grade not yet started (coalesced).
+    pending: Option<f64>,
+    /// Grade the loop will have once what is under way is swapped in.
+    target: Option<f64>,
+    last_start: Option<Instant>,
+    coalesced: u64,
+}
+
+impl MaterialWorker {
+    fn spawn(
+        scene: launch_config::SceneConfig,
+        data_dir: PathBuf,
+    ) -> anyhow::Result<MaterialWorker> {
+        let (jobs, job_rx) = std::sync::mpsc::channel::<MaterialJob>();
+        let (done_tx, done) = std::sync::mpsc::channel();
+        std::thread::Builder::new()
+            .name("physics-material".into())
+            .spawn(move || {
+                for job in job_rx {
+                    match job {
+                        MaterialJob::Prepare(grade) => {
+                            let started = Instant::now();
+                            let r = Simulation::prepare_material(&scene, &data_dir, grade)
+                                .map(Box::new)
+                                .map_err(|e| e.to_string());
+                            tracing::info!(
+                                grade,
+                                seconds = started.elapsed().as_secs_f64(),
+                                "material prepared off the step loop"
+                            );
+                            if done_tx.send(r).is_err() {
+                                break;
+                            }
+                        }
+                        MaterialJob::Retire(old) => drop(old),
+                    }
+                }
+            })
+            .context("starting the material worker thread")?;
+        Ok(MaterialWorker {
+            jobs,
+            done,
+            busy: false,
+            pending: None,
+            target: None,
+            last_start: None,
+            coalesced: 0,
+        })
+    }
+
+    /// A grade command: checked, then queued (replacing any grade not yet started).
+    fn request(&mut self, grade: f64, current: f64) {
+        if !(grade.is_finite() && (0.0..=2.0).contains(&grade)) {
+            tracing::warn!(
+                "material command rejected: degeneration grade must be in 0..=2, got {grade}"
+            );
+            return;
+        }
+        let effective = self.target.unwrap_or(current);
+        if self.pending.is_some() {
+            self.coalesced += 1;
+        }
+        self.pending = (grade != effective).then_some(grade);
+    }
+
+    /// Swaps in a finished preparation and starts the pending one when the rate limit allows.
+    /// Never blocks.
+    fn poll(&mut self, sim: &mut Simulation, interval: Duration) {
+        if self.busy {
+            match self.done.try_recv() {
+                Ok(Ok(parts)) => {
+                    self.busy = false;
+                    self.target = None;
+                    let grade = parts.grade();
+                    match sim.swap_material(*parts) {
+                        Ok(old) => {
+                            tracing::info!(
+                                grade,
+                                coalesced = self.coalesced,
+                                "material swapped in"
+                            );
+                            let _ = self.jobs.send(MaterialJob::Retire(Box::new(old)));
+                        }
+                        Err(parts) => {
+                            tracing::warn!(
+                                grade,
+                                "prepared material does not fit the scene; ignored"
+                            );
+                            let _ = self.jobs.send(MaterialJob::Retire(Box::new(parts)));
+                        }
+                    }
+                }
+                Ok(Err(e)) => {
+                    self.busy = false;
+                    self.target = None;
+                    tracing::warn!("material command failed: {e}");
+                }
+                Err(_) => {}
+            }
+        }
+        if self.busy {
+            return;
+        }
+        let due = self.last_start.is_none_or(|t| t.elapsed() >= interval);
+        if let (Some(grade), true) = (self.pending, due) {
+            if self.jobs.send(MaterialJob::Prepare(grade)).is_ok() {
+                self.pending = None;
+                self.target = Some(grade);
+                self.busy = true;
+                self.last_start = Some(Instant::now());
+            }
+        }
+    }
 }

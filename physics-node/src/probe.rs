@@ -16,10 +16,17 @@ use std::path::Path;
 const ROD_LENGTH: f64 = 0.15;
 /// Radius of the rod used for the inertia about its own axis, m.
 const ROD_RADIUS: f64 = 1.5e-3;
-/// Built-in hook: tip → elbow along +x, m.
+/// Built-in hook: tip → elbow, m (the bent end of an arthroscopic hook probe).
 const HOOK_LENGTH: f64 = 3.0e-3;
-/// Built-in shaft: elbow → up along +z; only the part that can reach the joint is modelled, m.
+/// Built-in shaft: elbow → handle; only the part that can reach the joint is modelled, m.
 const SHAFT_LENGTH: f64 = 40.0e-3;
+/// Inclination of the built-in shaft from the body z axis, degrees. The hook is bent at 90°
+/// to the shaft, so in the identity pose (z along the outward surface normal, the pose the
+/// emulated operator holds) the hook points down at the tissue at the same angle: the tip is
+/// the lowest point, the elbow sits HOOK_LENGTH·cos(45°) ≈ 2.1 mm above it, and the shaft
+/// rises away from the tissue. A hook laid flat (the earlier model) put the whole arm on
+/// the surface, so the contact was carried beside the tip instead of by it.
+const SHAFT_INCLINATION_DEG: f64 = 45.0;
 
 /// One collision primitive of the probe: a sphere in the body frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -313,8 +320,10 @@ impl Probe {
     }
 }
 
-/// Built-in hook probe: tip sphere at the origin, hook along +x to the elbow, shaft up +z.
-/// Segments are sampled with spheres (capsules as chains of balls).
+/// Built-in hook probe: tip sphere at the origin, the hook rising from the tip to the elbow
+/// (toward −x and +z), the shaft at 90° to the hook rising from the elbow toward +x and +z
+/// (see [`SHAFT_INCLINATION_DEG`]). Segments are sampled with spheres (capsules as chains of
+/// balls).
 fn builtin_hook(radius: f64) -> Vec<CollisionSphere> {
     let r = radius.max(0.5e-3);
     let mut out = Vec::new();
@@ -331,9 +340,13 @@ fn builtin_hook(radius: f64) -> Vec<CollisionSphere> {
             });
         }
     };
+    let (sin, cos) = SHAFT_INCLINATION_DEG.to_radians().sin_cos();
+    let shaft_dir = Vector3::new(sin, 0.0, cos);
+    // Elbow → tip, perpendicular to the shaft and pointing down.
+    let hook_dir = Vector3::new(cos, 0.0, -sin);
     let tip = Vector3::zeros();
-    let elbow = Vector3::new(HOOK_LENGTH, 0.0, 0.0);
-    let top = elbow + Vector3::new(0.0, 0.0, SHAFT_LENGTH);
+    let elbow = tip - hook_dir * HOOK_LENGTH;
+    let top = elbow + shaft_dir * SHAFT_LENGTH;
     // Spacing r leaves valleys of 13% of r between the balls of a chain.
     push_segment(tip, elbow, r, false);
     push_segment(elbow, top, r, true);

@@ -11,10 +11,10 @@
 //! A step allocates nothing and iterates nothing unordered, so the same inputs give
 //! bit-identical outputs.
 
-use crate::compliance::{direction, ComplianceCache, ConstraintCorrection, RestSolver};
+use crate::compliance::{direction, ComplianceCache, ConstraintCorrection, Filling, RestSolver};
 use crate::contact::{boundary_triangles, ContactDetector, ContactParams, TissueSurface};
 use crate::error::PhysicsError;
-use crate::fem::{FemModel, FemSettings, Material, RestCompliance};
+use crate::fem::{FemModel, FemSettings, Material, RestCompliance, StrainStiffening};
 use crate::geometry::ProbingSite;
 use crate::probe::{pose_to_nalgebra, Probe};
 use launch_config::SceneConfig;
@@ -29,13 +29,21 @@ const COMPLIANCE_BUDGET_BYTES: usize = 768 << 20;
 /// Widest block of columns solved at once when filling the cache.
 const BLOCK_COLUMNS: usize = 48;
 
-/// Adapter: the FEM's rest factorization on reduced (free-dof) vectors of length `dim`.
-struct RestFactor<'a> {
-    rest: &'a mut RestCompliance,
+/// Adapter: the FEM's rest factorization on reduced (free-dof) vectors of length `dim`
+/// (the solver a [`ComplianceCache`] owns).
+pub struct RestFactor {
+    rest: RestCompliance,
     dim: usize,
 }
 
-impl RestSolver for RestFactor<'_> {
+impl RestFactor {
+    pub fn new(rest: RestCompliance) -> RestFactor {
+        let dim = cache_dim(&rest);
+        RestFactor { rest, dim }
+    }
+}
+
+impl RestSolver for RestFactor {
     fn dim(&self) -> usize {
         self.dim
     }
@@ -62,6 +70,22 @@ pub struct PhaseTimes {
     pub correction_ns: u64,
 }
 
+/// The material-dependent parts of a simulation, prepared off the real-time loop
+/// ([`Simulation::prepare_material`]) and swapped in at a step boundary.
+pub struct MaterialParts {
+    grade: f64,
+    /// Time step the rest factorization (inside the cache's solver) was built for.
+    dt: f64,
+    fem: FemModel,
+    cache: ComplianceCache,
+}
+
+impl MaterialParts {
+    pub fn grade(&self) -> f64 {
+        self.grade
+    }
+}
+
 /// A meniscus–probe simulation.
 pub struct Simulation {
     scene: SceneConfig,
@@ -72,8 +96,11 @@ pub struct Simulation {
     instance_id: u64,
     device_sequence: u64,
     fem: FemModel,
-    rest: RestCompliance,
     cache: ComplianceCache,
+    filling: Filling,
+    budget_bytes: usize,
+    /// Rest positions of every mesh node (the prefetcher's map).
+    rest_positions: Vec<Point3<f64>>,
     correction: ConstraintCorrection,
     surface: TissueSurface,
     /// Rigid support under the held inferior surface (bone), if anything is held.
@@ -99,15 +126,49 @@ pub struct Simulation {
     visual: Option<crate::visual::VisualModel>,
     sites: Vec<ProbingSite>,
     degeneration_grade: f64,
+    /// Haptic instance whose device state drives the probe (0: none / external target).
+    device_instance: u64,
+    /// `msgs::physics_to_haptic::drive` bits written into the frame.
+    drive: u32,
+    /// Per-step checks and the last good state.
+    monitor: crate::faults::FaultMonitor,
+    report: crate::faults::StepReport,
     /// Reduced dimension of the rest system (3 × free nodes).
     dim: usize,
     times: PhaseTimes,
+    /// Node rotations divided by √(patch modulus factor): the stiffness-warped compliance
+    /// R A0⁻¹ Rᵀ / s of a strain-stiffened tissue (only used when it stiffens).
+    warp: Vec<nalgebra::Matrix3<f64>>,
+    /// Secant modulus factor of the loaded patch in the last step (1: linear or no contact).
+    patch_stiffening: f64,
 }
 
 impl Simulation {
     /// Builds the scene: meniscus mesh and fixed set, FE model, rest factorization and
-    /// compliance cache, collision surface, probe.
+    /// compliance cache, collision surface, probe. A compliance cache that cannot hold the
+    /// whole surface is filled inline (deterministic; see [`Self::with_filling`]).
     pub fn new(scene: &SceneConfig, data_dir: &Path) -> Result<Simulation, PhysicsError> {
+        Self::with_filling(scene, data_dir, Filling::Inline)
+    }
+
+    /// [`Self::new`] with a choice of how a partial compliance cache is filled: the real-time
+    /// physics node uses [`Filling::Prefetch`] (no solve inside a step).
+    pub fn with_filling(
+        scene: &SceneConfig,
+        data_dir: &Path,
+        filling: Filling,
+    ) -> Result<Simulation, PhysicsError> {
+        Self::with_compliance(scene, data_dir, filling, COMPLIANCE_BUDGET_BYTES)
+    }
+
+    /// [`Self::with_filling`] with the compliance cache's memory budget, bytes (tests use a
+    /// small one to exercise a partial cache on a small mesh).
+    pub fn with_compliance(
+        scene: &SceneConfig,
+        data_dir: &Path,
+        filling: Filling,
+        budget_bytes: usize,
+    ) -> Result<Simulation, PhysicsError> {
         if !(scene.dt.is_finite() && scene.dt > 0.0) {
             return Err(PhysicsError::Config(format!(
                 "dt must be > 0 s, got {}",
@@ -166,7 +227,11 @@ impl Simulation {
             FemSettings::from_scene(scene).map_err(|e| PhysicsError::Fem(e.to_string()))?;
         let mut fem = FemModel::new(&mesh, material, &fixed, settings)
             .map_err(|e| PhysicsError::Fem(e.to_string()))?;
-        let mut rest = fem
+        fem.set_stiffening(
+            StrainStiffening::new(scene.material.strain_stiffening)
+                .map_err(|e| PhysicsError::Fem(e.to_string()))?,
+        );
+        let rest = fem
             .rest_compliance(scene.dt, BLOCK_COLUMNS)
             .map_err(|e| PhysicsError::Fem(e.to_string()))?;
 
@@ -193,11 +258,11 @@ impl Simulation {
         let cache = ComplianceCache::new(
             free_index,
             &surface.nodes,
-            &mut RestFactor {
-                rest: &mut rest,
-                dim,
-            },
-            COMPLIANCE_BUDGET_BYTES,
+            &surface.triangles,
+            &mesh.nodes,
+            Box::new(RestFactor { rest, dim }),
+            budget_bytes,
+            filling,
         );
 
         let probe = Probe::new(&scene.probe, c.contact_distance, data_dir)?;
@@ -238,6 +303,7 @@ impl Simulation {
 
         let n_nodes = mesh.nodes.len();
         let spheres = probe.spheres.len();
+        let monitor = crate::faults::FaultMonitor::new(&scene.faults, &fem);
         Ok(Simulation {
             scene: scene.clone(),
             dt: scene.dt,
@@ -247,8 +313,10 @@ impl Simulation {
             instance_id: 0,
             device_sequence: 0,
             fem,
-            rest,
             cache,
+            filling,
+            budget_bytes,
+            rest_positions: mesh.nodes.clone(),
             correction: ConstraintCorrection::new(dim, MAX_CONTACTS),
             surface,
             support,
@@ -275,8 +343,14 @@ impl Simulation {
             visual,
             sites,
             degeneration_grade: scene.material.degeneration_grade,
+            device_instance: 0,
+            drive: 0,
+            monitor,
+            report: crate::faults::StepReport::default(),
             dim,
             times: PhaseTimes::default(),
+            warp: vec![nalgebra::Matrix3::identity(); n_nodes],
+            patch_stiffening: 1.0,
         })
     }
 
@@ -327,34 +401,110 @@ impl Simulation {
         self.fem
             .set_material(material)
             .map_err(|e| PhysicsError::Fem(e.to_string()))?;
-        self.rest = self
+        let rest = self
             .fem
             .rest_compliance(self.dt, BLOCK_COLUMNS)
             .map_err(|e| PhysicsError::Fem(e.to_string()))?;
         let free_index: Vec<u32> = (0..self.fem.node_count())
             .map(|n| {
-                self.rest
-                    .free_index(n)
+                rest.free_index(n)
                     .map_or(crate::compliance::NONE, |i| i as u32)
             })
             .collect();
         self.cache = ComplianceCache::new(
             free_index,
             &self.surface.nodes,
-            &mut RestFactor {
-                rest: &mut self.rest,
+            &self.surface.triangles,
+            &self.rest_positions,
+            Box::new(RestFactor {
+                rest,
                 dim: self.dim,
-            },
-            COMPLIANCE_BUDGET_BYTES,
+            }),
+            self.budget_bytes,
+            self.filling,
         );
         self.scene.material.degeneration_grade = grade;
         self.degeneration_grade = grade;
         Ok(())
     }
 
+    /// Builds the material-dependent parts of `scene` at degeneration grade `grade` (FE
+    /// model, rest factorization, compliance cache): seconds of work and up to the cache
+    /// budget of memory, meant for a worker thread. [`Self::swap_material`] puts them in.
+    pub fn prepare_material(
+        scene: &SceneConfig,
+        data_dir: &Path,
+        grade: f64,
+    ) -> Result<MaterialParts, PhysicsError> {
+        if !(grade.is_finite() && (0.0..=2.0).contains(&grade)) {
+            return Err(PhysicsError::Config(format!(
+                "degeneration grade must be in 0..=2, got {grade}"
+            )));
+        }
+        let mut scene = scene.clone();
+        scene.material.degeneration_grade = grade;
+        let sim = Simulation::new(&scene, data_dir)?;
+        Ok(MaterialParts {
+            grade,
+            dt: sim.dt,
+            fem: sim.fem,
+            cache: sim.cache,
+        })
+    }
+
+    /// Swaps prepared material parts in at a step boundary: the current positions and
+    /// velocities move to the new FE model (O(nodes), no allocation), and the old parts come
+    /// back, to be dropped off the real-time loop. Parts built for another mesh are refused
+    /// and returned as they are.
+    pub fn swap_material(
+        &mut self,
+        mut parts: MaterialParts,
+    ) -> Result<MaterialParts, MaterialParts> {
+        if parts.fem.node_count() != self.fem.node_count() || parts.dt != self.dt {
+            return Err(parts);
+        }
+        for n in 0..self.fem.node_count() {
+            // Only fail for an out-of-range node or a non-finite value: the committed state
+            // of a good step is finite.
+            let _ = parts.fem.set_position(n, self.fem.positions()[n]);
+            let _ = parts.fem.set_velocity(n, self.fem.velocities()[n]);
+        }
+        std::mem::swap(&mut self.fem, &mut parts.fem);
+        std::mem::swap(&mut self.cache, &mut parts.cache);
+        std::mem::swap(&mut self.degeneration_grade, &mut parts.grade);
+        self.scene.material.degeneration_grade = self.degeneration_grade;
+        Ok(parts)
+    }
+
+    /// The degeneration grade in use.
+    pub fn degeneration_grade(&self) -> f64 {
+        self.degeneration_grade
+    }
+
     /// Records which device state drove this step (published in the frame).
     pub fn set_device_sequence(&mut self, sequence: u64) {
         self.device_sequence = sequence;
+    }
+
+    /// Records which device sample (haptic instance and tick) drives the next step; the
+    /// haptic node renders only frames computed for its own samples.
+    pub fn set_device_sample(&mut self, instance: u64, sequence: u64) {
+        self.device_instance = instance;
+        self.device_sequence = sequence;
+        self.drive &= !msgs::physics_to_haptic::drive::EXTERNAL_TARGET;
+    }
+
+    /// The probe follows an external target (not a device) from the next step on: frames
+    /// say so and name no device sample, so no haptic node renders them.
+    pub fn set_external_drive(&mut self) {
+        self.device_instance = 0;
+        self.device_sequence = 0;
+        self.drive |= msgs::physics_to_haptic::drive::EXTERNAL_TARGET;
+    }
+
+    /// Faulty steps since start (each one flagged, rolled back and not rendered).
+    pub fn physics_faults(&self) -> u64 {
+        self.monitor.faulty_steps
     }
 
     /// Instance id written into every frame.
@@ -363,8 +513,53 @@ impl Simulation {
         self.frame.instance_id = id;
     }
 
-    /// One FreeMotionAnimationLoop step. Allocation-free.
+    /// One FreeMotionAnimationLoop step, checked. Allocation-free. A step that fails a check
+    /// (see [`crate::faults`]) or errors numerically is still published, with its
+    /// `physics_faults` bits set, and the state is rolled back; it returns `Ok` (survived).
     pub fn step(&mut self) -> Result<(), PhysicsError> {
+        use msgs::physics_to_haptic::{drive, physics_fault};
+        self.report = crate::faults::StepReport {
+            lcp_converged: true,
+            ..Default::default()
+        };
+        let (faults, errored) = match self.advance() {
+            Ok(()) => (self.monitor.check(&self.report, &mut self.fem), false),
+            Err(PhysicsError::Numerical { detail, .. }) => {
+                self.monitor.note_numerical(&detail);
+                (physics_fault::NUMERICAL, true)
+            }
+            Err(e) => return Err(e),
+        };
+        let frame = &mut *self.frame;
+        frame.physics_faults = faults;
+        frame.drive = self.drive;
+        if faults == 0 {
+            self.monitor.commit_good(&self.fem, &self.probe);
+            return Ok(());
+        }
+        if errored {
+            // The step stopped midway: close it so time and sequence still advance, with no
+            // contact problem a consumer could use.
+            self.time = (self.sequence + 1) as f64 * self.dt;
+            self.sequence += 1;
+            frame.instance_id = self.instance_id;
+            frame.sequence = self.sequence;
+            frame.sim_time_s = self.time;
+            frame.dt_s = self.dt;
+            frame.contact_count = 0;
+            frame.row_count = 0;
+            frame.device_sequence_used = self.device_sequence;
+            frame.device_instance_used = self.device_instance;
+        }
+        self.monitor
+            .roll_back(faults, self.time, &mut self.fem, &mut self.probe);
+        self.warm.iter_mut().for_each(|w| *w = [0.0; 3]);
+        frame.drive |= drive::ROLLED_BACK;
+        Ok(())
+    }
+
+    /// The unchecked step.
+    fn advance(&mut self) -> Result<(), PhysicsError> {
         let dt = self.dt;
         let clock = std::time::Instant::now();
         let lap = |acc: &mut u64, last: &mut std::time::Instant| {
@@ -376,15 +571,18 @@ impl Simulation {
         // Start-of-step geometry: collision surface and nodal rotations of the committed state.
         self.surface.refit(self.fem.positions());
         self.fem.update_node_rotations();
+        self.cache.prefetch(&self.probe);
         lap(&mut self.times.prepare_ns, &mut last);
 
         // 1. Free motion.
-        self.fem
+        let cg = self
+            .fem
             .free_motion(dt, &self.external)
             .map_err(|e| PhysicsError::Numerical {
                 time: self.time,
                 detail: e.to_string(),
             })?;
+        self.report.cg_residual = cg.relative_residual;
         self.probe.free_motion(dt, &self.gravity);
         lap(&mut self.times.free_motion_ns, &mut last);
 
@@ -424,15 +622,37 @@ impl Simulation {
             frame.compliance[r * MAX_ROWS..r * MAX_ROWS + self.prev_rows].fill(0.0);
         }
         self.prev_rows = rows;
-        let rotations = self.fem.node_rotations();
+        // The contact compliance is the rest compliance warped by the node rotations and, for
+        // a strain-stiffening tissue, divided by the secant modulus factor of the loaded
+        // patch: with the probe moving quasi-statically the free motion relaxes the tissue
+        // almost completely (mg nodal masses against kN/m), so the contact force is W⁻¹ times
+        // the violation and the stiffening has to be in W. One factor for the patch (the
+        // mean node factor under the contacts, weighted by their free penetration) scales
+        // W and the tissue correction alike, so the deformed shape stays the rest response.
+        let rotations = if self.fem.stiffening().is_active() {
+            let factors = self.fem.node_stiffening();
+            let (mut sum, mut weight) = (0.0, 0.0);
+            for c in contacts.iter() {
+                let w = (-c.free_violation[0]).max(0.0);
+                for a in 0..3 {
+                    sum += w * c.weights[a] * factors[c.nodes[a]];
+                    weight += w * c.weights[a];
+                }
+            }
+            let patch = if weight > 0.0 { sum / weight } else { 1.0 };
+            self.patch_stiffening = patch;
+            let inv_sqrt = 1.0 / patch.sqrt();
+            for (w, r) in self.warp.iter_mut().zip(self.fem.node_rotations()) {
+                *w = r * inv_sqrt;
+            }
+            &self.warp[..]
+        } else {
+            self.fem.node_rotations()
+        };
         if m > 0 {
             self.correction.assemble(
                 contacts,
                 &mut self.cache,
-                &mut RestFactor {
-                    rest: &mut self.rest,
-                    dim: self.dim,
-                },
                 rotations,
                 &self.probe,
                 dt,
@@ -467,6 +687,13 @@ impl Simulation {
                 Ok(sol) => {
                     iterations = sol.iterations;
                     residual = sol.residual;
+                    self.report.lcp_converged = sol.converged;
+                    self.report.penetration = crate::faults::corrected_penetration(
+                        &frame.compliance,
+                        &frame.free_violation,
+                        &self.lambda,
+                        rows,
+                    );
                 }
                 Err(e) => {
                     return Err(PhysicsError::Numerical {
@@ -533,6 +760,8 @@ impl Simulation {
         }
         self.contact_force = [force.x, force.y, force.z];
         self.contact_torque = [torque.x, torque.y, torque.z];
+        self.report.contacts = m;
+        self.report.force = self.contact_force;
 
         // Frame header and results.
         frame.instance_id = self.instance_id;
@@ -545,6 +774,7 @@ impl Simulation {
         frame.lcp_iterations = iterations;
         frame.lcp_residual = residual;
         frame.device_sequence_used = self.device_sequence;
+        frame.device_instance_used = self.device_instance;
         frame.proxy_pose = proxy_pose;
         frame.probe_free_pose = probe_free_pose;
         frame.probe_pose = self.probe.pose();
@@ -564,6 +794,12 @@ impl Simulation {
             }
         }
         Ok(())
+    }
+
+    /// Secant modulus factor the contact compliance of the last step was divided by (1 for
+    /// a linear tissue or without contact).
+    pub fn patch_stiffening(&self) -> f64 {
+        self.patch_stiffening
     }
 
     pub fn contact_frame(&self) -> &ContactFrame {
@@ -634,9 +870,44 @@ impl Simulation {
         &self.probe
     }
 
-    /// Compliance cache misses so far (each one 3-column solve inside a step).
+    /// Compliance cache misses so far: nodes a step needed that were not cached (inline
+    /// filling: each one 3-column solve inside the step; prefetch: each one approximated).
     pub fn compliance_misses(&self) -> u64 {
         self.cache.misses
+    }
+
+    /// Contacts whose tissue compliance was approximated so far (prefetch filling: a node
+    /// of the contact was not cached yet).
+    pub fn compliance_approximations(&self) -> u64 {
+        self.cache.approximated
+    }
+
+    /// Surface nodes whose compliance is cached now.
+    pub fn compliance_cached_nodes(&self) -> usize {
+        self.cache.cached_nodes()
+    }
+
+    /// Waits (set-up, not the real-time loop) until the prefetcher has cached the surface
+    /// around the probe's current pose and target; true when it did within `timeout`.
+    pub fn wait_compliance_prefetched(&mut self, timeout: std::time::Duration) -> bool {
+        self.cache.wait_prefetched(&self.probe, timeout)
+    }
+
+    /// The inputs a new [`ComplianceCache`] for this scene needs besides its solver and
+    /// free rows: surface nodes, surface triangles and rest positions (to build one off the
+    /// real-time loop).
+    pub fn compliance_layout(&self) -> (&[usize], &[[usize; 3]], &[Point3<f64>]) {
+        (
+            &self.surface.nodes,
+            &self.surface.triangles,
+            &self.rest_positions,
+        )
+    }
+
+    /// Swaps in a compliance cache built elsewhere (e.g. on a worker thread after a material
+    /// change) and returns the old one. Cheap: the caller drops the old one off the loop.
+    pub fn swap_compliance(&mut self, cache: ComplianceCache) -> ComplianceCache {
+        std::mem::replace(&mut self.cache, cache)
     }
 
     /// Total mechanical energy, J: tissue (elastic, kinetic, gravity) + probe (kinetic,

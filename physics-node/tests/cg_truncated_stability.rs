@@ -69,7 +69,7 @@ fn plain_cg_stays_stable_under_contact_on_the_study_medial_mesh() {
     let mut scene = launch_config::SceneConfig::default();
     scene.meniscus.mesh = "study:medial".into();
     scene.meniscus.fixed = "inferior".into();
-    scene.solver.kind = "cg".into();
+    scene.solver.kind = launch_config::scene::SolverKind::Cg;
     // A 1.5–2 mm indentation of this mesh takes tens of newtons (see sim_force_depth); the
     // diverged run reached 1e22 N.
     let peak = indent_and_circle(&scene, 2.0);
@@ -80,7 +80,7 @@ fn plain_cg_stays_stable_under_contact_on_the_study_medial_mesh() {
 fn five_iteration_cg_stays_stable_under_contact_on_the_default_coarse_mesh() {
     let mut scene = launch_config::SceneConfig::default();
     scene.meniscus.mesh = "default:lateral:coarse".into();
-    scene.solver.kind = "cg".into();
+    scene.solver.kind = launch_config::scene::SolverKind::Cg;
     scene.solver.cg_iterations = 5;
     let peak = indent_and_circle(&scene, 2.0);
     assert!(peak < 500.0, "contact force reached {peak} N");

@@ -152,7 +152,7 @@ fn force_depth_curve_on_study_lateral_mesh_and_refined() {
     scene.probe.tip_radius = 1.5e-3;
     // Sparse direct FEM solve: SOFA's plain CG (25 iterations, no preconditioner) does not
     // converge on the refined mesh and the quasi-static press then diverges.
-    scene.solver.kind = "direct".into();
+    scene.solver.kind = launch_config::scene::SolverKind::Direct;
     let loaded = physics_node::mesh::load_scene_mesh(&scene.meniscus, &data).unwrap();
     let site = loaded
         .probing_sites

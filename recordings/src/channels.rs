@@ -10,8 +10,9 @@
 //!   tick: proxy pose/twist, joint angles, commanded and rendered force, frame used, faults,
 //!   and the protocol annotations (probing index, region, phase).
 //!
-//! The bridge's topics (same names and types as `viz-bridge` publishes) are written beside
-//! them so Foxglove / `ros2 bag play` show the session without arthrosim code.
+//! The bridge's topics are written beside them, built by the same mapping the bridge uses
+//! (`msgs::ros_mapping`: names, types, frames, joint names, tf tree, diagnostics), so
+//! Foxglove / `ros2 bag play` show exactly what the live bridge showed, without arthrosim code.
 
 use msgs::ros::{self, Header, MsgDef, RosMessage};
 use serde::{Deserialize, Serialize};
@@ -20,19 +21,12 @@ use session_metrics::ContactSample;
 pub const PROFILE: &str = "ros2";
 pub const MESSAGE_ENCODING: &str = "cdr";
 pub const SCHEMA_ENCODING: &str = "ros2msg";
-/// World frame id of every stamped message.
-pub const WORLD_FRAME: &str = "world";
+/// World frame id of the lossless channels' headers (the ROS 2 topics take theirs from
+/// `msgs::ros_mapping`).
+pub const WORLD_FRAME: &str = msgs::ros_mapping::DEFAULT_WORLD_FRAME;
 
 pub const TOPIC_CONTACT_STEP: &str = "/arthrosim/recording/contact_step";
 pub const TOPIC_DEVICE_TICK: &str = "/arthrosim/recording/device_tick";
-pub const TOPIC_PROBE_POSE: &str = "/arthrosim/probe/pose";
-pub const TOPIC_PROBE_WRENCH: &str = "/arthrosim/probe/wrench";
-pub const TOPIC_DEVICE_WRENCH: &str = "/arthrosim/device/wrench";
-pub const TOPIC_JOINT_STATES: &str = "/arthrosim/device/joint_states";
-pub const TOPIC_BUTTONS: &str = "/arthrosim/device/buttons";
-pub const TOPIC_MESH: &str = "/arthrosim/meniscus/mesh";
-pub const TOPIC_TF: &str = "/tf";
-pub const TOPIC_DIAGNOSTICS: &str = "/diagnostics";
 
 pub const TYPE_CONTACT_STEP: &str = "arthrosim_msgs/msg/ContactStep";
 pub const TYPE_DEVICE_TICK: &str = "arthrosim_msgs/msg/DeviceTick";
@@ -266,6 +260,9 @@ impl ContactStep {
                 self.probe_pose.position.y,
                 self.probe_pose.position.z,
             ],
+            // The recording's ContactStep does not carry the fault bits (yet): a recorded
+            // step reads as good.
+            physics_faults: 0,
         }
     }
 }

@@ -3,7 +3,7 @@
 
 use crate::channels::*;
 use crate::error::RecordingError;
-use crate::read::{check_schema, decode, scan, ChannelInfo, Event};
+use crate::read::{check_schema, decode, scan_parts, ChannelInfo, Event};
 use mcap::records::MessageHeader;
 use msgs::protocol::Region;
 use serde::Serialize;
@@ -81,17 +81,19 @@ impl LosslessChannels {
     }
 }
 
-/// Reads the lossless channels: every ContactStep and DeviceTick, in file order.
+/// Reads the lossless channels: every ContactStep and DeviceTick, in file order, over all
+/// parts of the recording (`session.mcap`, `session.1.mcap`, …; see
+/// [`crate::read::session_parts`]).
 pub fn read_lossless(path: &Path) -> Result<(Vec<ContactStep>, Vec<DeviceTick>), RecordingError> {
     let mut lossless = LosslessChannels::default();
-    scan(path, &mut |event| {
+    scan_parts(path, &mut |part, event| {
         if let Event::Message {
             channel,
             header,
             data,
         } = event
         {
-            lossless.push(path, channel, &header, data)?;
+            lossless.push(part, channel, &header, data)?;
         }
         Ok(())
     })?;

@@ -13,7 +13,7 @@
 //! ```text
 //! // arthrosim node recorder / bin `recorder`
 //! recordings::recorder::run_node(args: recordings::recorder::NodeArgs) -> anyhow::Result<()>
-//!     NodeArgs { --launch FILE, --session NAME, --out DIR (default "."), --seconds S (0: until signal) }
+//!     NodeArgs { launch_config::node::CommonArgs { --launch FILE, --session NAME, --out DIR (default ".") }, --seconds S (0: until signal) }
 //!
 //! // arthrosim recordings info FILE
 //! recordings::info(path: &Path) -> Result<RecordingInfo, RecordingError>     // impl Display, Serialize
@@ -48,6 +48,7 @@
 pub mod channels;
 pub mod error;
 pub mod export;
+pub mod length_guard;
 pub mod read;
 pub mod recorder;
 pub mod repair;

@@ -192,7 +192,15 @@ impl Scanner<'_> {
                     self.out.skipped_chunks.push("chunk CRC mismatch".into());
                     return Ok(());
                 }
-                for inner in LinearReader::sans_magic(&uncompressed) {
+                // Only the records before one whose length prefixes overrun it.
+                let intact = match crate::length_guard::first_overlong(&uncompressed) {
+                    Some((at, problem)) => {
+                        self.out.skipped_chunks.push(problem);
+                        &uncompressed[..at]
+                    }
+                    None => &uncompressed[..],
+                };
+                for inner in LinearReader::sans_magic(intact) {
                     match inner {
                         Ok(r) => self.record(r, true)?,
                         Err(e) => {
@@ -249,7 +257,21 @@ pub fn scan_bytes(
             out: ScanOutcome::default(),
             visit,
         };
-        let reader = LinearReader::new(bytes).map_err(|e| RecordingError::Corrupt {
+        // Records from the first one whose length prefixes overrun it are not handed to the
+        // parser (it would reserve what they claim): a damaged tail, like a torn one.
+        let overlong = crate::length_guard::first_overlong(&bytes[mcap::MAGIC.len()..]);
+        let intact = match &overlong {
+            Some((0, problem)) => {
+                return Err(RecordingError::Corrupt {
+                    path: path.to_path_buf(),
+                    offset: mcap::MAGIC.len() as u64,
+                    detail: format!("header record: {problem}"),
+                })
+            }
+            Some((at, _)) => &bytes[..mcap::MAGIC.len() + at],
+            None => bytes,
+        };
+        let reader = LinearReader::new(intact).map_err(|e| RecordingError::Corrupt {
             path: path.to_path_buf(),
             offset: 0,
             detail: e.to_string(),
@@ -287,6 +309,12 @@ pub fn scan_bytes(
                 path: path.to_path_buf(),
                 detail: "no header record".into(),
             });
+        }
+        if let Some((at, problem)) = overlong {
+            scanner.out.stopped_early = Some(format!(
+                "after {records} records, at byte {}: {problem}",
+                mcap::MAGIC.len() + at
+            ));
         }
         Ok(scanner.out)
     }));
@@ -394,6 +422,9 @@ pub struct RecordingInfo {
     pub attachments: Vec<String>,
     /// The `arthrosim_session` metadata record (session name, launch path, source).
     pub session: BTreeMap<String, String>,
+    /// The files read, in order (`session.mcap`, then `session.1.mcap`, … written by a
+    /// restarted recorder).
+    pub parts: Vec<PathBuf>,
 }
 
 struct TopicAcc {
@@ -403,62 +434,77 @@ struct TopicAcc {
     lossless: bool,
 }
 
-/// Topics, counts, rates, duration, gaps of `path`.
+/// Topics, counts, rates, duration, gaps of the recording at `path`: all of its parts in
+/// order (a session folder, or any part: see [`session_parts`]).
 pub fn info(path: &Path) -> Result<RecordingInfo, RecordingError> {
-    let bytes = load(path)?;
-    let mut acc: BTreeMap<u16, TopicAcc> = BTreeMap::new();
+    // Per topic (channel ids differ between parts), in order of first appearance.
+    let mut acc: BTreeMap<String, TopicAcc> = BTreeMap::new();
     let mut metadata = Vec::new();
     let mut attachments = Vec::new();
     let mut session = BTreeMap::new();
-    let mut checked: BTreeMap<u16, bool> = BTreeMap::new();
-    let outcome = scan_bytes(path, &bytes, &mut |event| {
-        match event {
-            Event::Message {
-                channel,
-                header,
-                data,
-            } => {
-                let lossless = *checked.entry(channel.id).or_insert_with(|| {
-                    (channel.topic == TOPIC_CONTACT_STEP
-                        && check_schema::<ContactStep>(path, channel).is_ok())
-                        || (channel.topic == TOPIC_DEVICE_TICK
-                            && check_schema::<DeviceTick>(path, channel).is_ok())
-                });
-                let a = acc.entry(channel.id).or_insert_with(|| TopicAcc {
-                    times: Vec::new(),
-                    last_seq: None,
-                    missing: 0,
-                    lossless,
-                });
-                a.times.push(header.log_time);
-                if lossless {
-                    // Only the leading fields are needed: instance id and sequence.
-                    let ids = if channel.topic == TOPIC_CONTACT_STEP {
-                        decode::<ContactStep>(path, channel, &header, data)
-                            .map(|m| (m.instance_id, m.sequence))
-                    } else {
-                        decode::<DeviceTick>(path, channel, &header, data)
-                            .map(|m| (m.instance_id, m.sequence))
-                    };
-                    let (instance, seq) = ids?;
-                    if let Some((last_instance, last)) = a.last_seq {
-                        if last_instance == instance && seq > last + 1 {
-                            a.missing += seq - last - 1;
+    let mut total_bytes = 0u64;
+    let mut parts = Vec::new();
+    let mut outcomes: Vec<(PathBuf, ScanOutcome)> = Vec::new();
+    for part in session_parts(path)? {
+        let bytes = load(&part)?;
+        total_bytes += bytes.len() as u64;
+        let mut checked: BTreeMap<u16, bool> = BTreeMap::new();
+        let path = part.as_path();
+        let outcome = scan_bytes(path, &bytes, &mut |event| {
+            match event {
+                Event::Message {
+                    channel,
+                    header,
+                    data,
+                } => {
+                    let lossless = *checked.entry(channel.id).or_insert_with(|| {
+                        (channel.topic == TOPIC_CONTACT_STEP
+                            && check_schema::<ContactStep>(path, channel).is_ok())
+                            || (channel.topic == TOPIC_DEVICE_TICK
+                                && check_schema::<DeviceTick>(path, channel).is_ok())
+                    });
+                    let a = acc
+                        .entry(channel.topic.clone())
+                        .or_insert_with(|| TopicAcc {
+                            times: Vec::new(),
+                            last_seq: None,
+                            missing: 0,
+                            lossless,
+                        });
+                    a.times.push(header.log_time);
+                    if lossless {
+                        // Only the leading fields are needed: instance id and sequence.
+                        let ids = if channel.topic == TOPIC_CONTACT_STEP {
+                            decode::<ContactStep>(path, channel, &header, data)
+                                .map(|m| (m.instance_id, m.sequence))
+                        } else {
+                            decode::<DeviceTick>(path, channel, &header, data)
+                                .map(|m| (m.instance_id, m.sequence))
+                        };
+                        let (instance, seq) = ids?;
+                        if let Some((last_instance, last)) = a.last_seq {
+                            if last_instance == instance && seq > last + 1 {
+                                a.missing += seq - last - 1;
+                            }
                         }
+                        a.last_seq = Some((instance, seq));
                     }
-                    a.last_seq = Some((instance, seq));
                 }
-            }
-            Event::Metadata(m) => {
-                if m.name == SESSION_METADATA {
-                    session = m.metadata.clone();
+                Event::Metadata(m) => {
+                    if m.name == SESSION_METADATA && session.is_empty() {
+                        session = m.metadata.clone();
+                    }
+                    metadata.push(m.name.clone());
                 }
-                metadata.push(m.name.clone());
+                Event::Attachment { name, .. } => attachments.push(name.to_string()),
             }
-            Event::Attachment { name, .. } => attachments.push(name.to_string()),
-        }
-        Ok(())
-    })?;
+            Ok(())
+        })?;
+        parts.push(part.clone());
+        outcomes.push((part, outcome));
+    }
+    metadata.dedup();
+    attachments.dedup();
     let start_ns = acc
         .values()
         .filter_map(|a| a.times.iter().min().copied())
@@ -470,8 +516,16 @@ pub fn info(path: &Path) -> Result<RecordingInfo, RecordingError> {
         .max()
         .unwrap_or(0);
     let mut topics = Vec::new();
-    for (id, channel) in &outcome.channels {
-        let (count, first_ns, last_ns, rate_hz, gaps, missing) = match acc.get_mut(id) {
+    let mut channels: Vec<&ChannelInfo> = Vec::new();
+    for (_, o) in &outcomes {
+        for c in o.channels.values() {
+            if !channels.iter().any(|k| k.topic == c.topic) {
+                channels.push(c);
+            }
+        }
+    }
+    for channel in channels {
+        let (count, first_ns, last_ns, rate_hz, gaps, missing) = match acc.get_mut(&channel.topic) {
             Some(a) if !a.times.is_empty() => {
                 a.times.sort_unstable();
                 let first = a.times[0];
@@ -516,15 +570,28 @@ pub fn info(path: &Path) -> Result<RecordingInfo, RecordingError> {
             sequence_missing: missing,
         });
     }
+    let first = &outcomes[0].1;
+    let multi = outcomes.len() > 1;
+    let stopped_early = outcomes.iter().find_map(|(p, o)| {
+        o.stopped_early.as_ref().map(|why| {
+            if multi {
+                format!("{}: {why}", p.display())
+            } else {
+                why.clone()
+            }
+        })
+    });
     Ok(RecordingInfo {
-        path: path.to_path_buf(),
-        bytes: bytes.len() as u64,
-        profile: outcome.profile,
-        library: outcome.library,
-        complete: outcome.data_end && outcome.footer && outcome.stopped_early.is_none(),
-        stopped_early: outcome.stopped_early,
-        skipped_chunks: outcome.skipped_chunks.len(),
-        messages: outcome.messages,
+        path: parts[0].clone(),
+        bytes: total_bytes,
+        profile: first.profile.clone(),
+        library: first.library.clone(),
+        complete: outcomes
+            .iter()
+            .all(|(_, o)| o.data_end && o.footer && o.stopped_early.is_none()),
+        stopped_early,
+        skipped_chunks: outcomes.iter().map(|(_, o)| o.skipped_chunks.len()).sum(),
+        messages: outcomes.iter().map(|(_, o)| o.messages).sum(),
         start_ns,
         end_ns,
         duration_s: end_ns.saturating_sub(start_ns) as f64 * 1e-9,
@@ -532,6 +599,7 @@ pub fn info(path: &Path) -> Result<RecordingInfo, RecordingError> {
         metadata,
         attachments,
         session,
+        parts,
     })
 }
 
@@ -543,6 +611,10 @@ impl std::fmt::Display for RecordingInfo {
             self.path.display(),
             self.bytes
         )?;
+        if self.parts.len() > 1 {
+            let names: Vec<String> = self.parts.iter().map(|p| p.display().to_string()).collect();
+            writeln!(f, "parts:     {} ({})", self.parts.len(), names.join(", "))?;
+        }
         writeln!(f, "profile:   {} ({})", self.profile, self.library)?;
         if let Some(s) = self.session.get("session") {
             writeln!(
@@ -595,4 +667,131 @@ impl std::fmt::Display for RecordingInfo {
         }
         Ok(())
     }
+}
+
+/// Splits `name.mcap` / `name.N.mcap` into (`name`, N) (0 for the first part).
+fn part_of(file_name: &str) -> Option<(&str, u32)> {
+    let stem = file_name.strip_suffix(".mcap")?;
+    if let Some((base, n)) = stem.rsplit_once('.') {
+        if !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()) && n.len() <= 9 {
+            return Some((base, n.parse().ok()?));
+        }
+    }
+    Some((stem, 0))
+}
+
+/// The file a recorder (re)started in `dir` writes for `file_name` (`session.mcap`): the
+/// name itself when free, else the first free `session.N.mcap` after the highest existing
+/// part, so a restarted recorder never reopens (and never truncates) an earlier part.
+pub fn next_part_path(dir: &Path, file_name: &str) -> PathBuf {
+    let Some((base, _)) = part_of(file_name) else {
+        return dir.join(file_name);
+    };
+    let first = dir.join(format!("{base}.mcap"));
+    if !first.exists() {
+        return first;
+    }
+    let mut highest = 0;
+    if let Ok(entries) = std::fs::read_dir(dir) {
+        for e in entries.flatten() {
+            if let Some((b, n)) = e.file_name().to_str().and_then(part_of) {
+                if b == base {
+                    highest = highest.max(n);
+                }
+            }
+        }
+    }
+    dir.join(format!("{base}.{}.mcap", highest + 1))
+}
+
+/// The parts of a recording, in order: for `…/session.mcap` (or any of its parts
+/// `session.N.mcap`) every existing `session.mcap`, `session.1.mcap`, … in that folder;
+/// for a session folder, the parts of its `session.mcap` (or of its only recording).
+pub fn session_parts(path: &Path) -> Result<Vec<PathBuf>, RecordingError> {
+    let (dir, base) = if path.is_dir() {
+        let mut bases: Vec<String> = std::fs::read_dir(path)
+            .map_err(|e| RecordingError::io(path, e))?
+            .flatten()
+            .filter_map(|e| {
+                e.file_name()
+                    .to_str()
+                    .and_then(part_of)
+                    .map(|(b, _)| b.to_string())
+            })
+            .collect();
+        bases.sort();
+        bases.dedup();
+        let base = if bases.iter().any(|b| b == "session") {
+            "session".to_string()
+        } else if bases.len() == 1 {
+            bases.remove(0)
+        } else if bases.is_empty() {
+            return Err(RecordingError::io(
+                path,
+                std::io::Error::new(
+                    std::io::ErrorKind::NotFound,
+                    "no .mcap recording in this folder",
+                ),
+            ));
+        } else {
+            return Err(RecordingError::io(
+                path,
+                std::io::Error::new(
+                    std::io::ErrorKind::InvalidInput,
+                    format!(
+                        "several recordings in this folder ({}); name one",
+                        bases.join(", ")
+                    ),
+                ),
+            ));
+        };
+        (path.to_path_buf(), base)
+    } else {
+        let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("");
+        match part_of(name) {
+            Some((base, _)) => (
+                path.parent().unwrap_or(Path::new("")).to_path_buf(),
+                base.to_string(),
+            ),
+            // Not named like a part: just this file.
+            None => return Ok(vec![path.to_path_buf()]),
+        }
+    };
+    let mut parts: Vec<(u32, PathBuf)> = Vec::new();
+    let listing = if dir.as_os_str().is_empty() {
+        Path::new(".")
+    } else {
+        dir.as_path()
+    };
+    for e in std::fs::read_dir(listing)
+        .map_err(|e| RecordingError::io(listing, e))?
+        .flatten()
+    {
+        if let Some((b, n)) = e.file_name().to_str().and_then(part_of) {
+            if b == base && e.path().is_file() {
+                parts.push((n, dir.join(e.file_name())));
+            }
+        }
+    }
+    parts.sort();
+    if parts.is_empty() {
+        // Let the caller's read name the missing file.
+        return Ok(vec![path.to_path_buf()]);
+    }
+    Ok(parts.into_iter().map(|(_, p)| p).collect())
+}
+
+/// Scans every part of the recording at `path` in order (see [`session_parts`]); the
+/// visitor also gets the part being read. Returns each part's outcome.
+pub fn scan_parts(
+    path: &Path,
+    visit: &mut dyn FnMut(&Path, Event<'_>) -> Result<(), RecordingError>,
+) -> Result<Vec<(PathBuf, ScanOutcome)>, RecordingError> {
+    let mut outcomes = Vec::new();
+    for part in session_parts(path)? {
+        let bytes = load(&part)?;
+        let outcome = scan_bytes(&part, &bytes, &mut |e| visit(&part, e))?;
+        outcomes.push((part, outcome));
+    }
+    Ok(outcomes)
 }

@@ -15,23 +15,19 @@ use msgs::haptic_to_physics::DeviceState;
 use msgs::ipc::{self, IpcNode, IpcSubscriber, Queue};
 use msgs::physics_to_haptic::ContactFrame;
 use msgs::physics_to_viz::SurfaceFrame;
+use msgs::ros_mapping::{Mapping, StampClock};
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::atomic::Ordering;
 use std::time::Duration;
 
 /// Command-line arguments of the recorder node (also `arthrosim node recorder`).
 #[derive(Debug, Clone, clap::Args)]
 pub struct NodeArgs {
-    /// Launch file (TOML); its `[recording]` section configures this node. None: defaults.
-    #[arg(long)]
-    pub launch: Option<PathBuf>,
-    /// iceoryx2 session name (default: $ARTHROSIM_SESSION or "default").
-    #[arg(long)]
-    pub session: Option<String>,
-    /// Session folder: the MCAP (and metadata.yaml) are written here.
-    #[arg(long, default_value = ".")]
-    pub out: PathBuf,
+    /// `--launch` (its `[recording]` section), `--session`, `--out` (the session folder the
+    /// MCAP and metadata.yaml are written to; default: the current folder).
+    #[command(flatten)]
+    pub common: launch_config::node::CommonArgs,
     /// Stop by itself after this many seconds (0: run until SIGINT/SIGTERM).
     #[arg(long, default_value_t = 0.0)]
     pub seconds: f64,
@@ -92,35 +88,38 @@ pub struct Recorder {
     config: RecordingConfig,
     writer: Option<SessionWriter>,
     ports: Option<Ports>,
-    /// CLOCK_REALTIME − CLOCK_MONOTONIC at start: turns publishers' monotonic stamps into
-    /// ROS 2 / MCAP wall-clock times.
-    realtime_offset_ns: i128,
+    /// The session's clock: turns publishers' monotonic stamps into ROS 2 / MCAP wall-clock
+    /// times, exactly as the bridge does.
+    clock: StampClock,
     contact_seq: Continuity,
     device_seq: Continuity,
     pub stats: RecorderStats,
 }
 
 impl Recorder {
-    /// Creates the file and writes the session's launch file and scene into it.
+    /// Creates the file and writes the session's launch file and scene into it. `mapping`
+    /// and `clock` are the session's ROS 2 mapping and stamp clock (what the bridge uses).
     pub fn new(
         session: &str,
         config: &RecordingConfig,
         out_dir: &Path,
         info: &SessionInfo,
+        mapping: Mapping,
+        clock: StampClock,
     ) -> Result<Recorder, RecordingError> {
         config.validate().map_err(|detail| RecordingError::Launch {
             path: info.launch_path.clone().unwrap_or_default(),
             detail,
         })?;
-        let path = out_dir.join(&config.file_name);
-        let writer = SessionWriter::create(&path, config, info)?;
+        // A restarted recorder continues in a new part; it never reopens the first one.
+        let path = crate::read::next_part_path(out_dir, &config.file_name);
+        let writer = SessionWriter::create_with_mapping(&path, config, info, mapping)?;
         Ok(Recorder {
             session: session.to_string(),
             config: config.clone(),
             writer: Some(writer),
             ports: None,
-            realtime_offset_ns: msgs::clock::realtime_ns() as i128
-                - msgs::clock::monotonic_ns() as i128,
+            clock,
             contact_seq: Continuity::default(),
             device_seq: Continuity::default(),
             stats: RecorderStats::default(),
@@ -157,12 +156,7 @@ impl Recorder {
     }
 
     fn log_time(&self, publish_ns: u64) -> u64 {
-        let t = publish_ns as i128 + self.realtime_offset_ns;
-        if publish_ns == 0 || t <= 0 {
-            msgs::clock::realtime_ns()
-        } else {
-            t as u64
-        }
+        self.clock.epoch_ns(publish_ns)
     }
 
     /// Drains every queue once and writes what it found; finishes a chunk when the flush
@@ -171,15 +165,8 @@ impl Recorder {
         let (Some(ports), Some(writer)) = (self.ports.as_ref(), self.writer.as_mut()) else {
             return Ok(0);
         };
-        let offset = self.realtime_offset_ns;
-        let to_log = |publish_ns: u64| -> u64 {
-            let t = publish_ns as i128 + offset;
-            if publish_ns == 0 || t <= 0 {
-                msgs::clock::realtime_ns()
-            } else {
-                t as u64
-            }
-        };
+        let clock = self.clock;
+        let to_log = |publish_ns: u64| -> u64 { clock.epoch_ns(publish_ns) };
         let path = writer.path().to_path_buf();
         let link = |e: ipc::LinkError| RecordingError::Link {
             path: path.clone(),
@@ -293,13 +280,15 @@ pub fn read_launch(path: Option<&Path>) -> Result<(LaunchFile, String), Recordin
 
 /// Entry point of the `recorder` binary and of `arthrosim node recorder`.
 pub fn run_node(args: NodeArgs) -> anyhow::Result<()> {
+    launch_config::node::init_tracing("info");
+    let out = args.common.out.as_deref().unwrap_or(Path::new("."));
     let stop = msgs::lifecycle::install_stop_flag();
-    let session = ipc::session_name(args.session.as_deref())?;
-    let (launch, launch_text) = read_launch(args.launch.as_deref())?;
+    let session = ipc::session_name(args.common.session.as_deref())?;
+    let (launch, launch_text) = read_launch(args.common.launch.as_deref())?;
     let scene_toml = toml::to_string(&launch.scene).context("serialising the scene section")?;
     let info = SessionInfo {
         session: session.clone(),
-        launch_path: args.launch.clone(),
+        launch_path: args.common.launch.clone(),
         launch_text,
         scene_toml,
         source: "recorder".into(),
@@ -312,7 +301,14 @@ pub fn run_node(args: NodeArgs) -> anyhow::Result<()> {
         }
         return Ok(());
     }
-    let mut recorder = Recorder::new(&session, &launch.recording, &args.out, &info)?;
+    let mut recorder = Recorder::new(
+        &session,
+        &launch.recording,
+        out,
+        &info,
+        launch.bridge.ros_mapping(),
+        StampClock::for_session()?,
+    )?;
     recorder.start()?;
     msgs::lifecycle::announce_ready("recorder");
     let period = recorder.drain_period();

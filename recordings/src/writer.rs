@@ -13,13 +13,11 @@ use msgs::haptic_to_physics::DeviceState;
 use msgs::physics_to_haptic::ContactFrame;
 use msgs::physics_to_viz::SurfaceFrame;
 use msgs::ros::{self, RosMessage};
+use msgs::ros_mapping::{Mapping, Topic};
 use std::collections::BTreeMap;
 use std::fs::File;
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
-
-/// Names of the Touch's six joints, in `DeviceState::joint_angles` order.
-pub const JOINT_NAMES: [&str; 6] = ["waist", "shoulder", "elbow", "yaw", "pitch", "roll"];
 
 /// What the session is, written once at the start (so a killed recorder keeps it).
 #[derive(Debug, Clone, Default)]
@@ -57,7 +55,7 @@ pub struct WriteSummary {
 
 struct Channel {
     id: u16,
-    topic: &'static str,
+    topic: String,
     type_name: String,
     count: u64,
 }
@@ -75,6 +73,7 @@ enum Ch {
     Mesh,
     Tf,
     Diagnostics,
+    Contacts,
 }
 
 /// Scratch messages reused for every write (no per-message allocation once warmed up).
@@ -88,6 +87,7 @@ struct Scratch {
     joy: ros::Joy,
     tf: ros::TFMessage,
     marker: ros::Marker,
+    contacts: ros::MarkerArray,
     diagnostics: ros::DiagnosticArray,
 }
 
@@ -96,12 +96,15 @@ pub struct SessionWriter {
     path: PathBuf,
     mcap: Option<mcap::Writer<BufWriter<File>>>,
     channels: Vec<Channel>,
+    /// The one session → ROS 2 mapping (shared with the bridge).
+    mapping: Mapping,
     scratch: Scratch,
     payload: Vec<u8>,
     flush_interval_ns: u64,
     mesh_period_ns: u64,
     last_flush_ns: Option<u64>,
     last_mesh_ns: Option<u64>,
+    last_contacts_ns: Option<u64>,
     last_buttons: Option<u32>,
     bounds: Option<(u64, u64)>,
     messages: u64,
@@ -109,22 +112,48 @@ pub struct SessionWriter {
     contact_problem: bool,
 }
 
+/// True when a viewer-rate message at `log_ns` is due (`period_ns` after the last one).
+fn due(last_ns: Option<u64>, log_ns: u64, period_ns: u64) -> bool {
+    match last_ns {
+        None => true,
+        Some(last) => log_ns.saturating_sub(last) >= period_ns,
+    }
+}
+
 fn mcap_err(path: &Path, e: mcap::McapError) -> RecordingError {
     RecordingError::write(path, e)
 }
 
 impl SessionWriter {
-    /// Creates `path` and writes header, schemas, channels, the launch file and scene as
-    /// attachments and the session metadata record.
+    /// [`create_with_mapping`](Self::create_with_mapping) with the default mapping
+    /// (namespace `/arthrosim`, frame `world`, fixed frames at the origin).
     pub fn create(
         path: &Path,
         config: &RecordingConfig,
         info: &SessionInfo,
     ) -> Result<SessionWriter, RecordingError> {
+        Self::create_with_mapping(path, config, info, Mapping::default())
+    }
+
+    /// Creates `path` and writes header, schemas, channels, the launch file and scene as
+    /// attachments and the session metadata record. The ROS 2 topics, frames and tf tree
+    /// come from `mapping` (the launch file's `[bridge]` section: what the bridge publishes).
+    pub fn create_with_mapping(
+        path: &Path,
+        config: &RecordingConfig,
+        info: &SessionInfo,
+        mapping: Mapping,
+    ) -> Result<SessionWriter, RecordingError> {
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir).map_err(|e| RecordingError::io(dir, e))?;
         }
-        let file = File::create(path).map_err(|e| RecordingError::io(path, e))?;
+        // Never truncates: a recording that exists is an earlier part of a session (a
+        // restarted recorder writes `session.N.mcap`, see `read::next_part_path`).
+        let file = std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(path)
+            .map_err(|e| RecordingError::io(path, e))?;
         let compression = match config.compression {
             ChunkCompression::Zstd => Some(mcap::Compression::Zstd),
             ChunkCompression::None => None,
@@ -152,35 +181,39 @@ impl SessionWriter {
         .into_iter()
         .collect();
         let mut channels = Vec::new();
-        let mut add =
-            |topic: &'static str, def: &'static ros::MsgDef| -> Result<(), RecordingError> {
-                let type_name = def.type_name();
-                let schema = ros::schema_text_of(def);
-                let schema_id = mcap
-                    .add_schema(&type_name, SCHEMA_ENCODING, schema.as_bytes())
-                    .map_err(|e| mcap_err(path, e))?;
-                let id = mcap
-                    .add_channel(schema_id, topic, MESSAGE_ENCODING, &qos)
-                    .map_err(|e| mcap_err(path, e))?;
-                channels.push(Channel {
-                    id,
-                    topic,
-                    type_name,
-                    count: 0,
-                });
-                Ok(())
-            };
+        let mut add = |topic: String, def: &'static ros::MsgDef| -> Result<(), RecordingError> {
+            let type_name = def.type_name();
+            let schema = ros::schema_text_of(def);
+            let schema_id = mcap
+                .add_schema(&type_name, SCHEMA_ENCODING, schema.as_bytes())
+                .map_err(|e| mcap_err(path, e))?;
+            let id = mcap
+                .add_channel(schema_id, &topic, MESSAGE_ENCODING, &qos)
+                .map_err(|e| mcap_err(path, e))?;
+            channels.push(Channel {
+                id,
+                topic,
+                type_name,
+                count: 0,
+            });
+            Ok(())
+        };
         // Order must match `Ch`.
-        add(TOPIC_CONTACT_STEP, ContactStep::DEF)?;
-        add(TOPIC_DEVICE_TICK, DeviceTick::DEF)?;
-        add(TOPIC_PROBE_POSE, ros::PoseStamped::DEF)?;
-        add(TOPIC_PROBE_WRENCH, ros::WrenchStamped::DEF)?;
-        add(TOPIC_DEVICE_WRENCH, ros::WrenchStamped::DEF)?;
-        add(TOPIC_JOINT_STATES, ros::JointState::DEF)?;
-        add(TOPIC_BUTTONS, ros::Joy::DEF)?;
-        add(TOPIC_MESH, ros::Marker::DEF)?;
-        add(TOPIC_TF, ros::TFMessage::DEF)?;
-        add(TOPIC_DIAGNOSTICS, ros::DiagnosticArray::DEF)?;
+        add(TOPIC_CONTACT_STEP.into(), ContactStep::DEF)?;
+        add(TOPIC_DEVICE_TICK.into(), DeviceTick::DEF)?;
+        for topic in [
+            Topic::ProbePose,
+            Topic::ProbeWrench,
+            Topic::DeviceWrench,
+            Topic::JointStates,
+            Topic::Buttons,
+            Topic::Mesh,
+            Topic::Tf,
+            Topic::Diagnostics,
+            Topic::Contacts,
+        ] {
+            add(mapping.topic(topic), topic.def())?;
+        }
 
         let now = msgs::clock::realtime_ns();
         for (name, text) in [
@@ -223,44 +256,12 @@ impl SessionWriter {
         // Make the header, channels and attachments durable right away.
         mcap.flush().map_err(|e| mcap_err(path, e))?;
 
-        let mut scratch = Scratch::default();
-        scratch.joints.name = JOINT_NAMES.iter().map(|s| s.to_string()).collect();
-        scratch.joints.header.frame_id = WORLD_FRAME.into();
-        scratch.pose.header.frame_id = WORLD_FRAME.into();
-        scratch.wrench.header.frame_id = WORLD_FRAME.into();
-        scratch.joy.header.frame_id = WORLD_FRAME.into();
-        scratch.tf.transforms = vec![
-            ros::TransformStamped {
-                header: ros::Header::new(ros::Time::default(), WORLD_FRAME),
-                child_frame_id: "probe".into(),
-                transform: ros::Transform::default(),
-            },
-            ros::TransformStamped {
-                header: ros::Header::new(ros::Time::default(), WORLD_FRAME),
-                child_frame_id: "proxy".into(),
-                transform: ros::Transform::default(),
-            },
-        ];
-        let m = &mut scratch.marker;
-        m.header.frame_id = WORLD_FRAME.into();
-        m.ns = "meniscus".into();
-        m.id = 0;
-        m.r#type = ros::Marker::TRIANGLE_LIST;
-        m.action = ros::Marker::ADD;
-        m.scale = [1.0, 1.0, 1.0].into();
-        m.color = ros::ColorRGBA {
-            r: 0.93,
-            g: 0.85,
-            b: 0.72,
-            a: 1.0,
-        };
-        m.frame_locked = true;
-
         Ok(SessionWriter {
             path: path.to_path_buf(),
             mcap: Some(mcap),
             channels,
-            scratch,
+            mapping,
+            scratch: Scratch::default(),
             payload: Vec::with_capacity(64 * 1024),
             flush_interval_ns: (config.flush_interval_s.max(0.01) * 1e9) as u64,
             mesh_period_ns: if config.mesh_rate_hz > 0.0 {
@@ -270,6 +271,7 @@ impl SessionWriter {
             },
             last_flush_ns: None,
             last_mesh_ns: None,
+            last_contacts_ns: None,
             last_buttons: None,
             bounds: None,
             messages: 0,
@@ -336,7 +338,8 @@ impl SessionWriter {
         Ok(())
     }
 
-    /// One physics step: the lossless ContactStep, the probe pose and wrench, and /tf.
+    /// One physics step: the lossless ContactStep, the probe pose and wrench, /tf, and the
+    /// contact markers at the viewer rate.
     pub fn write_contact_frame(
         &mut self,
         f: &ContactFrame,
@@ -348,20 +351,21 @@ impl SessionWriter {
             self.write_msg(Ch::ContactStep, &s.contact_step, log_ns)?;
 
             let stamp = ros::Time::from_nanos(log_ns);
-            s.pose.header.stamp = stamp;
-            s.pose.pose = (&f.probe_pose).into();
+            let map = &self.mapping;
+            map.probe_pose_into(&mut s.pose, f, stamp);
+            map.probe_wrench_into(&mut s.wrench, f, stamp);
+            map.transforms_into(&mut s.tf, f, stamp);
             self.write_msg(Ch::ProbePose, &s.pose, log_ns)?;
-
-            s.wrench.header.stamp = stamp;
-            s.wrench.wrench.force = f.contact_force.into();
-            s.wrench.wrench.torque = f.contact_torque.into();
             self.write_msg(Ch::ProbeWrench, &s.wrench, log_ns)?;
+            self.write_msg(Ch::Tf, &s.tf, log_ns)?;
 
-            s.tf.transforms[0].header.stamp = stamp;
-            s.tf.transforms[0].transform = (&f.probe_pose).into();
-            s.tf.transforms[1].header.stamp = stamp;
-            s.tf.transforms[1].transform = (&f.proxy_pose).into();
-            self.write_msg(Ch::Tf, &s.tf, log_ns)
+            // Contact markers are for viewers: at the viewer rate, like the surface.
+            if due(self.last_contacts_ns, log_ns, self.mesh_period_ns) {
+                self.last_contacts_ns = Some(log_ns);
+                self.mapping.contact_markers_into(&mut s.contacts, f, stamp);
+                self.write_msg(Ch::Contacts, &s.contacts, log_ns)?;
+            }
+            Ok(())
         })();
         self.scratch = s;
         result
@@ -380,23 +384,14 @@ impl SessionWriter {
             self.write_msg(Ch::DeviceTick, &s.device_tick, log_ns)?;
 
             let stamp = ros::Time::from_nanos(log_ns);
-            s.wrench.header.stamp = stamp;
-            s.wrench.wrench.force = d.rendered_force.into();
-            s.wrench.wrench.torque = [0.0; 3].into();
+            self.mapping.device_wrench_into(&mut s.wrench, d, stamp);
             self.write_msg(Ch::DeviceWrench, &s.wrench, log_ns)?;
-
-            s.joints.header.stamp = stamp;
-            s.joints.position.clear();
-            s.joints.position.extend_from_slice(&d.joint_angles);
+            self.mapping.joint_states_into(&mut s.joints, d, stamp);
             self.write_msg(Ch::JointStates, &s.joints, log_ns)?;
 
             if self.last_buttons != Some(d.buttons) {
                 self.last_buttons = Some(d.buttons);
-                s.joy.header.stamp = stamp;
-                s.joy.buttons.clear();
-                s.joy
-                    .buttons
-                    .extend((0..2).map(|b| ((d.buttons >> b) & 1) as i32));
+                self.mapping.buttons_into(&mut s.joy, d, stamp);
                 self.write_msg(Ch::Buttons, &s.joy, log_ns)?;
             }
             Ok(())
@@ -411,47 +406,12 @@ impl SessionWriter {
         h: &HapticStats,
         log_ns: u64,
     ) -> Result<(), RecordingError> {
-        let level = if h.faults != 0 {
-            ros::DiagnosticStatus::WARN
-        } else {
-            ros::DiagnosticStatus::OK
-        };
-        let values = [
-            ("ticks", h.ticks.to_string()),
-            ("tick_hz", h.tick_hz.to_string()),
-            ("period_err_p50_us", h.period_err_p50_us.to_string()),
-            ("period_err_p99_us", h.period_err_p99_us.to_string()),
-            ("period_err_max_us", h.period_err_max_us.to_string()),
-            ("lcp_p50_us", h.lcp_p50_us.to_string()),
-            ("lcp_p99_us", h.lcp_p99_us.to_string()),
-            ("lcp_iterations_mean", h.lcp_iterations_mean.to_string()),
-            ("frame_age_p50_us", h.frame_age_p50_us.to_string()),
-            ("frame_age_p99_us", h.frame_age_p99_us.to_string()),
-            ("transport_p50_us", h.transport_p50_us.to_string()),
-            ("transport_p99_us", h.transport_p99_us.to_string()),
-            ("rendered_force_norm_n", h.rendered_force_norm_n.to_string()),
-            ("fault_count", h.fault_count.to_string()),
-            ("faults", format!("{:#x}", h.faults)),
-            ("realtime", h.realtime.to_string()),
-            ("sequence", h.sequence.to_string()),
-        ];
         let mut d = std::mem::take(&mut self.scratch.diagnostics);
-        d.header = ros::Header::new(ros::Time::from_nanos(log_ns), "");
-        d.status.clear();
-        d.status.push(ros::DiagnosticStatus {
-            level,
-            name: "arthrosim/haptic".into(),
-            message: if level == ros::DiagnosticStatus::OK {
-                "ok".into()
-            } else {
-                "faults".into()
-            },
-            hardware_id: format!("{:016x}", h.instance_id),
-            values: values
-                .iter()
-                .map(|(k, v)| ros::KeyValue::new(k, v))
-                .collect(),
-        });
+        d.header = self
+            .mapping
+            .diagnostics_header(ros::Time::from_nanos(log_ns));
+        d.status.resize_with(1, Default::default);
+        self.mapping.haptic_status_into(&mut d.status[0], h);
         let result = self.write_msg(Ch::Diagnostics, &d, log_ns);
         self.scratch.diagnostics = d;
         result
@@ -459,10 +419,7 @@ impl SessionWriter {
 
     /// True when a surface frame at `log_ns` is due at the configured viewer rate.
     pub fn mesh_due(&self, log_ns: u64) -> bool {
-        match self.last_mesh_ns {
-            None => true,
-            Some(last) => log_ns.saturating_sub(last) >= self.mesh_period_ns,
-        }
+        due(self.last_mesh_ns, log_ns, self.mesh_period_ns)
     }
 
     /// The deformed surface as a TRIANGLE_LIST marker, at most at the viewer rate (frames in
@@ -472,21 +429,10 @@ impl SessionWriter {
             return Ok(false);
         }
         self.last_mesh_ns = Some(log_ns);
-        let vertices = (s.vertex_count as usize).min(msgs::MAX_SURFACE_VERTICES);
-        let triangles = (s.triangle_count as usize).min(msgs::MAX_SURFACE_TRIANGLES);
         let mut m = std::mem::take(&mut self.scratch.marker);
-        m.header.stamp = ros::Time::from_nanos(log_ns);
-        m.points.clear();
-        for t in &s.triangles[..triangles] {
-            // A corrupt index is skipped rather than trusted.
-            if t.iter().all(|&i| (i as usize) < vertices) {
-                for &i in t {
-                    let p = s.positions[i as usize];
-                    m.points
-                        .push([p[0] as f64, p[1] as f64, p[2] as f64].into());
-                }
-            }
-        }
+        // A corrupt index is skipped rather than trusted.
+        self.mapping
+            .mesh_marker_into(&mut m, s, ros::Time::from_nanos(log_ns));
         let result = self.write_msg(Ch::Mesh, &m, log_ns);
         self.scratch.marker = m;
         result.map(|_| true)
@@ -519,7 +465,7 @@ impl SessionWriter {
         self.channels
             .iter()
             .map(|c| TopicCount {
-                topic: c.topic.to_string(),
+                topic: c.topic.clone(),
                 type_name: c.type_name.clone(),
                 count: c.count,
             })

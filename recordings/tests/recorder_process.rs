@@ -13,6 +13,11 @@ use msgs::physics_to_viz::SurfaceFrame;
 use recordings::channels::*;
 use std::time::{Duration, Instant};
 
+// Session topics of the default mapping (`msgs::ros_mapping`), as the recorder names them.
+const TOPIC_PROBE_WRENCH: &str = "/arthrosim/probe/wrench";
+const TOPIC_MESH: &str = "/arthrosim/meniscus/mesh";
+const TOPIC_DIAGNOSTICS: &str = "/diagnostics";
+
 /// Publishes like the haptic and physics nodes for `seconds`: 1 kHz device ticks, 100 Hz
 /// steps, 10 Hz stats, 20 Hz surfaces. `on_tick(seq)` may end the run early by returning
 /// false. Returns (ticks, steps, stats, surfaces) published.

@@ -14,6 +14,36 @@ use recordings::{SessionInfo, SessionWriter};
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
+// The session topics under the default mapping (pinned here: they are the lab's interface).
+const TOPIC_PROBE_POSE: &str = "/arthrosim/probe/pose";
+const TOPIC_PROBE_WRENCH: &str = "/arthrosim/probe/wrench";
+const TOPIC_DEVICE_WRENCH: &str = "/arthrosim/device/wrench";
+const TOPIC_JOINT_STATES: &str = "/arthrosim/device/joint_states";
+const TOPIC_BUTTONS: &str = "/arthrosim/device/buttons";
+const TOPIC_MESH: &str = "/arthrosim/meniscus/mesh";
+const TOPIC_CONTACTS: &str = "/arthrosim/contacts";
+const TOPIC_TF: &str = "/tf";
+const TOPIC_DIAGNOSTICS: &str = "/diagnostics";
+
+#[test]
+fn pinned_topic_names_are_the_default_mapping() {
+    use msgs::ros_mapping::{Mapping, Topic};
+    let m = Mapping::default();
+    for (topic, name) in [
+        (Topic::ProbePose, TOPIC_PROBE_POSE),
+        (Topic::ProbeWrench, TOPIC_PROBE_WRENCH),
+        (Topic::DeviceWrench, TOPIC_DEVICE_WRENCH),
+        (Topic::JointStates, TOPIC_JOINT_STATES),
+        (Topic::Buttons, TOPIC_BUTTONS),
+        (Topic::Mesh, TOPIC_MESH),
+        (Topic::Contacts, TOPIC_CONTACTS),
+        (Topic::Tf, TOPIC_TF),
+        (Topic::Diagnostics, TOPIC_DIAGNOSTICS),
+    ] {
+        assert_eq!(m.topic(topic), name);
+    }
+}
+
 const TICKS: u64 = 3000;
 const STEPS: u64 = 300;
 const STATS: u64 = 30;
@@ -300,8 +330,15 @@ fn info_export_and_python_readers_agree_with_what_was_written() {
         );
         assert_eq!(r["joint_positions_first"].as_array().unwrap().len(), 6);
         assert_eq!(r["mesh_points_first"].as_u64(), Some(6), "two triangles");
-        assert_eq!(r["tf_children"], serde_json::json!(["probe", "proxy"]));
+        assert_eq!(
+            r["tf_children"],
+            serde_json::json!(["meniscus", "probe", "proxy", "touch_base"])
+        );
         assert_eq!(r["diagnostics_keys"][1], "tick_hz");
+        assert_eq!(
+            r["joint_names"],
+            serde_json::json!(msgs::ros_mapping::TOUCH_JOINTS)
+        );
         assert_eq!(
             r["types"][TOPIC_CONTACT_STEP],
             "arthrosim_msgs/msg/ContactStep"

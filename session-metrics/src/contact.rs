@@ -23,6 +23,9 @@ pub struct ContactSample {
     pub contact_force: [f64; 3],
     /// Probe position after contact correction, m.
     pub probe_position: [f64; 3],
+    /// `physics_fault` bits of the step (0: good). A faulty step is counted, never taken as
+    /// contact.
+    pub physics_faults: u32,
 }
 
 impl ContactSample {
@@ -61,6 +64,7 @@ impl ContactSample {
             touching,
             contact_force: frame.contact_force,
             probe_position: frame.probe_pose.position,
+            physics_faults: frame.physics_faults,
         }
     }
 
@@ -68,8 +72,9 @@ impl ContactSample {
     /// inside the alarm distance that carry nothing (the probe near, not touching) do not
     /// count. The one definition the summary, the export and the gap diagnosis use.
     pub fn in_contact(&self) -> bool {
-        // `touching` implies a non-zero (impulse-weighted) normal.
-        self.contact_count > 0 && self.touching
+        // `touching` implies a non-zero (impulse-weighted) normal. A faulty step's force is
+        // not physical: it is counted in `physics_faults`, never averaged.
+        self.contact_count > 0 && self.touching && self.physics_faults == 0
     }
 
     /// Normal force F_n = −f·n, N: negative in compression, the sign the study reports.

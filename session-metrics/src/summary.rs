@@ -97,6 +97,19 @@ pub struct RegionSummary {
     pub mean_probe_displacement_m: Option<f64>,
 }
 
+/// How the session rendered the tissue force (from the launch file's `[device]`: see
+/// `launch_config::device::Rendering`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct RenderingSummary {
+    pub force_scale: f64,
+    /// The scale was chosen automatically from the tissue reference and the device limits.
+    pub automatic: bool,
+    /// Virtual coupling in series with the contact compliance, tissue side, N/m.
+    pub coupling_stiffness_n_per_m: f64,
+    /// Largest felt stiffness, N/m (= force_scale × coupling).
+    pub felt_stiffness_limit_n_per_m: f64,
+}
+
 /// The end-of-session summary.
 #[derive(Debug, Clone, Default, PartialEq, Serialize)]
 pub struct SessionSummary {
@@ -111,11 +124,18 @@ pub struct SessionSummary {
     /// Mean wall time of a physics step, ms.
     pub physics_step_ms_mean: Option<f64>,
     pub physics_instances: u32,
+    /// Physics steps that failed a fault check (flagged, rolled back, not rendered).
+    pub physics_faults: u64,
+    /// What tripped, over the session (names of the `physics_fault` bits seen).
+    pub physics_fault_kinds: Vec<&'static str>,
     pub haptic_ticks: u64,
     /// Device states per wall-clock second as received by the launcher.
     pub haptic_hz: Option<f64>,
     /// The haptic node's own newest rate estimate.
     pub haptic_reported_hz: Option<f64>,
+    /// How the tissue force was rendered: force scale and virtual coupling (None: no
+    /// haptic node in the session).
+    pub rendering: Option<RenderingSummary>,
     pub conventions: &'static str,
 }
 
@@ -281,6 +301,15 @@ pub fn summarize(record: &SessionRecord) -> SessionSummary {
     let sim_s: f64 = instances.iter().map(|e| e.4 - e.3).sum();
     let physics_steps = record.contacts.len() as u64;
     let device_span = record.total_device_span_ns();
+    let physics_faults = record
+        .contacts
+        .iter()
+        .filter(|s| s.physics_faults != 0)
+        .count() as u64;
+    let fault_bits = record
+        .contacts
+        .iter()
+        .fold(0u32, |acc, s| acc | s.physics_faults);
 
     SessionSummary {
         regions: out,
@@ -290,10 +319,13 @@ pub fn summarize(record: &SessionRecord) -> SessionSummary {
         physics_step_ms_mean: (physics_steps > 0)
             .then(|| step_ns_sum as f64 / physics_steps as f64 * 1e-6),
         physics_instances: instances.len() as u32,
+        physics_faults,
+        physics_fault_kinds: msgs::physics_to_haptic::physics_fault::names(fault_bits).collect(),
         haptic_ticks: record.device_ticks,
         haptic_hz: (device_span > 0 && record.device_ticks > 1)
             .then(|| (record.device_ticks - 1) as f64 / (device_span as f64 * 1e-9)),
         haptic_reported_hz: record.haptic_reported_hz,
+        rendering: None,
         conventions: CONVENTIONS,
     }
 }
@@ -344,6 +376,14 @@ impl fmt::Display for SessionSummary {
                 String::new()
             }
         )?;
+        if self.physics_faults > 0 {
+            writeln!(
+                f,
+                "physics faults: {} steps flagged and rolled back ({})",
+                self.physics_faults,
+                self.physics_fault_kinds.join(", ")
+            )?;
+        }
         writeln!(
             f,
             "haptic:  {} ticks, {} Hz received, {} Hz reported",
@@ -351,6 +391,16 @@ impl fmt::Display for SessionSummary {
             opt(self.haptic_hz, 1.0, 1),
             opt(self.haptic_reported_hz, 1.0, 1)
         )?;
+        if let Some(r) = &self.rendering {
+            writeln!(
+                f,
+                "rendering: force scale {:.4}{}, virtual coupling {:.2} N/mm at the tissue, felt stiffness ≤ {:.2} N/mm",
+                r.force_scale,
+                if r.automatic { " (automatic)" } else { "" },
+                r.coupling_stiffness_n_per_m * 1e-3,
+                r.felt_stiffness_limit_n_per_m * 1e-3
+            )?;
+        }
         write!(
             f,
             "F_n = -f·n: negative in compression (study: -4.0 N measured, -4.16 N simulated); \
@@ -375,6 +425,7 @@ mod tests {
             dt_s: 0.01,
             step_duration_ns: 2 * MS,
             contact_count: contact as u32,
+            physics_faults: 0,
             // The device ticks at 1 kHz with sequence = its time in ms.
             device_sequence_used: t_ms,
             normal: if contact { [0.0, 0.0, 1.0] } else { [0.0; 3] },
@@ -466,6 +517,26 @@ mod tests {
         assert_eq!(s.regions_with_contact(), Vec::<&str>::new());
         for name in ["posterior", "mid", "anterior"] {
             assert_eq!(s.region(name).unwrap().contact_steps, 0);
+        }
+    }
+
+    #[test]
+    fn faulty_steps_are_counted_not_summarised() {
+        let mut record = region_record();
+        let clean = summarize(&record);
+        let mut bad = sample(10_000, true, -1e5, 0.0);
+        bad.physics_faults = msgs::physics_to_haptic::physics_fault::FORCE_BOUND;
+        record.contacts.push(bad);
+        let s = summarize(&record);
+        assert_eq!(clean.physics_faults, 0);
+        assert_eq!(s.physics_faults, 1);
+        assert_eq!(
+            s.physics_fault_kinds,
+            vec!["contact force beyond the scene bound"]
+        );
+        for (a, b) in clean.regions.iter().zip(&s.regions) {
+            assert_eq!(a.peak_normal_force_n, b.peak_normal_force_n);
+            assert_eq!(a.contact_steps, b.contact_steps);
         }
     }
 

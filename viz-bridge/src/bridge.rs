@@ -20,9 +20,12 @@ use msgs::physics_to_haptic::ContactFrame;
 use msgs::physics_to_viz::SurfaceFrame;
 use msgs::Topic;
 
-use crate::convert::{self, StampClock};
+use msgs::ros::{JointState, Joy, Marker, MarkerArray, PoseStamped, TFMessage, WrenchStamped};
+use msgs::ros_mapping::{ClockOffsetError, Mapping, StampClock};
+
 use crate::dds::{self, DdsError, DdsThread, Envelope, Inbound, Outbound};
 use crate::stats::{BridgeStats, Stream, OUT_STREAMS};
+use crate::target_gate::TargetGate;
 
 #[derive(Debug, thiserror::Error)]
 pub enum BridgeError {
@@ -32,6 +35,8 @@ pub enum BridgeError {
     Link(#[from] LinkError),
     #[error(transparent)]
     Dds(#[from] DdsError),
+    #[error(transparent)]
+    Clock(#[from] ClockOffsetError),
     #[error("the DDS thread exited unexpectedly")]
     DdsExited,
     #[error("bridge not started")]
@@ -57,6 +62,7 @@ struct Running {
     last_buttons: Option<u32>,
     target_sequence: u64,
     material_sequence: u64,
+    targets: TargetGate,
 }
 
 pub struct Bridge {
@@ -64,8 +70,8 @@ pub struct Bridge {
     session: String,
     stats: Arc<BridgeStats>,
     clock: StampClock,
-    meniscus: msgs::Pose,
-    touch_base: msgs::Pose,
+    /// The one session → ROS 2 mapping (shared with the recorder).
+    mapping: Mapping,
     running: Option<Running>,
 }
 
@@ -113,24 +119,16 @@ fn enqueue(tx: &SyncSender<Envelope>, stats: &BridgeStats, source_ns: u64, msg: 
     }
 }
 
-fn pose_of(frame: &launch_config::bridge::FramePose) -> msgs::Pose {
-    msgs::Pose {
-        position: frame.position,
-        orientation: frame.orientation,
-    }
-}
-
 impl Bridge {
     pub fn new(config: BridgeConfig, session: &str) -> Result<Bridge, BridgeError> {
         config.validate()?;
         let session = ipc::session_name(Some(session))?;
         Ok(Bridge {
-            meniscus: pose_of(&config.meniscus_pose),
-            touch_base: pose_of(&config.touch_base_pose),
+            mapping: config.ros_mapping(),
             config,
             session,
             stats: Arc::new(BridgeStats::default()),
-            clock: StampClock::new(),
+            clock: StampClock::for_session()?,
             running: None,
         })
     }
@@ -159,6 +157,7 @@ impl Bridge {
             self.config.clone(),
             self.stats.clone(),
             self.clock,
+            self.mapping.clone(),
             outbound_rx,
             inbound_tx,
         )?;
@@ -183,6 +182,7 @@ impl Bridge {
             last_buttons: None,
             target_sequence: 0,
             material_sequence: 0,
+            targets: TargetGate::new(self.config.accept_target_pose, &self.config.target_pose),
         });
         Ok(())
     }
@@ -196,37 +196,42 @@ impl Bridge {
         }
         let stats = &*self.stats;
         let clock = &self.clock;
-        let world = self.config.world_frame.as_str();
+        let map = &self.mapping;
         let tx = &run.outbound;
         let mut gate = Gate {
             config: &self.config,
             last_emit: &mut run.last_emit,
         };
-        let (meniscus, touch_base) = (&self.meniscus, &self.touch_base);
         let mut handled = 0;
 
         let now = msgs::clock::monotonic_ns();
+        let targets = &mut run.targets;
         let frames = ipc::drain_each(&run.contact_frames, |frame| {
             stats.record_ipc_latency(now.saturating_sub(frame.publish_ns));
+            targets.set_probe_position(frame.probe_pose.position);
             stats
                 .physics_step_ns
                 .store(frame.step_duration_ns, Ordering::Relaxed);
             let src = frame.publish_ns;
+            let stamp = clock.stamp(src);
             if gate.open(Stream::ProbePose, src) {
-                let m = convert::probe_pose(frame, clock, world);
+                let mut m = PoseStamped::default();
+                map.probe_pose_into(&mut m, frame, stamp);
                 enqueue(tx, stats, src, Outbound::ProbePose(m));
             }
             if gate.open(Stream::ProbeWrench, src) {
-                let m = convert::probe_wrench(frame, clock, world);
+                let mut m = WrenchStamped::default();
+                map.probe_wrench_into(&mut m, frame, stamp);
                 enqueue(tx, stats, src, Outbound::ProbeWrench(m));
             }
             if gate.open(Stream::Contacts, src) {
-                let m = convert::contact_markers(frame, clock, world);
+                let mut m = MarkerArray::default();
+                map.contact_markers_into(&mut m, frame, stamp);
                 enqueue(tx, stats, src, Outbound::Contacts(m));
             }
             if gate.open(Stream::Tf, src) {
-                let m =
-                    convert::transforms(&frame.probe_pose, meniscus, touch_base, src, clock, world);
+                let mut m = TFMessage::default();
+                map.transforms_into(&mut m, frame, stamp);
                 enqueue(tx, stats, src, Outbound::Tf(m));
             }
         })?;
@@ -237,12 +242,15 @@ impl Bridge {
         let states = ipc::drain_each(&run.device_states, |state| {
             stats.record_ipc_latency(now.saturating_sub(state.publish_ns));
             let src = state.publish_ns;
+            let stamp = clock.stamp(src);
             if gate.open(Stream::DeviceWrench, src) {
-                let m = convert::device_wrench(state, clock, world);
+                let mut m = WrenchStamped::default();
+                map.device_wrench_into(&mut m, state, stamp);
                 enqueue(tx, stats, src, Outbound::DeviceWrench(m));
             }
             if gate.open(Stream::JointStates, src) {
-                let m = convert::joint_states(state, clock);
+                let mut m = JointState::default();
+                map.joint_states_into(&mut m, state, stamp);
                 enqueue(tx, stats, src, Outbound::JointStates(m));
             }
             // Buttons: at their rate, and always at once when they change.
@@ -250,7 +258,8 @@ impl Bridge {
             let due = gate.open(Stream::Buttons, src);
             if (due || changed) && self.config.streams.buttons.enabled {
                 *last_buttons = Some(state.buttons);
-                let m = convert::buttons(state, clock);
+                let mut m = Joy::default();
+                map.buttons_into(&mut m, state, stamp);
                 enqueue(tx, stats, src, Outbound::Buttons(m));
             }
         })?;
@@ -263,11 +272,20 @@ impl Bridge {
         if surfaces > 0 {
             BridgeStats::add(&stats.surfaces, surfaces as u64);
             handled += surfaces;
+            if run.targets.needs_workspace() {
+                let n = (surface.vertex_count as usize).min(surface.positions.len());
+                run.targets.set_scene_points(
+                    surface.positions[..n]
+                        .iter()
+                        .map(|p| [p[0] as f64, p[1] as f64, p[2] as f64]),
+                );
+            }
             let src = surface.publish_ns;
             if gate.open(Stream::Mesh, src) {
-                let mesh = convert::mesh_marker(surface, clock, world);
-                BridgeStats::add(&stats.skipped_triangles, mesh.skipped_triangles as u64);
-                enqueue(tx, stats, src, Outbound::Mesh(Box::new(mesh.marker)));
+                let mut mesh = Box::<Marker>::default();
+                let skipped = map.mesh_marker_into(&mut mesh, surface, clock.stamp(src));
+                BridgeStats::add(&stats.skipped_triangles, skipped as u64);
+                enqueue(tx, stats, src, Outbound::Mesh(mesh));
             }
         }
 
@@ -284,6 +302,20 @@ impl Bridge {
             handled += 1;
             match cmd {
                 Inbound::ProbeTarget(pose) => {
+                    let now_s = msgs::clock::monotonic_ns() as f64 * 1e-9;
+                    let pose = match run.targets.check(&pose, now_s) {
+                        Ok(pose) => pose,
+                        Err(why) => {
+                            BridgeStats::add(&stats.targets_refused[why as usize], 1);
+                            if run.targets.refused(why) == 1 {
+                                tracing::warn!(
+                                    reason = why.name(),
+                                    "probe target refused (counted on /diagnostics; logged once per reason)"
+                                );
+                            }
+                            continue;
+                        }
+                    };
                     run.target_sequence += 1;
                     let target = ProbeTarget {
                         sequence: run.target_sequence,

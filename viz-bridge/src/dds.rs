@@ -15,8 +15,11 @@ use ros2_client::{
 };
 use serde::Serialize;
 
-use crate::convert::{self, StampClock};
-use crate::stats::{percentile, BridgeStats, Stream, OUT_STREAMS};
+use msgs::ros_mapping::{self, Mapping, StampClock, Topic};
+
+use crate::convert;
+use crate::stats::{BridgeStats, LatencyWindow, Stream, OUT_STREAMS};
+use crate::target_gate::Refusal;
 
 /// A message for the DDS side, with the monotonic publish time of the sample it came from.
 pub struct Envelope {
@@ -90,15 +93,9 @@ pub fn qos(stream: &StreamConfig) -> QosProfile {
     })
 }
 
-/// Full ROS name of a topic: absolute names stay, others go below the namespace.
+/// Full ROS name of a topic ([`ros_mapping::full_topic_name`]), checked by ros2-client.
 pub fn topic_name(namespace: &str, topic: &str) -> Result<Name, DdsError> {
-    let full = if topic.starts_with('/') {
-        topic.to_string()
-    } else if namespace == "/" {
-        format!("/{topic}")
-    } else {
-        format!("{namespace}/{topic}")
-    };
+    let full = ros_mapping::full_topic_name(namespace, topic);
     Name::parse(&full).map_err(|e| DdsError::Name {
         name: full,
         detail: format!("{e:?}"),
@@ -162,6 +159,7 @@ struct DdsSide {
     config: BridgeConfig,
     stats: Arc<BridgeStats>,
     clock: StampClock,
+    mapping: Mapping,
     // Field order matters for drop: endpoints before the node, the node before the context.
     publishers: Publishers,
     target_pose: Option<Subscription<PoseStamped>>,
@@ -171,7 +169,7 @@ struct DdsSide {
     _spinner: JoinHandle<()>,
     inbound: SyncSender<Inbound>,
     /// Source publish → DDS write latency per stream in the current window, ns.
-    latency_ns: [Vec<u64>; OUT_STREAMS],
+    latency_ns: [LatencyWindow; OUT_STREAMS],
     window_start: Instant,
     last_published: [u64; OUT_STREAMS],
     last_dropped: [u64; OUT_STREAMS],
@@ -189,21 +187,24 @@ pub fn spawn(
     config: BridgeConfig,
     stats: Arc<BridgeStats>,
     clock: StampClock,
+    mapping: Mapping,
     outbound: Receiver<Envelope>,
     inbound: SyncSender<Inbound>,
 ) -> Result<DdsThread, DdsError> {
     let (ready_tx, ready_rx) = std::sync::mpsc::sync_channel::<Result<(), DdsError>>(1);
     let handle = std::thread::Builder::new()
         .name("viz-bridge-dds".into())
-        .spawn(move || match DdsSide::new(config, stats, clock, inbound) {
-            Ok(mut side) => {
-                let _ = ready_tx.send(Ok(()));
-                side.run(outbound);
-            }
-            Err(e) => {
-                let _ = ready_tx.send(Err(e));
-            }
-        })
+        .spawn(
+            move || match DdsSide::new(config, stats, clock, mapping, inbound) {
+                Ok(mut side) => {
+                    let _ = ready_tx.send(Ok(()));
+                    side.run(outbound);
+                }
+                Err(e) => {
+                    let _ = ready_tx.send(Err(e));
+                }
+            },
+        )
         .map_err(setup("spawn DDS thread"))?;
     match ready_rx.recv() {
         Ok(Ok(())) => Ok(DdsThread { handle }),
@@ -223,6 +224,7 @@ impl DdsSide {
         config: BridgeConfig,
         stats: Arc<BridgeStats>,
         clock: StampClock,
+        mapping: Mapping,
         inbound: SyncSender<Inbound>,
     ) -> Result<DdsSide, DdsError> {
         let context = Context::with_options(ContextOptions::new().domain_id(config.domain_id))
@@ -262,19 +264,30 @@ impl DdsSide {
             mesh: publisher(&mut node, &ns, Stream::Mesh.topic(), &s.mesh)?,
             contacts: publisher(&mut node, &ns, Stream::Contacts.topic(), &s.contacts)?,
             tf: publisher(&mut node, &ns, Stream::Tf.topic(), &s.tf)?,
-            diagnostics: publisher(&mut node, &ns, "/diagnostics", &s.diagnostics)?,
+            diagnostics: publisher(
+                &mut node,
+                &ns,
+                Topic::Diagnostics.relative(),
+                &s.diagnostics,
+            )?,
         };
-        let target_pose = subscription(&mut node, &ns, "probe/target_pose", &s.target_pose)?;
+        let target_pose = subscription(
+            &mut node,
+            &ns,
+            ros_mapping::TOPIC_TARGET_POSE,
+            &s.target_pose,
+        )?;
         let degeneration_grade = subscription(
             &mut node,
             &ns,
-            "material/degeneration_grade",
+            ros_mapping::TOPIC_DEGENERATION_GRADE,
             &s.degeneration_grade,
         )?;
         Ok(DdsSide {
             config,
             stats,
             clock,
+            mapping,
             publishers,
             target_pose,
             degeneration_grade,
@@ -343,10 +356,7 @@ impl DdsSide {
         if ok {
             BridgeStats::add(&counters.published, 1);
             let latency = msgs::clock::monotonic_ns().saturating_sub(envelope.source_ns);
-            let window = &mut self.latency_ns[stream as usize];
-            if window.len() < 100_000 {
-                window.push(latency);
-            }
+            self.latency_ns[stream as usize].record(latency);
         } else {
             BridgeStats::add(&counters.dropped_dds, 1);
         }
@@ -355,9 +365,17 @@ impl DdsSide {
     fn poll_inbound(&mut self) {
         if let Some(sub) = &self.target_pose {
             while let Ok(Some((msg, _info))) = sub.take() {
+                if !self.config.accept_target_pose {
+                    // Counted, never forwarded: external control is opt-in.
+                    BridgeStats::add(&self.stats.targets_refused[Refusal::Disabled as usize], 1);
+                    continue;
+                }
                 match convert::probe_target(&msg) {
                     Some(pose) => forward(&self.inbound, &self.stats, Inbound::ProbeTarget(pose)),
-                    None => BridgeStats::add(&self.stats.inbound_rejected, 1),
+                    None => BridgeStats::add(
+                        &self.stats.targets_refused[Refusal::Malformed as usize],
+                        1,
+                    ),
                 }
             }
         }
@@ -401,10 +419,7 @@ impl DdsSide {
             dropped_now += dropped_queue + dropped_dds - self.last_dropped[i];
             self.last_published[i] = published;
             self.last_dropped[i] = dropped_queue + dropped_dds;
-            let window = &mut self.latency_ns[i];
-            let p50 = percentile(window, 0.5) as f64 / 1e3;
-            let p99 = percentile(window, 0.99) as f64 / 1e3;
-            window.clear();
+            let (p50, p99) = self.latency_ns[i].take_p50_p99_us();
             let t = stream.topic().trim_start_matches('/');
             bridge.values.extend([
                 KeyValue::new(&format!("{t} rate_hz"), format!("{rate:.1}")),
@@ -433,12 +448,8 @@ impl DdsSide {
             .collect();
         self.last_inputs = inputs;
         let (ipc_p50, ipc_p99) = match stats.ipc_latency_ns.lock() {
-            Ok(mut v) => {
-                let r = (percentile(&mut v, 0.5), percentile(&mut v, 0.99));
-                v.clear();
-                r
-            }
-            Err(_) => (0, 0),
+            Ok(mut w) => w.take_p50_p99_us(),
+            Err(_) => (0.0, 0.0),
         };
         let mut inputs_status = DiagnosticStatus {
             level: DiagnosticStatus::OK,
@@ -449,8 +460,8 @@ impl DdsSide {
                 KeyValue::new("contact_frame rate_hz", format!("{:.1}", rates[0])),
                 KeyValue::new("device_state rate_hz", format!("{:.1}", rates[1])),
                 KeyValue::new("surface rate_hz", format!("{:.1}", rates[2])),
-                KeyValue::new("ipc latency_p50_us", format!("{:.1}", ipc_p50 as f64 / 1e3)),
-                KeyValue::new("ipc latency_p99_us", format!("{:.1}", ipc_p99 as f64 / 1e3)),
+                KeyValue::new("ipc latency_p50_us", format!("{ipc_p50:.1}")),
+                KeyValue::new("ipc latency_p99_us", format!("{ipc_p99:.1}")),
                 KeyValue::new(
                     "physics step_ms",
                     format!(
@@ -477,6 +488,25 @@ impl DdsSide {
                 KeyValue::new("ipc_errors", BridgeStats::get(&stats.ipc_errors)),
             ],
         };
+        inputs_status.values.push(KeyValue::new(
+            "accept_target_pose",
+            self.config.accept_target_pose,
+        ));
+        let mut refused_total = 0;
+        for why in Refusal::ALL {
+            let n = BridgeStats::get(&stats.targets_refused[why as usize]);
+            refused_total += n;
+            inputs_status
+                .values
+                .push(KeyValue::new(&format!("targets_refused_{}", why.name()), n));
+        }
+        inputs_status
+            .values
+            .push(KeyValue::new("targets_refused", refused_total));
+        if refused_total > 0 {
+            inputs_status.level = DiagnosticStatus::WARN;
+            inputs_status.message = format!("{refused_total} probe targets refused so far");
+        }
         if rates[0] == 0.0 && rates[1] == 0.0 {
             inputs_status.level = DiagnosticStatus::STALE;
             inputs_status.message = "no physics or haptic samples in the last window".into();
@@ -484,43 +514,23 @@ impl DdsSide {
 
         let haptic = stats.haptic.lock().ok().and_then(|h| *h);
         let haptic_status = match haptic {
-            Some(h) => DiagnosticStatus {
-                level: if h.faults != 0 {
-                    DiagnosticStatus::WARN
-                } else {
-                    DiagnosticStatus::OK
-                },
-                name: "arthrosim/haptic".into(),
-                message: format!("{:.0} Hz", h.tick_hz),
-                hardware_id: "arthrosim".into(),
-                values: vec![
-                    KeyValue::new("tick_hz", format!("{:.1}", h.tick_hz)),
-                    KeyValue::new("period_err_p99_us", format!("{:.1}", h.period_err_p99_us)),
-                    KeyValue::new("lcp_p99_us", format!("{:.1}", h.lcp_p99_us)),
-                    KeyValue::new("frame_age_p99_us", format!("{:.1}", h.frame_age_p99_us)),
-                    KeyValue::new("transport_p99_us", format!("{:.1}", h.transport_p99_us)),
-                    KeyValue::new(
-                        "rendered_force_n",
-                        format!("{:.3}", h.rendered_force_norm_n),
-                    ),
-                    KeyValue::new("fault_count", h.fault_count),
-                    KeyValue::new("faults", format!("{:#x}", h.faults)),
-                    KeyValue::new("realtime", h.realtime),
-                ],
-            },
+            Some(h) => {
+                let mut status = DiagnosticStatus::default();
+                self.mapping.haptic_status_into(&mut status, &h);
+                status
+            }
             None => DiagnosticStatus {
                 level: DiagnosticStatus::STALE,
-                name: "arthrosim/haptic".into(),
+                name: ros_mapping::HAPTIC_STATUS_NAME.into(),
                 message: "no haptic statistics received".into(),
-                hardware_id: "arthrosim".into(),
+                hardware_id: String::new(),
                 values: Vec::new(),
             },
         };
         DiagnosticArray {
-            header: Header::new(
-                self.clock.stamp(msgs::clock::monotonic_ns()),
-                &self.config.world_frame,
-            ),
+            header: self
+                .mapping
+                .diagnostics_header(self.clock.stamp(msgs::clock::monotonic_ns())),
             status: vec![bridge, inputs_status, haptic_status],
         }
     }

@@ -7,7 +7,8 @@
 //! out `probe/pose` (PoseStamped), `probe/wrench` (WrenchStamped, contact force on the probe,
 //! eq. (1), world frame), `device/wrench`, `device/joint_states`, `device/buttons` (Joy),
 //! `meniscus/mesh` (Marker TRIANGLE_LIST, transient-local), `contacts` (MarkerArray), `/tf`,
-//! `/diagnostics`; in `probe/target_pose` (PoseStamped → physics ProbeTarget) and
+//! `/diagnostics`; in `probe/target_pose` (PoseStamped → physics ProbeTarget, only with
+//! `[bridge] accept_target_pose = true`, and then bounded: see [`target_gate`]) and
 //! `material/degeneration_grade` (Float64 → physics MaterialCommand).
 //!
 //! Two threads: the shared-memory thread (iceoryx2 ports are not `Send`) converts samples
@@ -19,8 +20,9 @@ pub mod bridge;
 pub mod convert;
 pub mod dds;
 pub mod stats;
+pub mod target_gate;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use anyhow::Context as _;
 use launch_config::BridgeConfig;
@@ -30,15 +32,10 @@ pub use bridge::{Bridge, BridgeError};
 /// Command-line arguments of the bridge node (also `arthrosim node bridge`).
 #[derive(Debug, Clone, clap::Args)]
 pub struct NodeArgs {
-    /// Launch file (TOML); its `[bridge]` section configures this node. No file: defaults.
-    #[arg(long, value_name = "FILE")]
-    pub launch: Option<PathBuf>,
-    /// Session name (shared-memory prefix); default `$ARTHROSIM_SESSION` or `default`.
-    #[arg(long, value_name = "NAME")]
-    pub session: Option<String>,
-    /// Output directory (the bridge writes no files; accepted for a uniform node CLI).
-    #[arg(long, value_name = "DIR")]
-    pub out: Option<PathBuf>,
+    /// `--launch` (its `[bridge]` section), `--session`, `--out` (accepted for a uniform node
+    /// CLI; the bridge writes no files).
+    #[command(flatten)]
+    pub common: launch_config::node::CommonArgs,
 }
 
 /// The `[bridge]` section of a launch file, loaded and validated with the whole file by
@@ -62,16 +59,10 @@ const QUIET_LOGS: &str = "warn,rustdds::network::udp_sender=error,ros2_client::d
 
 /// Runs the bridge node until SIGINT / SIGTERM.
 pub fn run_node(args: NodeArgs) -> anyhow::Result<()> {
-    let _ = tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(QUIET_LOGS)),
-        )
-        .with_writer(std::io::stderr)
-        .try_init();
+    launch_config::node::init_tracing(QUIET_LOGS);
     let stop = msgs::lifecycle::install_stop_flag();
-    let config = load_config(args.launch.as_deref())?;
-    let session = msgs::ipc::session_name(args.session.as_deref())?;
+    let config = load_config(args.common.launch.as_deref())?;
+    let session = msgs::ipc::session_name(args.common.session.as_deref())?;
     let mut bridge = Bridge::new(config, &session)?;
     bridge.start().context("starting the bridge")?;
     msgs::lifecycle::announce_ready("bridge");

@@ -5,6 +5,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Mutex;
 
 use msgs::haptic_to_monitor::HapticStats;
+use msgs::timing::LatencyHistogram;
 
 /// Published (outbound) streams.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -33,18 +34,24 @@ impl Stream {
         Stream::Tf,
     ];
 
+    /// The session topic of this stream (`msgs::ros_mapping`, shared with the recorder).
+    pub fn ros_topic(self) -> msgs::ros_mapping::Topic {
+        use msgs::ros_mapping::Topic;
+        match self {
+            Stream::ProbePose => Topic::ProbePose,
+            Stream::ProbeWrench => Topic::ProbeWrench,
+            Stream::DeviceWrench => Topic::DeviceWrench,
+            Stream::JointStates => Topic::JointStates,
+            Stream::Buttons => Topic::Buttons,
+            Stream::Mesh => Topic::Mesh,
+            Stream::Contacts => Topic::Contacts,
+            Stream::Tf => Topic::Tf,
+        }
+    }
+
     /// Topic relative to the namespace (`/tf` is absolute).
     pub fn topic(self) -> &'static str {
-        match self {
-            Stream::ProbePose => "probe/pose",
-            Stream::ProbeWrench => "probe/wrench",
-            Stream::DeviceWrench => "device/wrench",
-            Stream::JointStates => "device/joint_states",
-            Stream::Buttons => "device/buttons",
-            Stream::Mesh => "meniscus/mesh",
-            Stream::Contacts => "contacts",
-            Stream::Tf => "/tf",
-        }
+        self.ros_topic().relative()
     }
 }
 
@@ -72,11 +79,13 @@ pub struct BridgeStats {
     pub targets_forwarded: AtomicU64,
     pub grades_forwarded: AtomicU64,
     pub inbound_rejected: AtomicU64,
+    /// Target poses refused by the gate, per [`crate::target_gate::Refusal`] (in its order).
+    pub targets_refused: [AtomicU64; 5],
     pub ipc_errors: AtomicU64,
     /// Last physics step duration, ns.
     pub physics_step_ns: AtomicU64,
-    /// Shared-memory transport latency (receipt − publish_ns) in the current window, ns.
-    pub ipc_latency_ns: Mutex<Vec<u64>>,
+    /// Shared-memory transport latency (receipt − publish_ns) in the current window.
+    pub ipc_latency_ns: Mutex<LatencyWindow>,
     /// Newest haptic loop statistics.
     pub haptic: Mutex<Option<HapticStats>>,
 }
@@ -94,24 +103,39 @@ impl BridgeStats {
         counter.load(Ordering::Relaxed)
     }
 
-    /// Records one transport latency sample (bounded so a stalled reporter cannot grow it).
+    /// Records one transport latency sample (no allocation).
     pub fn record_ipc_latency(&self, ns: u64) {
-        if let Ok(mut v) = self.ipc_latency_ns.lock() {
-            if v.len() < 100_000 {
-                v.push(ns);
-            }
+        if let Ok(mut w) = self.ipc_latency_ns.lock() {
+            w.record(ns);
         }
     }
 }
 
-/// p-th percentile (0..=1) of `samples` (sorted in place); 0 when empty.
-pub fn percentile(samples: &mut [u64], p: f64) -> u64 {
-    if samples.is_empty() {
-        return 0;
+/// Longest latency a diagnostics window resolves, ns (1 s; longer ones count as 1 s).
+const LATENCY_WINDOW_MAX_NS: u64 = 1_000_000_000;
+
+/// The latencies of one diagnostics window: a fixed-range [`LatencyHistogram`], so recording
+/// never allocates and a stalled reporter cannot grow it.
+#[derive(Debug, Clone)]
+pub struct LatencyWindow(LatencyHistogram);
+
+impl Default for LatencyWindow {
+    fn default() -> Self {
+        LatencyWindow(LatencyHistogram::new(LATENCY_WINDOW_MAX_NS))
     }
-    samples.sort_unstable();
-    let idx = ((samples.len() - 1) as f64 * p).round() as usize;
-    samples[idx.min(samples.len() - 1)]
+}
+
+impl LatencyWindow {
+    pub fn record(&mut self, ns: u64) {
+        self.0.record(ns);
+    }
+
+    /// p50 and p99 of the window, µs (0 when empty); then starts a new window.
+    pub fn take_p50_p99_us(&mut self) -> (f64, f64) {
+        let r = (self.0.quantile_us(0.5), self.0.quantile_us(0.99));
+        self.0.clear();
+        r
+    }
 }
 
 #[cfg(test)]
@@ -119,10 +143,14 @@ mod tests {
     use super::*;
 
     #[test]
-    fn percentiles_of_a_window() {
-        let mut v: Vec<u64> = (1..=100).rev().collect();
-        assert_eq!(percentile(&mut v, 0.5), 51);
-        assert_eq!(percentile(&mut v, 0.99), 99);
-        assert_eq!(percentile(&mut [], 0.5), 0);
+    fn a_window_reports_its_percentiles_and_restarts() {
+        let mut w = LatencyWindow::default();
+        for v in (1..=100u64).rev() {
+            w.record(v * 1_000);
+        }
+        let (p50, p99) = w.take_p50_p99_us();
+        assert!((p50 - 50.0).abs() < 0.05, "{p50}");
+        assert!((p99 - 99.0).abs() < 0.1, "{p99}");
+        assert_eq!(w.take_p50_p99_us(), (0.0, 0.0));
     }
 }

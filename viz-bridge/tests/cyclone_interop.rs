@@ -2,7 +2,8 @@
 //! the DDS under rmw_cyclonedds) subscribes to every topic the bridge publishes with ROS 2 IDL
 //! types and checks the values against what "physics" and "haptic" (this test, over iceoryx2)
 //! published; it publishes a target pose and a degeneration grade that must arrive on
-//! iceoryx2 as ProbeTarget / MaterialCommand.
+//! iceoryx2 as ProbeTarget / MaterialCommand (the target only because the session's launch
+//! file opts in with `[bridge] accept_target_pose = true`).
 //!
 //! Runs in network namespaces the test creates (needs root; skipped with a note otherwise,
 //! unless CI=true, where it fails).
@@ -74,8 +75,22 @@ fn run_session(
             ],
         )
     };
+    // The scenario's target is 19 mm from its probe, inside the surface box.
+    let launch = dir.join("accept.toml");
+    std::fs::write(
+        &launch,
+        "[bridge]\naccept_target_pose = true\n[bridge.target_pose]\nmax_jump_m = 0.03\n",
+    )
+    .unwrap();
     let start_bridge = || {
-        let p = Proc::spawn("bridge", bridge_command(bridge_ns, &session, None));
+        let p = Proc::spawn(
+            "bridge",
+            bridge_command(
+                bridge_ns,
+                &session,
+                with_commands.then_some(launch.as_path()),
+            ),
+        );
         p.wait_line("READY bridge", Duration::from_secs(30));
         p
     };

@@ -1,7 +1,8 @@
 //! The bridge with the real physics node (its binary from this workspace): a Cyclone DDS peer
 //! publishes a probe target pose, physics drives the probe toward it, and every probe pose and
 //! wrench the peer receives must be bit-for-bit a pose / force that physics published over
-//! iceoryx2 (watched here as well).
+//! iceoryx2 (watched here as well). External control is opt-in: the session's launch file
+//! sets `[bridge] accept_target_pose = true` (and a jump limit the 5.5 mm move fits in).
 
 mod common;
 
@@ -48,14 +49,23 @@ fn cyclone_target_pose_drives_the_physics_node_and_sees_its_pose_and_force() {
     let node = ipc::create_node("bridge-test-watch").unwrap();
     let frames = ipc::subscriber::<ContactFrame>(&node, &session, Queue::Every).unwrap();
 
+    let dir = temp_dir("physics-launch");
+    let launch = dir.join("accept.toml");
+    std::fs::write(
+        &launch,
+        "[bridge]\naccept_target_pose = true\n[bridge.target_pose]\n\
+         workspace_margin_m = 0.06\nmax_jump_m = 0.01\n",
+    )
+    .unwrap();
     let mut cmd = Command::new(&physics);
     cmd.args(["--session", &session]);
+    cmd.arg("--launch").arg(&launch);
     if let Ok(data) = std::env::var("ARTHROSIM_DATA") {
         cmd.args(["--data", &data]);
     }
     let mut physics = Proc::spawn("physics", cmd);
     physics.wait_line("READY physics", Duration::from_secs(120));
-    let mut bridge = Proc::spawn("bridge", bridge_command(&ns, &session, None));
+    let mut bridge = Proc::spawn("bridge", bridge_command(&ns, &session, Some(&launch)));
     bridge.wait_line("READY bridge", Duration::from_secs(30));
 
     let target = [0.002, 0.001, 0.045];

@@ -60,7 +60,7 @@ fn main() -> anyhow::Result<()> {
         position: [0.0, 0.0, cli.height + 0.05],
         ..Pose::IDENTITY
     };
-    let mut used = 0u64;
+    let (mut used, mut used_instance) = (0u64, 0u64);
     // Below the haptic loop's priority, above everything else (tests run while others build).
     haptic_node::init_tracing();
     haptic_node::servo::request_realtime(70);
@@ -75,6 +75,7 @@ fn main() -> anyhow::Result<()> {
         {
             proxy = device.proxy_pose;
             used = device.sequence;
+            used_instance = device.instance_id;
         }
         sequence += 1;
         let gap = proxy.position[2] - cli.height;
@@ -86,6 +87,7 @@ fn main() -> anyhow::Result<()> {
             f.dt_s = cli.dt;
             f.friction_mu = 0.0;
             f.device_sequence_used = used;
+            f.device_instance_used = used_instance;
             f.proxy_pose = proxy;
             f.probe_free_pose = proxy;
             f.probe_pose = proxy;

@@ -12,7 +12,7 @@ use anyhow::{bail, Context};
 use clap::Parser;
 use haptic_node::config::Limits;
 use haptic_node::render::{boxed_frame, Renderer};
-use haptic_node::stats::Histogram;
+use haptic_node::stats::LatencyHistogram;
 use msgs::Pose;
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
@@ -98,7 +98,7 @@ fn lcp_p99_us(contacts: usize, solves: u32) -> anyhow::Result<(f64, f64)> {
     let mut renderer = Renderer::new(limits);
     let mut frame = boxed_frame();
     synthetic_frame(contacts, &mut frame);
-    let mut hist = Histogram::new(100_000, 10);
+    let mut hist = LatencyHistogram::new(1_000_000);
     let mut iterations = 0u64;
     let mut seed = 0x2545_f491_4f6c_dd1du64;
     let t0 = msgs::clock::monotonic_ns();
@@ -109,7 +109,7 @@ fn lcp_p99_us(contacts: usize, solves: u32) -> anyhow::Result<(f64, f64)> {
             *f = *frame;
             f.sequence = 1 + i / 10;
             f.publish_ns = t0 + i * 1_000_000;
-            renderer.accept_frame(&mut f);
+            renderer.accept_frame(&mut f, t0 + i * 1_000_000);
         }
         // The hand trembles by up to ±50 µm around the frame's proxy.
         seed ^= seed << 13;

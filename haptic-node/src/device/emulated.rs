@@ -104,7 +104,10 @@ impl EmulatedTouch {
             let h = remaining.min(SUBSTEP_S);
             remaining -= h;
             t += h;
-            self.hand = self.protocol.hand(t);
+            // The hand presses by what it feels: the motor force along the site normal.
+            let n = self.protocol.normal();
+            let felt = self.force[0] * n[0] + self.force[1] * n[1] + self.force[2] * n[2];
+            self.hand = self.protocol.hand_feeling(t, felt);
             let c = &self.c;
             let mut f = self.force;
             for k in 0..3 {
@@ -224,8 +227,12 @@ mod tests {
     fn steady_contact_at_rest_reads_more_than_the_probe_weight() {
         // Stylus on a stiff elastic half-space z < 0 (5 kN/m, like the meniscus body at
         // shallow depth), force rendered directly each tick from the quantised position (so
-        // the stylus dithers by one encoder step, as a real Touch does).
-        let c = EmulatedConfig::default();
+        // the stylus dithers by one encoder step, as a real Touch does); the hand presses to
+        // a 2 mm depth.
+        let c = EmulatedConfig {
+            press_depth_m: 0.002,
+            ..EmulatedConfig::default()
+        };
         let mut dev = emulator(&c);
         let mut s = DeviceSample::default();
         let k = 5000.0;

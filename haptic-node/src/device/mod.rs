@@ -62,8 +62,6 @@ pub enum DeviceError {
     Replay { path: String, problem: String },
     #[error("emulated device: {0}")]
     Emulated(String),
-    #[error("unknown device backend {0:?} (touch | emulated | replay)")]
-    UnknownBackend(String),
 }
 
 /// One haptic device. `sample` then `command_force` once per servo tick.
@@ -88,14 +86,15 @@ pub fn open(
     sites: &[operator::Site],
     start_ns: u64,
 ) -> Result<Box<dyn Device>, DeviceError> {
-    match config.backend.as_str() {
-        "touch" => Ok(Box::new(touch::Touch::open(config)?)),
-        "emulated" => Ok(Box::new(emulated::EmulatedTouch::new(
+    use launch_config::device::DeviceBackend;
+    match config.backend {
+        DeviceBackend::Touch => Ok(Box::new(touch::Touch::open(config)?)),
+        DeviceBackend::Emulated => Ok(Box::new(emulated::EmulatedTouch::new(
             &config.emulated,
-            operator::Protocol::new(&config.emulated, sites)?,
+            operator::Protocol::new(&config.emulated, sites)?
+                .with_felt_target(config.emulated.press_force_n * config.rendering().force_scale),
             start_ns,
         )?)),
-        "replay" => Ok(Box::new(replay::Replay::open(&config.replay, start_ns)?)),
-        other => Err(DeviceError::UnknownBackend(other.to_string())),
+        DeviceBackend::Replay => Ok(Box::new(replay::Replay::open(&config.replay, start_ns)?)),
     }
 }

@@ -60,15 +60,31 @@ struct Segment {
     phase: Phase,
     probing: u32,
     region: u32,
+    /// The site's outward unit normal (the direction the felt force pushes the hand).
+    normal: [f64; 3],
 }
 
 /// The hand trajectory, precomputed as straight segments (no allocation when sampled).
+///
+/// Pressing to a force (the study's examiner, [`Protocol::with_felt_target`]): the press
+/// segment runs toward the deepest allowed point, and ends where the hand first feels the
+/// target force along the site normal; the hold is there, and the rest of the pass moves
+/// earlier by the time saved. Each pass starts again from the nominal segments.
 #[derive(Debug, Clone)]
 pub struct Protocol {
     segments: Vec<Segment>,
+    /// The segments as planned, restored at the start of every pass.
+    nominal: Vec<Segment>,
     total_s: f64,
+    nominal_total_s: f64,
     repeat: bool,
     cursor: usize,
+    /// Start time of the current pass, s.
+    pass_start: f64,
+    /// Force the hand presses to, felt along the site normal, N (0: press to the depth).
+    felt_target_n: f64,
+    /// Approach speed, for re-timing the release after a press ended early.
+    fast: f64,
 }
 
 /// Where the hand is and what it is doing.
@@ -118,7 +134,13 @@ impl Protocol {
         }
         let mut segments = Vec::new();
         let mut t = 0.0;
-        let mut push = |from: [f64; 3], to: [f64; 3], duration: f64, phase, probing, region| {
+        let mut push = |from: [f64; 3],
+                        to: [f64; 3],
+                        duration: f64,
+                        phase,
+                        probing,
+                        region,
+                        normal: [f64; 3]| {
             segments.push(Segment {
                 from,
                 to,
@@ -127,6 +149,7 @@ impl Protocol {
                 phase,
                 probing,
                 region,
+                normal,
             });
             t += duration;
         };
@@ -144,8 +167,8 @@ impl Protocol {
             let hover = add(s.point, n, c.hover_m);
             let pressed = add(s.point, n, -c.press_depth_m);
             let fast = c.approach_speed_m_per_s;
-            push(at, hover, dist(at, hover) / fast, Phase::Approach, k, r);
-            push(hover, s.point, c.hover_m / fast, Phase::Approach, k, r);
+            push(at, hover, dist(at, hover) / fast, Phase::Approach, k, r, n);
+            push(hover, s.point, c.hover_m / fast, Phase::Approach, k, r, n);
             push(
                 s.point,
                 pressed,
@@ -153,8 +176,9 @@ impl Protocol {
                 Phase::Press,
                 k,
                 r,
+                n,
             );
-            push(pressed, pressed, c.hold_s, Phase::Hold, k, r);
+            push(pressed, pressed, c.hold_s, Phase::Hold, k, r, n);
             push(
                 pressed,
                 hover,
@@ -162,20 +186,104 @@ impl Protocol {
                 Phase::Release,
                 k,
                 r,
+                n,
             );
             at = hover;
         }
         Ok(Protocol {
+            nominal: segments.clone(),
             segments,
             total_s: t,
+            nominal_total_s: t,
             repeat: c.repeat,
             cursor: 0,
+            pass_start: 0.0,
+            felt_target_n: 0.0,
+            fast: c.approach_speed_m_per_s,
         })
     }
 
-    /// Duration of one pass through the protocol, s.
+    /// Presses to a felt force instead of to the depth: each press ends where the force the
+    /// hand feels along the site normal first reaches `felt_n` (N), or at `press_depth_m`
+    /// (then the deepest the hand may go) if it never does. 0 keeps pressing to the depth.
+    pub fn with_felt_target(mut self, felt_n: f64) -> Protocol {
+        self.felt_target_n = if felt_n.is_finite() {
+            felt_n.max(0.0)
+        } else {
+            0.0
+        };
+        self
+    }
+
+    /// The force target, felt along the site normal, N (0: presses to the depth).
+    pub fn felt_target_n(&self) -> f64 {
+        self.felt_target_n
+    }
+
+    /// The hand at protocol time `t` when it feels `felt_n` along the current site's
+    /// normal (N, positive pushing the hand out of the tissue). Times are expected to grow.
+    pub fn hand_feeling(&mut self, t: f64, felt_n: f64) -> HandState {
+        let h = self.hand(t);
+        if self.felt_target_n > 0.0
+            && h.phase == Phase::Press
+            && !h.finished
+            && felt_n >= self.felt_target_n
+        {
+            self.end_press_at(t - self.pass_start, h.position);
+            return HandState {
+                velocity: [0.0; 3],
+                phase: Phase::Hold,
+                ..h
+            };
+        }
+        h
+    }
+
+    /// Ends the current press segment at pass time `t`, hand position `p`: the hold is at `p`
+    /// and the release leaves from there; everything after moves earlier by the time saved.
+    fn end_press_at(&mut self, t: f64, p: [f64; 3]) {
+        let i = self.cursor;
+        if i + 2 >= self.segments.len() {
+            return;
+        }
+        let press = &mut self.segments[i];
+        let saved_press = (press.t0 + press.duration - t).max(0.0);
+        press.duration -= saved_press;
+        press.to = p;
+        let hold = &mut self.segments[i + 1];
+        hold.t0 -= saved_press;
+        hold.from = p;
+        hold.to = p;
+        let release = &mut self.segments[i + 2];
+        let old_release = release.duration;
+        release.t0 -= saved_press;
+        release.from = p;
+        release.duration = dist(p, release.to) / self.fast;
+        let saved = saved_press + (old_release - release.duration);
+        for s in &mut self.segments[i + 3..] {
+            s.t0 -= saved;
+        }
+        self.total_s -= saved;
+        // Past the shortened press: the hold is current.
+        self.cursor = i + 1;
+    }
+
+    fn restart_pass(&mut self, start: f64) {
+        self.segments.copy_from_slice(&self.nominal);
+        self.total_s = self.nominal_total_s;
+        self.cursor = 0;
+        self.pass_start = start;
+    }
+
+    /// The current site's outward normal (last segment's when finished).
+    pub fn normal(&self) -> [f64; 3] {
+        self.segments[self.cursor].normal
+    }
+
+    /// Duration of one pass through the protocol, s (as planned; a press to force may end
+    /// earlier).
     pub fn duration_s(&self) -> f64 {
-        self.total_s
+        self.nominal_total_s
     }
 
     /// Start position of the hand.
@@ -187,18 +295,31 @@ impl Protocol {
     /// wraps around.
     pub fn hand(&mut self, t: f64) -> HandState {
         let last = *self.segments.last().expect("protocol has segments");
-        if t >= self.total_s && !self.repeat {
-            return HandState {
-                position: last.to,
-                velocity: [0.0; 3],
-                phase: Phase::Idle,
-                probing: 0,
-                region: 0,
-                finished: true,
-            };
+        let t = t.max(0.0);
+        if t < self.pass_start {
+            // Time went back: start over from the plan.
+            self.restart_pass(0.0);
+        }
+        if t - self.pass_start >= self.total_s {
+            if !self.repeat {
+                return HandState {
+                    position: last.to,
+                    velocity: [0.0; 3],
+                    phase: Phase::Idle,
+                    probing: 0,
+                    region: 0,
+                    finished: true,
+                };
+            }
+            // Next pass (or passes, after a long stall), from the plan.
+            let mut start = self.pass_start + self.total_s;
+            if self.nominal_total_s > 0.0 && t - start >= self.nominal_total_s {
+                start += ((t - start) / self.nominal_total_s).floor() * self.nominal_total_s;
+            }
+            self.restart_pass(start);
         }
         let t = if self.total_s > 0.0 {
-            t.max(0.0) % self.total_s
+            t - self.pass_start
         } else {
             0.0
         };

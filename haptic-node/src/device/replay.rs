@@ -1,10 +1,14 @@
 //! Replay of a recorded proxy trajectory from CSV (`t_s,px_m,py_m,pz_m,qx,qy,qz,qw`, scene
-//! frame). Poses are interpolated linearly (normalised-lerp for the orientation). Non-finite
-//! values are kept as recorded, so a recording with a dropped-out sensor exercises the
-//! node's quarantine exactly like a live device would.
+//! frame), read with the workspace's one CSV reader (`msgs::csv_input`). Poses are
+//! interpolated linearly (normalised-lerp for the orientation). Time must be finite and
+//! increasing and a finite quaternion must be a unit one, as in every CSV input; non-finite
+//! pose values are the one exception and are kept as recorded, so a recording with a
+//! dropped-out sensor (and the quarantine tests' NaN trajectories) exercises the node's
+//! quarantine exactly like a live device would.
 
 use super::{Device, DeviceError, DeviceSample};
 use launch_config::device::ReplayConfig;
+use msgs::csv_input::{self, Order, Spec};
 use msgs::haptic_to_physics::DeviceKind;
 use msgs::Pose;
 use std::path::Path;
@@ -17,82 +21,40 @@ pub struct TimedPose {
     pub pose: Pose,
 }
 
-/// Parses the CSV text; `path` names the file in errors.
+/// Parses the CSV text under the workspace's CSV rules (`msgs::csv_input`: every column
+/// present, finite time increasing, unit quaternions; errors name file and line); `path`
+/// names the file in errors. The pose columns are dropout columns: a non-finite pose is kept
+/// as recorded (see the module documentation).
 pub fn parse_trajectory(text: &str, path: &str) -> Result<Vec<TimedPose>, DeviceError> {
-    let mut lines = text.lines().enumerate();
-    let header = loop {
-        match lines.next() {
-            Some((_, l)) if l.trim().is_empty() || l.trim_start().starts_with('#') => continue,
-            Some((i, l)) => break (i + 1, l),
-            None => {
-                return Err(DeviceError::Replay {
-                    path: path.into(),
-                    problem: "empty file (expected header t_s,px_m,py_m,pz_m,qx,qy,qz,qw)".into(),
-                })
-            }
-        }
+    let spec = Spec {
+        columns: &HEADER,
+        order: Some((0, Order::Increasing, "time")),
+        quaternion: Some([4, 5, 6, 7]),
+        dropouts: &[1, 2, 3, 4, 5, 6, 7],
+        magnitude: &[],
     };
-    let cols: Vec<&str> = header.1.split(',').map(|s| s.trim()).collect();
-    if cols != HEADER {
-        return Err(DeviceError::ReplayLine {
+    let table =
+        csv_input::parse(text, Path::new(path), &spec).map_err(|e| DeviceError::ReplayLine {
             path: path.into(),
-            line: header.0,
-            problem: format!("header {:?}, expected {}", header.1, HEADER.join(",")),
-        });
-    }
-    let mut out: Vec<TimedPose> = Vec::new();
-    for (i, l) in lines {
-        let line = i + 1;
-        if l.trim().is_empty() || l.trim_start().starts_with('#') {
-            continue;
-        }
-        let fields: Vec<&str> = l.split(',').map(|s| s.trim()).collect();
-        if fields.len() != 8 {
-            return Err(DeviceError::ReplayLine {
-                path: path.into(),
-                line,
-                problem: format!("{} columns, expected 8", fields.len()),
-            });
-        }
-        let mut v = [0.0; 8];
-        for (k, f) in fields.iter().enumerate() {
-            v[k] = f.parse::<f64>().map_err(|_| DeviceError::ReplayLine {
-                path: path.into(),
-                line,
-                problem: format!("column {} ({}) = {f:?} is not a number", k + 1, HEADER[k]),
-            })?;
-        }
-        if !v[0].is_finite() {
-            return Err(DeviceError::ReplayLine {
-                path: path.into(),
-                line,
-                problem: "time t_s is not finite".into(),
-            });
-        }
-        if let Some(prev) = out.last() {
-            if v[0] <= prev.t_s {
-                return Err(DeviceError::ReplayLine {
-                    path: path.into(),
-                    line,
-                    problem: format!("time {} does not increase (previous {})", v[0], prev.t_s),
-                });
-            }
-        }
-        out.push(TimedPose {
-            t_s: v[0],
-            pose: Pose {
-                position: [v[1], v[2], v[3]],
-                orientation: [v[4], v[5], v[6], v[7]],
-            },
-        });
-    }
-    if out.is_empty() {
+            line: e.line,
+            problem: e.problem,
+        })?;
+    if table.is_empty() {
         return Err(DeviceError::Replay {
             path: path.into(),
             problem: "no poses after the header".into(),
         });
     }
-    Ok(out)
+    Ok(table
+        .rows()
+        .map(|v| TimedPose {
+            t_s: v[0],
+            pose: Pose {
+                position: [v[1], v[2], v[3]],
+                orientation: [v[4], v[5], v[6], v[7]],
+            },
+        })
+        .collect())
 }
 
 pub struct Replay {
@@ -282,7 +244,7 @@ mod tests {
         .unwrap_err()
         .to_string();
         assert!(
-            e.contains("line 3") && e.contains("does not increase"),
+            e.contains("line 3") && e.contains("time not increasing"),
             "{e}"
         );
         let e = parse_trajectory("t_s,px_m,py_m,pz_m,qx,qy,qz,qw\n0,0,0\n", "d.csv")
@@ -296,5 +258,10 @@ mod tests {
         )
         .unwrap();
         assert!(p[0].pose.position[0].is_nan());
+        // A zero quaternion is rejected like in every CSV input.
+        let e = parse_trajectory("t_s,px_m,py_m,pz_m,qx,qy,qz,qw\n0,0,0,0,0,0,0,0\n", "f.csv")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("line 2") && e.contains("zero quaternion"), "{e}");
     }
 }

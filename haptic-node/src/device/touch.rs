@@ -200,6 +200,65 @@ struct ServoState {
     fault_until_ns: u64,
     last_error: Option<HdErrorInfo>,
     errors: u64,
+    /// Servo ticks that found this state locked (they held the last command).
+    contended: u64,
+}
+
+/// The servo callback's own copy of the node loop's command and what it wrote last. Only
+/// the servo thread touches it, so its lock is never contended; it lets a tick whose
+/// try-lock on the shared state fails keep rendering the last command (under the watchdog)
+/// instead of dropping to zero for a millisecond and back, a jump no rate limit allows.
+#[derive(Debug, Clone, Copy, Default)]
+struct ServoOwn {
+    /// Last command seen (device frame, N) and when the node loop set it.
+    command: [f64; 3],
+    command_set_ns: u64,
+    /// Force written on the last servo tick, and when.
+    written: [f64; 3],
+    written_ns: Option<u64>,
+    /// Ticks on which the shared state was contended.
+    contended: u64,
+}
+
+/// The callback's own clamp, independent of the node loop's limiter: never above the peak,
+/// never rising faster than the rate limit allows for the time since the last write (a
+/// late callback does not license a bigger step; falling is always allowed).
+#[derive(Debug, Clone, Copy)]
+struct ServoClamp {
+    peak_n: f64,
+    rate_n_per_ns: f64,
+    /// Largest elapsed time credited to one step (two servo periods), ns.
+    max_elapsed_ns: u64,
+}
+
+impl ServoClamp {
+    fn apply(&self, f: [f64; 3], last: [f64; 3], elapsed_ns: Option<u64>) -> [f64; 3] {
+        let n = (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt();
+        let f = if n > self.peak_n {
+            f.map(|v| v * (self.peak_n / n) * (1.0 - 4.0 * f64::EPSILON))
+        } else {
+            f
+        };
+        let step = [f[0] - last[0], f[1] - last[1], f[2] - last[2]];
+        let sn = (step[0] * step[0] + step[1] * step[1] + step[2] * step[2]).sqrt();
+        let ln = (last[0] * last[0] + last[1] * last[1] + last[2] * last[2]).sqrt();
+        let fnorm = (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt();
+        let max_step = self.rate_n_per_ns
+            * elapsed_ns
+                .unwrap_or(self.max_elapsed_ns)
+                .min(self.max_elapsed_ns) as f64;
+        // Toward zero (fades, faults, stop) is never limited; anything else is.
+        if sn > max_step && !(fnorm <= ln && f.iter().zip(&last).all(|(a, b)| a * b >= 0.0)) {
+            let s = max_step / sn;
+            [
+                last[0] + step[0] * s,
+                last[1] + step[1] * s,
+                last[2] + step[2] * s,
+            ]
+        } else {
+            f
+        }
+    }
 }
 
 struct Servo {
@@ -208,8 +267,10 @@ struct Servo {
     state: Mutex<ServoState>,
     stopping: AtomicBool,
     watchdog_ns: u64,
+    clamp: ServoClamp,
     /// Written only by the servo thread: the fault hold survives a missed try-lock.
     fault: Mutex<(u64, Option<HdErrorInfo>, u64)>,
+    own: Mutex<ServoOwn>,
 }
 
 unsafe extern "C" fn servo_callback(user: *mut c_void) -> HdCallbackCode {
@@ -257,18 +318,41 @@ impl Servo {
                 .unwrap_or((u64::MAX, None, 0));
         let faulted = now < fault_until_ns;
         let stopping = self.stopping.load(Ordering::SeqCst);
-        let mut force = [0.0; 3];
-        if let Ok(mut shared) = self.state.try_lock() {
-            let age = now.saturating_sub(shared.force_set_ns);
-            if !stopping && !faulted && shared.force.iter().all(|v| v.is_finite()) {
-                // Watchdog: a stalled node loop fades the force out over one more watchdog time.
-                let fade = if age <= self.watchdog_ns {
-                    1.0
-                } else {
-                    (2.0 - age as f64 / self.watchdog_ns as f64).clamp(0.0, 1.0)
-                };
-                force = shared.force.map(|f| f * fade);
+        // The servo thread's own state: never contended (only this thread locks it).
+        let mut own_guard = self.own.try_lock();
+        let mut own = own_guard.as_deref().copied().unwrap_or_default();
+        let shared = self.state.try_lock();
+        match &shared {
+            Ok(shared) => {
+                own.command = shared.force;
+                own.command_set_ns = shared.force_set_ns;
             }
+            // Contended: the last command seen stands (the watchdog still ages it).
+            Err(_) => own.contended += 1,
+        }
+        let mut force = [0.0; 3];
+        if !stopping && !faulted && own.command.iter().all(|v| v.is_finite()) {
+            // Watchdog: a stalled node loop fades the force out over one more watchdog time.
+            let age = now.saturating_sub(own.command_set_ns);
+            let fade = if age <= self.watchdog_ns {
+                1.0
+            } else {
+                (2.0 - age as f64 / self.watchdog_ns as f64).clamp(0.0, 1.0)
+            };
+            force = own.command.map(|f| f * fade);
+        }
+        if own_guard.is_err() {
+            // Cannot happen (one thread); without the last write, the clamp allows no rise.
+            force = [0.0; 3];
+        }
+        let elapsed = own.written_ns.map(|t| now.saturating_sub(t));
+        force = self.clamp.apply(force, own.written, elapsed);
+        own.written = force;
+        own.written_ns = Some(now);
+        if let Ok(g) = own_guard.as_deref_mut() {
+            *g = own;
+        }
+        if let Ok(mut shared) = shared {
             s.force = shared.force;
             s.force_set_ns = shared.force_set_ns;
             s.servo_ticks = shared.servo_ticks + 1;
@@ -276,6 +360,7 @@ impl Servo {
             s.fault_until_ns = fault_until_ns;
             s.last_error = last_error;
             s.errors = errors;
+            s.contended = own.contended;
             *shared = s;
         }
         // SAFETY: as above.
@@ -290,6 +375,26 @@ impl Servo {
             HD_CALLBACK_DONE
         } else {
             HD_CALLBACK_CONTINUE
+        }
+    }
+}
+
+impl ServoClamp {
+    /// The configured peak and rate, each at most the Touch's hard limit whatever the
+    /// configuration says (a node started without validation included).
+    fn for_config(config: &DeviceConfig) -> ServoClamp {
+        let hard = &launch_config::device::TOUCH_LIMITS;
+        let pick = |v: f64, limit: f64| {
+            if v.is_finite() && v > 0.0 {
+                v.min(limit)
+            } else {
+                limit
+            }
+        };
+        ServoClamp {
+            peak_n: pick(config.peak_force_n, hard.peak_force_n),
+            rate_n_per_ns: pick(config.max_force_rate_n_per_s, hard.max_force_rate_n_per_s) * 1e-9,
+            max_elapsed_ns: 2_000_000,
         }
     }
 }
@@ -411,7 +516,12 @@ impl Touch {
             state: Mutex::new(ServoState::default()),
             stopping: AtomicBool::new(false),
             fault: Mutex::new((0, None, 0)),
-            watchdog_ns: (c.servo_watchdog_s.max(0.001) * 1e9) as u64,
+            own: Mutex::new(ServoOwn::default()),
+            watchdog_ns: (c.servo_watchdog_s.clamp(
+                launch_config::device::SERVO_WATCHDOG_RANGE_S.0,
+                launch_config::device::SERVO_WATCHDOG_RANGE_S.1,
+            ) * 1e9) as u64,
+            clamp: ServoClamp::for_config(config),
         });
         let user = &*servo as *const Servo as *mut c_void;
         // SAFETY: the Servo box outlives the scheduled callback (unscheduled in Drop).
@@ -439,6 +549,25 @@ impl Touch {
             offset: config.workspace_offset_m,
             zeroed: false,
         })
+    }
+}
+
+impl Touch {
+    /// Holds the node side's lock on the shared servo state for `d` (tests: forced
+    /// contention; the servo callback must keep the last command meanwhile).
+    #[doc(hidden)]
+    pub fn hold_shared_state_for(&self, d: std::time::Duration) {
+        let _g = self.servo.state.lock().unwrap_or_else(|p| p.into_inner());
+        std::thread::sleep(d);
+    }
+
+    /// Servo ticks so far that found the shared state contended.
+    pub fn contended_ticks(&self) -> u64 {
+        self.servo
+            .state
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .contended
     }
 }
 
@@ -538,7 +667,7 @@ mod tests {
     #[test]
     fn missing_library_is_a_clear_error() {
         let mut c = DeviceConfig::default();
-        c.backend = "touch".into();
+        c.backend = launch_config::device::DeviceBackend::Touch;
         c.touch.library = "libHD-not-installed-here.so".into();
         let e = match Touch::open(&c) {
             Err(e) => e.to_string(),

@@ -252,8 +252,22 @@ void hdStopScheduler(void) {
 
 static char report_path[4096];
 
+/* Also starts a fresh device: a test process that loads the library several times (one
+ * test after another) gets counters and a force log of its own use only. */
 void fake_hd_set_report(const char *path) {
+    pthread_mutex_lock(&lock);
     snprintf(report_path, sizeof report_path, "%s", path);
+    initialized = disabled = force_output = calibration_updated_style = 0;
+    position[0] = position[1] = position[2] = 0.0;
+    error_at_ms = nan_at_ms = -1;
+    calibration = HD_CALIBRATION_OK;
+    pending_error = HD_SUCCESS;
+    frames_begun = frames_unbalanced = writes_outside_frame = writes_before_enable = 0;
+    servo_ticks = callbacks_run = 0;
+    scheduler_start_ns = -1;
+    force_count = 0;
+    for (int i = 0; i < MAX_CALLBACKS; i++) callbacks[i].live = 0;
+    pthread_mutex_unlock(&lock);
 }
 
 void hdDisableDevice(HHD h) {

@@ -24,7 +24,7 @@ struct Args {
     friction: f64,
     /// FEM linear solver (`cg`, `cg-jacobi`, `cg-cholesky`, `cg-warped-cholesky`, `direct`).
     #[arg(long, default_value = "cg")]
-    solver: String,
+    solver: launch_config::scene::SolverKind,
     /// CG iteration cap (default: the scene's, SOFA's 25).
     #[arg(long)]
     cg_iterations: Option<u32>,
@@ -33,7 +33,7 @@ struct Args {
     cg_tolerance: Option<f64>,
     /// Precision of the CG matrix (`f32` or `f64`; default: the scene's).
     #[arg(long)]
-    cg_matrix: Option<String>,
+    cg_matrix: Option<launch_config::scene::CgMatrix>,
     /// Re-rotate an element's stiffness blocks only after its rotation moved by more than
     /// this, rad (default: the scene's; 0 = every step, as SOFA).
     #[arg(long)]
@@ -44,10 +44,14 @@ struct Args {
     steps: Option<usize>,
     /// Element rotation (`qr` = SOFA's "large", or `polar`).
     #[arg(long, default_value = "qr")]
-    rotation: String,
+    rotation: launch_config::scene::RotationMethod,
     /// Study data folder (default: $ARTHROSIM_DATA, else ../shared/data).
     #[arg(long)]
     data: Option<PathBuf>,
+    /// How a partial compliance cache is filled: `prefetch` (worker thread, as the physics
+    /// node) or `inline` (a miss is solved inside the step).
+    #[arg(long, default_value = "prefetch")]
+    compliance: String,
     /// Indentation of the proxy below the surface, m.
     #[arg(long, default_value_t = 1.5e-3)]
     depth: f64,
@@ -66,22 +70,27 @@ fn main() -> anyhow::Result<()> {
         scene.meniscus.fixed = "inferior".into();
     }
     scene.contact.friction = args.friction;
-    scene.solver.kind = args.solver.clone();
-    scene.solver.rotation = args.rotation.clone();
+    scene.solver.kind = args.solver;
+    scene.solver.rotation = args.rotation;
     if let Some(n) = args.cg_iterations {
         scene.solver.cg_iterations = n;
     }
     if let Some(t) = args.cg_tolerance {
         scene.solver.cg_tolerance = t;
     }
-    if let Some(m) = &args.cg_matrix {
-        scene.solver.cg_matrix = m.clone();
+    if let Some(m) = args.cg_matrix {
+        scene.solver.cg_matrix = m;
     }
     if let Some(t) = args.stiffness_tolerance {
         scene.solver.stiffness_rotation_tolerance = t;
     }
     let t_build = Instant::now();
-    let mut sim = Simulation::new(&scene, &data_dir)
+    let filling = match args.compliance.as_str() {
+        "prefetch" => physics_node::compliance::Filling::Prefetch,
+        "inline" => physics_node::compliance::Filling::Inline,
+        other => bail!("--compliance {other}: expected prefetch or inline"),
+    };
+    let mut sim = Simulation::with_filling(&scene, &data_dir, filling)
         .with_context(|| format!("building scene for {}", args.mesh))?;
     let build_s = t_build.elapsed().as_secs_f64();
 
@@ -106,23 +115,25 @@ fn main() -> anyhow::Result<()> {
         sim.set_proxy_pose(&physics_node::probe::pose(path(sim.time()), q));
         sim.step()?;
     }
-    let mut durations: Vec<u64> = Vec::with_capacity(1 << 20);
+    // Step durations up to 10 s (longer ones count as 10 s; the maximum stays exact).
+    let mut durations = msgs::timing::LatencyHistogram::new(10_000_000_000);
     let mut contacts_sum = 0u64;
     let mut in_contact = 0u64;
     let mut force_sum = 0.0;
     let mut stiffness_updates = 0u64;
     let misses_before = sim.compliance_misses();
+    let approximations_before = sim.compliance_approximations();
     let times_before = sim.phase_times();
     let t0 = Instant::now();
-    let more = |done: usize| match args.steps {
-        Some(n) => done < n,
+    let more = |done: u64| match args.steps {
+        Some(n) => done < n as u64,
         None => t0.elapsed().as_secs_f64() < args.seconds,
     };
-    while more(durations.len()) {
+    while more(durations.count()) {
         sim.set_proxy_pose(&physics_node::probe::pose(path(sim.time()), q));
         let s = Instant::now();
         sim.step()?;
-        durations.push(s.elapsed().as_nanos() as u64);
+        durations.record(s.elapsed().as_nanos() as u64);
         stiffness_updates += sim.fem().stiffness_updates() as u64;
         let c = sim.contact_count() as u64;
         contacts_sum += c;
@@ -131,11 +142,8 @@ fn main() -> anyhow::Result<()> {
         force_sum += (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt();
     }
     let wall = t0.elapsed().as_secs_f64();
-    let steps = durations.len().max(1);
-    let total_step_s: f64 = durations.iter().map(|&d| d as f64 * 1e-9).sum();
-    durations.sort_unstable();
-    let pct =
-        |p: f64| durations[((p * (steps - 1) as f64).round() as usize).min(steps - 1)] as f64 / 1e3;
+    let steps = durations.count().max(1);
+    let total_step_s = durations.mean_ns() * durations.count() as f64 * 1e-9;
     let (slots, complete) = sim.compliance_cache_info();
     let t1 = sim.phase_times();
     let per_step = |a: u64, b: u64| (a - b) as f64 / 1e3 / steps as f64;
@@ -154,9 +162,10 @@ fn main() -> anyhow::Result<()> {
         "steps": steps,
         "steps_per_s": steps as f64 / total_step_s,
         "wall_steps_per_s": steps as f64 / wall,
-        "step_p50_us": pct(0.5),
-        "step_p99_us": pct(0.99),
-        "step_max_us": pct(1.0),
+        "step_p50_us": durations.quantile_us(0.5),
+        "step_p99_us": durations.quantile_us(0.99),
+        "step_p99_over_p50": durations.quantile_us(0.99) / durations.quantile_us(0.5),
+        "step_max_us": durations.max_ns() as f64 / 1e3,
         "contacts_mean": contacts_sum as f64 / steps as f64,
         "contact_fraction": in_contact as f64 / steps as f64,
         "force_mean_n": force_sum / steps as f64,
@@ -171,6 +180,9 @@ fn main() -> anyhow::Result<()> {
         "compliance_slots": slots,
         "compliance_complete": complete,
         "compliance_misses": sim.compliance_misses() - misses_before,
+        "compliance_filling": args.compliance,
+        "compliance_approximated_contacts": sim.compliance_approximations() - approximations_before,
+        "compliance_cached_nodes": sim.compliance_cached_nodes(),
         "build_s": build_s,
         "phase_mean_us": phases,
     });

@@ -50,8 +50,11 @@ impl FemModel {
             mu,
             lambda,
             settings,
+            stiffening,
             ..
         } = self;
+        // The rest system stays linear (it is the reference of the warped compliance).
+        let stiff_active = !at_rest && stiffening.law.is_active();
         let (mu, lambda) = (*mu, *lambda);
         force.fill(Vector3::zeros());
         // The common case (corotational, f32 CG matrix) writes its blocks straight into the
@@ -103,6 +106,8 @@ impl FemModel {
                 elem_rot_k,
                 rebuild,
                 tolerance: settings.stiffness_rotation_tolerance,
+                scale: if stiff_active { &stiffening.elem } else { &[] },
+                scale_k: &mut stiffening.elem_k,
             }
             .run();
             return;
@@ -132,6 +137,11 @@ impl FemModel {
                 );
                 elem_rot_m[e] = r;
                 r
+            };
+            let (mu, lambda) = if stiff_active {
+                (mu * stiffening.elem[e], lambda * stiffening.elem[e])
+            } else {
+                (mu, lambda)
             };
             match material.model {
                 MaterialModel::Corotational => {

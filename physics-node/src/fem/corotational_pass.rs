@@ -27,6 +27,10 @@ pub(super) struct CorotationalUpperPass<'a> {
     pub(super) rebuild: bool,
     /// Re-rotate an element's blocks once its rotation moved by more than this.
     pub(super) tolerance: f64,
+    /// Modulus factor per element (strain stiffening); empty: 1 everywhere.
+    pub(super) scale: &'a [f64],
+    /// Factor each element's blocks were built with (updated when rebuilt).
+    pub(super) scale_k: &'a mut [f64],
 }
 
 impl CorotationalUpperPass<'_> {
@@ -111,28 +115,50 @@ impl CorotationalUpperPass<'_> {
         nodal: &[Vector3<f64>; 4],
     ) -> bool {
         let t = self.tets[e];
+        let s = self.scale.get(e).copied().unwrap_or(1.0);
         for k in 0..4 {
-            self.force[t[k]] += nodal[k];
+            self.force[t[k]] += nodal[k] * s;
         }
         let built = &mut self.elem_rot_k[e];
-        let replaced = if self.rebuild {
+        let s_built = self.scale_k[e];
+        let rescaled = s != s_built;
+        if !self.rebuild {
+            let turned = (rot - *built).amax() > self.tolerance;
+            let stiffened = (s - s_built).abs() > self.tolerance * s_built;
+            if !(turned || stiffened) {
+                return false;
+            }
+            if rescaled {
+                // The modulus changed: take the old blocks out whole, then add the new ones.
+                element::corotational_stiffness_upper(
+                    &self.rest_elems[e],
+                    built,
+                    None,
+                    -self.mu * s_built,
+                    -self.lambda * s_built,
+                    self.k_scale,
+                    &self.upper_scatter[e],
+                    self.blocks,
+                );
+            }
+        }
+        let replaced = if self.rebuild || rescaled {
             None
-        } else if (rot - *built).amax() > self.tolerance {
-            Some(*built)
         } else {
-            return false;
+            Some(*built)
         };
         element::corotational_stiffness_upper(
             &self.rest_elems[e],
             rot,
             replaced.as_ref(),
-            self.mu,
-            self.lambda,
+            self.mu * s,
+            self.lambda * s,
             self.k_scale,
             &self.upper_scatter[e],
             self.blocks,
         );
         *built = *rot;
+        self.scale_k[e] = s;
         true
     }
 

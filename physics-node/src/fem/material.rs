@@ -16,30 +16,13 @@ pub const MENISCUS_DENSITY: f64 = 1090.0;
 /// Modulus loss per degeneration grade: grade 2 = −41% (Fischenich et al. 2015), linear in grade.
 pub const MODULUS_LOSS_PER_GRADE: f64 = 0.205;
 
-/// Constitutive model of the tetrahedra.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum MaterialModel {
-    /// Linear elasticity in a per-element rotated frame (small strain, large rotation).
-    Corotational,
-    /// Stable neo-Hookean (Smith et al. 2018, in the Kim & Eberle form without the log term):
-    /// hyperelastic, stiffens in large compression, rest-stable, defined for inverted elements.
-    StableNeoHookean,
-}
-
-impl MaterialModel {
-    /// Parses the launch-file spelling (`corotational`, `neo-hookean`).
-    pub fn parse(name: &str) -> Result<Self, FemError> {
-        match name.trim().to_ascii_lowercase().as_str() {
-            "corotational" | "linear-corotational" => Ok(MaterialModel::Corotational),
-            "neo-hookean" | "neohookean" | "stable-neo-hookean" | "stable_neo_hookean" => {
-                Ok(MaterialModel::StableNeoHookean)
-            }
-            other => Err(FemError::Material(format!(
-                "unknown material model `{other}` (expected `corotational` or `neo-hookean`)"
-            ))),
-        }
-    }
-}
+/// Constitutive model of the tetrahedra: the launch file's choice, parsed once with it.
+/// `Corotational` is linear elasticity in a per-element rotated frame (small strain, large
+/// rotation); `StableNeoHookean` (Smith et al. 2018, in the Kim & Eberle form without the log
+/// term) is hyperelastic, stiffens in large compression, rest-stable and defined for inverted
+/// elements.
+pub use launch_config::scene::MaterialModel;
+use launch_config::scene::MaterialPreset;
 
 /// An isotropic elastic material. SI units.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -75,13 +58,15 @@ impl Material {
     }
 
     /// Preset by name: `lateral` or `medial`.
-    pub fn preset(name: &str) -> Result<Self, FemError> {
-        match name.trim().to_ascii_lowercase().as_str() {
-            "lateral" => Ok(Self::lateral()),
-            "medial" => Ok(Self::medial()),
-            other => Err(FemError::Material(format!(
-                "unknown material preset `{other}` (expected `lateral`, `medial` or `custom`)"
-            ))),
+    pub fn preset(preset: MaterialPreset) -> Result<Self, FemError> {
+        match preset {
+            MaterialPreset::Lateral => Ok(Self::lateral()),
+            MaterialPreset::Medial => Ok(Self::medial()),
+            MaterialPreset::Custom => Err(FemError::Material(
+                "preset `custom` has no parameters of its own (give youngs_modulus and \
+                 poisson_ratio)"
+                    .into(),
+            )),
         }
     }
 
@@ -109,9 +94,8 @@ impl Material {
     /// Builds the material of a scene's `[scene.material]` section: preset, then by-hand
     /// overrides of E and ν, then degeneration grade and modulus scale.
     pub fn from_config(cfg: &MaterialConfig) -> Result<Self, FemError> {
-        let model = MaterialModel::parse(&cfg.model)?;
-        let preset = cfg.preset.trim().to_ascii_lowercase();
-        let mut m = if preset == "custom" {
+        let model = cfg.model;
+        let mut m = if cfg.preset == MaterialPreset::Custom {
             let (Some(e), Some(nu)) = (cfg.youngs_modulus, cfg.poisson_ratio) else {
                 return Err(FemError::Material(
                     "preset `custom` needs both youngs_modulus and poisson_ratio".into(),
@@ -124,7 +108,7 @@ impl Material {
                 model,
             }
         } else {
-            Self::preset(&preset)?
+            Self::preset(cfg.preset)?
         };
         if let Some(e) = cfg.youngs_modulus {
             m.youngs_modulus = e;
@@ -182,6 +166,63 @@ impl Material {
     }
 }
 
+/// Largest modulus factor the strain-stiffening law gives (bounds the stiffness a few
+/// crushed elements under the probe tip can reach, which keeps the implicit step and the
+/// warped compliance well conditioned).
+pub const MAX_STIFFENING_FACTOR: f64 = 50.0;
+
+/// Strain stiffening of the tissue (Fung-type exponential secant modulus): an element's
+/// modulus is E · exp(rate · ε_eq), with ε_eq its von Mises equivalent small strain in the
+/// corotated frame, capped at [`MAX_STIFFENING_FACTOR`]. Collagenous tissue stiffens as its
+/// fibres straighten under load (Fung 1967); the rate is fitted to measured probing (the
+/// cadaver force–displacement table), see `launch/default.toml`. rate = 0: linear.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StrainStiffening {
+    /// Exponential rate per unit equivalent strain, ≥ 0.
+    pub rate: f64,
+}
+
+impl StrainStiffening {
+    pub const NONE: StrainStiffening = StrainStiffening { rate: 0.0 };
+
+    pub fn new(rate: f64) -> Result<Self, FemError> {
+        if !(rate.is_finite() && rate >= 0.0) {
+            return Err(FemError::Material(format!(
+                "strain_stiffening must be finite and ≥ 0, got {rate}"
+            )));
+        }
+        Ok(StrainStiffening { rate })
+    }
+
+    pub fn is_active(&self) -> bool {
+        self.rate > 0.0
+    }
+
+    /// Modulus factor at equivalent strain `eps_eq` (≥ 1).
+    #[inline]
+    pub fn factor(&self, eps_eq: f64) -> f64 {
+        if self.rate <= 0.0 || !eps_eq.is_finite() {
+            return 1.0;
+        }
+        (self.rate * eps_eq.max(0.0))
+            .exp()
+            .min(MAX_STIFFENING_FACTOR)
+    }
+
+    /// von Mises equivalent strain of the small strain ε = sym(RᵀF) − I:
+    /// √(2/3 · dev ε : dev ε).
+    #[inline]
+    pub fn equivalent_strain(f: &nalgebra::Matrix3<f64>, rot: &nalgebra::Matrix3<f64>) -> f64 {
+        let rf = rot.transpose() * f;
+        let mut eps = (rf + rf.transpose()) * 0.5 - nalgebra::Matrix3::identity();
+        let mean = eps.trace() / 3.0;
+        for i in 0..3 {
+            eps[(i, i)] -= mean;
+        }
+        (2.0 / 3.0 * eps.norm_squared()).sqrt()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -205,14 +246,9 @@ mod tests {
     fn config_errors_are_clear() {
         let mut cfg = MaterialConfig::default();
         assert_eq!(Material::from_config(&cfg).unwrap(), Material::lateral());
-        cfg.preset = "tibial".into();
-        let e = Material::from_config(&cfg).unwrap_err().to_string();
-        assert!(e.contains("tibial"), "{e}");
-        cfg.preset = "medial".into();
-        cfg.model = "mooney".into();
-        let e = Material::from_config(&cfg).unwrap_err().to_string();
-        assert!(e.contains("mooney"), "{e}");
-        cfg.model = "neo-hookean".into();
+        // Unknown presets and models cannot reach here: they are launch-file parse errors.
+        cfg.preset = MaterialPreset::Medial;
+        cfg.model = MaterialModel::StableNeoHookean;
         cfg.poisson_ratio = Some(0.5);
         let e = Material::from_config(&cfg).unwrap_err().to_string();
         assert!(e.contains("Poisson"), "{e}");
@@ -226,7 +262,7 @@ mod tests {
         assert_eq!(m.model, MaterialModel::StableNeoHookean);
         assert!((m.youngs_modulus - 0.59e6).abs() < 1e-6);
         assert_eq!(m.poisson_ratio, 0.26);
-        cfg.preset = "custom".into();
+        cfg.preset = MaterialPreset::Custom;
         assert!(Material::from_config(&cfg).is_err());
     }
 }

@@ -59,6 +59,7 @@ mod rest_compliance;
 pub mod settings;
 pub mod sparse;
 mod stepping;
+mod stiffening;
 pub mod test_meshes;
 
 #[cfg(test)]
@@ -70,11 +71,12 @@ use nalgebra::{Matrix3, Point3, UnitQuaternion, Vector3};
 use crate::mesh::TetMesh;
 use corotational_pass::{element_rotation, CorotationalUpperPass};
 use element::{ElementOutput, TetRest, UpperScatter};
-pub use material::{Material, MaterialModel};
+pub use material::{Material, MaterialModel, StrainStiffening};
 pub use rest_compliance::RestCompliance;
 pub use settings::{CgMatrix, FemSettings, LinearSolver, Preconditioner, RotationMethod};
 pub use sparse::{BlockPattern, SparseCholesky};
 use sparse::{UpperF32, NO_BLOCK};
+use stiffening::StiffeningState;
 
 /// Errors of the FEM model.
 #[derive(Debug, thiserror::Error)]
@@ -158,6 +160,8 @@ pub struct FemModel {
     direct: Option<SparseCholesky>,
     last_dt: f64,
     last_stats: SolveStats,
+    /// Strain-stiffening factors (all 1 with the linear law).
+    stiffening: StiffeningState,
 }
 
 impl std::fmt::Debug for FemModel {

@@ -80,6 +80,7 @@ impl FemModel {
         let upper32 = UpperF32::new(&pattern);
         let upper_scatter = upper32.scatter(&pattern, &free_index, &mesh.tets, &elem_blocks);
         let (mu, lambda) = material.lame();
+        let stiffening = StiffeningState::new(StrainStiffening::NONE, &mesh.tets, &rest_elems, n);
         let mut model = FemModel {
             material,
             mu,
@@ -122,6 +123,7 @@ impl FemModel {
             direct: None,
             last_dt: settings.dt,
             last_stats: SolveStats::default(),
+            stiffening,
         };
         model.prepare_solver()?;
         Ok(model)
@@ -237,6 +239,29 @@ impl FemModel {
         self.prepare_solver()
     }
 
+    /// Sets the strain-stiffening law (see [`StrainStiffening`]); the factors follow from the
+    /// next step's committed state.
+    pub fn set_stiffening(&mut self, law: StrainStiffening) {
+        self.stiffening.law = law;
+        self.stiffening.reset();
+        self.upper32_k_scale = f64::NAN;
+    }
+
+    pub fn stiffening(&self) -> StrainStiffening {
+        self.stiffening.law
+    }
+
+    /// Modulus factor per node (volume-weighted mean of its elements') of the committed state
+    /// at the last `free_motion`; all 1 with the linear law.
+    pub fn node_stiffening(&self) -> &[f64] {
+        &self.stiffening.node
+    }
+
+    /// Modulus factor per element at the last `free_motion`.
+    pub fn element_stiffening(&self) -> &[f64] {
+        &self.stiffening.elem
+    }
+
     /// Sets a node's committed position (kinematic held nodes, test set-ups) and free position.
     pub fn set_position(&mut self, node: usize, p: Point3<f64>) -> Result<(), FemError> {
         if node >= self.x.len() || !p.iter().all(|c| c.is_finite()) {
@@ -275,6 +300,7 @@ impl FemModel {
         self.node_rot.fill(Matrix3::identity());
         self.dv.fill(0.0);
         self.upper32_k_scale = f64::NAN;
+        self.stiffening.reset();
     }
 
     // ---- assembly --------------------------------------------------------------------

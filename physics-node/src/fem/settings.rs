@@ -16,25 +16,11 @@ pub enum Preconditioner {
     WarpedRestCholesky,
 }
 
-/// How the corotational element finds its rotation.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum RotationMethod {
-    /// SOFA's "large": Q of the QR decomposition of F (closed form, SOFA's default).
-    Qr,
-    /// Polar decomposition (nearest rotation, iterative, warm-started; rotation-invariant
-    /// under shear).
-    Polar,
-}
-
-impl RotationMethod {
-    pub fn parse(s: &str) -> Option<RotationMethod> {
-        match s.trim().to_ascii_lowercase().as_str() {
-            "qr" | "large" => Some(RotationMethod::Qr),
-            "polar" => Some(RotationMethod::Polar),
-            _ => None,
-        }
-    }
-}
+/// Precision of the system matrix the CG products read: the launch file's choice.
+pub use launch_config::scene::CgMatrix;
+/// How the corotational element finds its rotation: the launch file's choice, parsed once.
+pub use launch_config::scene::RotationMethod;
+use launch_config::scene::SolverKind;
 
 /// Linear solver of the implicit step.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -55,27 +41,6 @@ impl LinearSolver {
             max_iterations: 25,
             tolerance: 1e-9,
             preconditioner: Preconditioner::None,
-        }
-    }
-}
-
-/// Precision of the system matrix the CG products read.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum CgMatrix {
-    /// Upper triangle packed in f32 (products accumulate in f64): half the memory the 26
-    /// products of a step stream, so they run from L2 on the default meshes. Entries keep 7
-    /// digits: right for SOFA's truncated CG, not for a CG asked to converge below ~1e-6.
-    F32,
-    /// Upper triangle in f64, for CG solves that must converge tightly.
-    F64,
-}
-
-impl CgMatrix {
-    pub fn parse(s: &str) -> Option<CgMatrix> {
-        match s.trim().to_ascii_lowercase().as_str() {
-            "f32" => Some(CgMatrix::F32),
-            "f64" => Some(CgMatrix::F64),
-            _ => None,
         }
     }
 }
@@ -128,34 +93,28 @@ impl FemSettings {
     /// Settings from a scene (`dt`, `gravity`, Rayleigh from `[material]`, `[solver]`,
     /// `support_stiffness` from `[meniscus]`).
     pub fn from_scene(scene: &SceneConfig) -> Result<Self, FemError> {
-        let solver = match scene.solver.kind.trim().to_ascii_lowercase().as_str() {
-            "cg" => LinearSolver::Cg {
+        let solver = match scene.solver.kind {
+            SolverKind::Cg => LinearSolver::Cg {
                 max_iterations: scene.solver.cg_iterations as usize,
                 tolerance: scene.solver.cg_tolerance,
                 preconditioner: Preconditioner::None,
             },
-            "cg-jacobi" => LinearSolver::Cg {
+            SolverKind::CgJacobi => LinearSolver::Cg {
                 max_iterations: scene.solver.cg_iterations as usize,
                 tolerance: scene.solver.cg_tolerance,
                 preconditioner: Preconditioner::BlockJacobi,
             },
-            "cg-cholesky" | "cg-rest-cholesky" => LinearSolver::Cg {
+            SolverKind::CgCholesky => LinearSolver::Cg {
                 max_iterations: scene.solver.cg_iterations as usize,
                 tolerance: scene.solver.cg_tolerance,
                 preconditioner: Preconditioner::RestCholesky,
             },
-            "cg-warped-cholesky" => LinearSolver::Cg {
+            SolverKind::CgWarpedCholesky => LinearSolver::Cg {
                 max_iterations: scene.solver.cg_iterations as usize,
                 tolerance: scene.solver.cg_tolerance,
                 preconditioner: Preconditioner::WarpedRestCholesky,
             },
-            "direct" => LinearSolver::Direct,
-            other => {
-                return Err(FemError::Input(format!(
-                    "unknown solver kind `{other}` (expected `cg`, `cg-jacobi`, `cg-cholesky`, \
-                     `cg-warped-cholesky` or `direct`)"
-                )))
-            }
+            SolverKind::Direct => LinearSolver::Direct,
         };
         let s = FemSettings {
             dt: scene.dt,
@@ -165,18 +124,8 @@ impl FemSettings {
             solver,
             support_stiffness: scene.meniscus.support_stiffness,
             project_tangent: true,
-            rotation: RotationMethod::parse(&scene.solver.rotation).ok_or_else(|| {
-                FemError::Input(format!(
-                    "unknown rotation `{}` (expected `qr` or `polar`)",
-                    scene.solver.rotation
-                ))
-            })?,
-            cg_matrix: CgMatrix::parse(&scene.solver.cg_matrix).ok_or_else(|| {
-                FemError::Input(format!(
-                    "unknown CG matrix precision `{}` (expected `f32` or `f64`)",
-                    scene.solver.cg_matrix
-                ))
-            })?,
+            rotation: scene.solver.rotation,
+            cg_matrix: scene.solver.cg_matrix,
             stiffness_rotation_tolerance: scene.solver.stiffness_rotation_tolerance,
         };
         s.validate()?;

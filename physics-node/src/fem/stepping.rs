@@ -23,6 +23,9 @@ impl FemModel {
             return Err(FemError::Input(format!("dt must be > 0 s, got {dt}")));
         }
         self.last_dt = dt;
+        // Secant modulus factors of the committed state (no-op for the linear law).
+        self.stiffening
+            .update(&self.tets, &self.rest_elems, &self.x, &self.elem_rot_m);
         let (alpha, beta) = (
             self.settings.rayleigh_mass,
             self.settings.rayleigh_stiffness,

@@ -250,53 +250,10 @@ fn patch_test_reproduces_linear_field() {
     }
 }
 
-/// Cantilever (L × h × h) clamped at x = 0, tip load P in −z: Euler–Bernoulli δ = PL³/(3EI).
-fn cantilever_deflection(nx: usize, nyz: usize, solver: LinearSolver) -> (f64, f64) {
-    cantilever_deflection_nu(nx, nyz, solver, 0.3)
-}
-
+/// Cantilever of [`super::test_meshes::cantilever_deflection`] with this file's solver
+/// settings (the ν = 0.3 mesh-convergence table is `examples/cantilever_table.rs`).
 fn cantilever_deflection_nu(nx: usize, nyz: usize, solver: LinearSolver, nu: f64) -> (f64, f64) {
-    let (l, h) = (1.0, 0.1);
-    let mesh = box_mesh(l, h, h, nx, nyz, nyz);
-    let fixed = nodes_where(&mesh, |p| p.x < 1e-9);
-    let tip = nodes_where(&mesh, |p| (p.x - l).abs() < 1e-9);
-    let mat = Material {
-        youngs_modulus: 1.0e6,
-        poisson_ratio: nu,
-        density: 1000.0,
-        model: MaterialModel::Corotational,
-    };
-    let s = FemSettings {
-        gravity: Vector3::zeros(),
-        ..settings(solver)
-    };
-    let mut m = FemModel::new(&mesh, mat, &fixed, s).unwrap();
-    let p_total = 0.1; // N: δ ≈ 4 mm ≪ L, linear regime
-    let mut f = zero_forces(&m);
-    // Consistent-ish distribution over the tip face: equal shares (resultant is what counts).
-    for &i in &tip {
-        f[i] = Vector3::new(0.0, 0.0, -p_total / tip.len() as f64);
-    }
-    m.solve_static(&f, false, 20, 1e-7).unwrap();
-    let deflection = -tip
-        .iter()
-        .map(|&i| m.positions()[i].z - mesh.nodes[i].z)
-        .sum::<f64>()
-        / tip.len() as f64;
-    let inertia = h * h * h * h / 12.0;
-    let eb = p_total * l * l * l / (3.0 * mat.youngs_modulus * inertia);
-    (deflection, eb)
-}
-
-/// ν = 0.3 table (run with --ignored --nocapture): 0.508, 0.793, 0.937, 0.971.
-#[test]
-#[ignore]
-fn cantilever_convergence_table() {
-    for (nx, n) in [(20, 2), (40, 4), (80, 8), (120, 12)] {
-        let t = std::time::Instant::now();
-        let (d, eb) = cantilever_deflection(nx, n, LinearSolver::Direct);
-        println!("{nx}x{n}x{n}: {:.4} ({:?})", d / eb, t.elapsed());
-    }
+    super::test_meshes::cantilever_deflection(nx, nyz, settings(solver), nu).unwrap()
 }
 
 #[test]

@@ -289,7 +289,7 @@ pub fn parse_msh(text: &str, path: &Path) -> Result<MshMesh, MeshError> {
 /// Capacity to reserve for a count read from a header: a corrupt header must not make us
 /// allocate (or abort on) a huge buffer before the content proves it.
 fn reserve(count: i64) -> usize {
-    count.clamp(0, 1 << 20) as usize
+    count.clamp(0, 1 << 12) as usize
 }
 
 fn parse_coord(cur: &Cursor, line: usize, t: &str, node: i64) -> Result<f64, MeshError> {

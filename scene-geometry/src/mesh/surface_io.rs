@@ -250,11 +250,13 @@ fn parse_stl_ascii(text: &str, path: &Path) -> Result<SurfaceMesh, MeshError> {
                 if facet.len() != 3 {
                     return Err(MeshError::parse(
                         path,
-                        facet_line,
+                        // An `endfacet` without its `facet` line: point at it.
+                        if facet_line == 0 { line } else { facet_line },
                         format!("facet has {} vertices, needs 3", facet.len()),
                     ));
                 }
                 triangles.push([facet[0], facet[1], facet[2]]);
+                facet_line = 0;
             }
             _ => {}
         }

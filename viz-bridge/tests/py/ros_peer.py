@@ -9,6 +9,15 @@ Modes
   drive --target x,y,z,qx,qy,qz,qw : publish a probe target pose at 20 Hz and record the
                          probe pose / wrench values received (compared by the Rust test with
                          what the real physics node published).
+  capture --out FILE --seconds S : subscribe to every topic the bridge publishes and write
+                         each type and each message described by ros_normal.describe to FILE
+                         (compared by the Rust test with the session MCAP).
+  flood                : an attacker on the lab network: for --seconds, publish probe target
+                         poses at ~1 kHz cycling through far away (875 mm), NaN, a bad
+                         quaternion, and in-and-out ±4 mm around the probe pose the bridge
+                         publishes (near the tissue), plus degeneration grades alternating
+                         0 / 2 at --grade-hz; print one JSON line with what was sent and the
+                         newest /diagnostics values of the bridge.
   bench                : count probe pose / wrench samples (position.x / force.x carry the
                          sample number, -1 warm-up, -2 end), measure latency from the header
                          stamp to receipt; print one JSON line.
@@ -439,20 +448,15 @@ def run_bench(args):
         if end_at is not None and time.monotonic() - end_at > 1.0:
             ended = True
             break
-    lat.sort()
-
-    def pct(p):
-        return lat[min(len(lat) - 1, int(round((len(lat) - 1) * p)))] / 1e3 if lat else None
-
+    # The raw latencies go back to bridge-bench, which takes the percentiles with the
+    # workspace's one latency histogram (msgs::timing), like every other benchmark.
     print(json.dumps({
         "ended": ended,
         "pose_received": len(seen["pose"]),
         "wrench_received": len(seen["wrench"]),
         "pose_max": max(seen["pose"]) if seen["pose"] else -1,
         "duplicates": dup,
-        "latency_p50_us": pct(0.5),
-        "latency_p99_us": pct(0.99),
-        "latency_max_us": lat[-1] / 1e3 if lat else None,
+        "latencies_ns": lat,
     }), flush=True)
     return 0
 
@@ -488,9 +492,98 @@ def run_drive(args):
     return 0
 
 
+def run_capture(args):
+    """Record every message of every session topic (described, not stored whole)."""
+    from ros_normal import describe
+
+    ns = args.namespace
+    dp = DomainParticipant(args.domain)
+    readers = {}
+    types = {}
+    for key, (rel, typ, _latched) in TOPICS.items():
+        # Volatile readers match volatile and transient-local writers alike.
+        readers[key] = DataReader(dp, Topic(dp, topic_of(ns, rel), typ), qos=qos(5000))
+        # IDL name pkg::msg::dds_::Type_ → ROS name pkg/msg/Type.
+        pkg, _, _, name = typ.__idl_typename__.split("::")
+        types[key] = f"{pkg}/msg/{name[:-1]}"
+    ws = WaitSet(dp)
+    for r in readers.values():
+        ws.attach(ReadCondition(r, SampleState.Any | ViewState.Any | InstanceState.Any))
+    print("READY", flush=True)
+    messages = {key: [] for key in TOPICS}
+    end = time.monotonic() + args.seconds
+    while time.monotonic() < end:
+        ws.wait(duration(milliseconds=20))
+        for key, reader in readers.items():
+            for m in reader.take(N=1024):
+                messages[key].append(describe(key, m))
+    with open(args.out, "w") as f:
+        json.dump({"types": types, "messages": messages}, f)
+    print(json.dumps({k: len(v) for k, v in messages.items()}), flush=True)
+def run_flood(args):
+    ns = args.namespace
+    dp = DomainParticipant(args.domain)
+    pose_r = DataReader(dp, Topic(dp, topic_of(ns, "probe/pose"), PoseStamped), qos=qos(10))
+    diag_r = DataReader(dp, Topic(dp, topic_of(ns, "/diagnostics"), DiagnosticArray), qos=qos(10))
+    writer = DataWriter(dp, Topic(dp, topic_of(ns, "probe/target_pose"), PoseStamped), qos=qos(10))
+    grade_w = DataWriter(dp, Topic(dp, topic_of(ns, "material/degeneration_grade"), Float64), qos=qos(1))
+    print("READY", flush=True)
+    probe = None
+    diag = {}
+    sent = {"far": 0, "nan": 0, "bad_quaternion": 0, "in_out": 0, "grades": 0}
+    end = time.monotonic() + args.seconds
+    next_grade = 0.0
+    k = 0
+    while time.monotonic() < end:
+        for m in pose_r.take(N=64):
+            if hasattr(m, "pose"):  # skip InvalidSample (instance state changes)
+                probe = vec(m.pose.position)
+        for m in diag_r.take(N=16):
+            for st in getattr(m, "status", []):
+                if st.name == "arthrosim/viz-bridge/inputs":
+                    diag = {kv.key: kv.value for kv in st.values}
+        ts = time.time_ns()
+        hdr = Header(stamp=Time(ts // 1_000_000_000, ts % 1_000_000_000), frame_id="world")
+        kind = k % 4
+        q = [0.0, 0.0, 0.0, 1.0]
+        if kind == 0:
+            p, name = [0.875, 0.0, 0.0], "far"
+        elif kind == 1:
+            p, name = [float("nan"), 0.0, 0.0], "nan"
+        elif kind == 2:
+            p, name = (probe or [0.0, 0.0, 0.05]), "bad_quaternion"
+            q = [0.0, 0.0, 0.0, 3.0]
+        else:
+            base = probe or [0.0, 0.0, 0.05]
+            # in and out across the surface every 20 ms
+            dz = 0.004 if (k // 80) % 2 == 0 else -0.004
+            p, name = [base[0], base[1], base[2] + dz], "in_out"
+        writer.write(PoseStamped(header=hdr, pose=Pose(position=Point(*p), orientation=Quaternion(*q))))
+        sent[name] += 1
+        k += 1
+        now = time.monotonic()
+        if args.grade_hz > 0 and now >= next_grade:
+            next_grade = now + 1.0 / args.grade_hz
+            grade_w.write(Float64(2.0 if sent["grades"] % 2 == 0 else 0.0))
+            sent["grades"] += 1
+        time.sleep(0.001)
+    # Let the bridge's next /diagnostics (1 Hz) report the last of the flood.
+    settle = time.monotonic() + 2.5
+    while time.monotonic() < settle:
+        for m in diag_r.take(N=16):
+            for st in getattr(m, "status", []):
+                if st.name == "arthrosim/viz-bridge/inputs":
+                    diag = {kv.key: kv.value for kv in st.values}
+        time.sleep(0.05)
+    print(json.dumps({"sent": sent, "diagnostics": diag, "saw_probe": probe is not None}), flush=True)
+    return 0
+
+
 def main():
     ap = argparse.ArgumentParser()
-    ap.add_argument("mode", choices=["check", "bench", "drive"])
+    ap.add_argument("mode", choices=["check", "bench", "drive", "capture", "flood"])
+    ap.add_argument("--out", help="capture: where to write the described messages")
+    ap.add_argument("--grade-hz", type=float, default=0.0)
     ap.add_argument("--target", default="0,0,0.05,0,0,0,1")
     ap.add_argument("--seconds", type=float, default=6.0)
     ap.add_argument("--expect")
@@ -506,6 +599,12 @@ def main():
         return run_check(args)
     if args.mode == "drive":
         return run_drive(args)
+    if args.mode == "capture":
+        if not args.out:
+            ap.error("capture needs --out FILE")
+        return run_capture(args)
+    if args.mode == "flood":
+        return run_flood(args)
     return run_bench(args)
 
 

@@ -1,9 +1,10 @@
-//! Development harness (ignored): re-diagnose kept self-test folders with the replays cached
-//! on disk (`caseNNN_cache.json` beside each folder), so the statistics can be iterated on
-//! in seconds instead of re-running the physics.
-//! `GAP_DEV_DIR=/tmp/s1 cargo test --release -p recordings --test gap_dev -- --ignored --nocapture`
-//! (`GAP_DEV_DIR` is a `--keep` folder of `arthrosim gap selftest`; `GAP_DEV_CASES=case005,…`
-//! restricts `rediagnose_kept_cases`; `phase_table` prints the held-out RMSE per phase).
+//! Development harness: re-diagnose kept self-test folders with the replays cached on disk
+//! (`caseNNN_cache.json` beside each folder), so the statistics can be iterated on in seconds
+//! instead of re-running the physics.
+//! `cargo run --release -p gap-diagnosis --example gap_dev -- DIR [rediagnose|phase-table]`
+//! (`DIR` is a `--keep` folder of `arthrosim gap selftest`; `GAP_DEV_CASES=case005,…`
+//! restricts `rediagnose`; `phase-table` prints the held-out RMSE per phase).
+use anyhow::{bail, Context};
 use gap_diagnosis::model::{ForceModel, ProbePath, Variant};
 use gap_diagnosis::{self as gap, GapError, SimForceModel};
 use std::collections::HashMap;
@@ -57,26 +58,62 @@ fn load_cache(p: &Path) -> HashMap<u64, Vec<[f64; 3]>> {
         .unwrap_or_default()
 }
 
+/// One kept case folder: its name, ground truth, experiment, physics model and replay cache.
+struct Case {
+    name: String,
+    truth: serde_json::Value,
+    exp: gap::Experiment,
+    sim: SimForceModel,
+    cache_file: PathBuf,
+}
+
+impl Case {
+    fn open(root: &Path, dir: &Path, data: &Path) -> anyhow::Result<Case> {
+        let name = dir.file_name().unwrap().to_string_lossy().to_string();
+        let truth_file = root.join(format!("{name}_truth.json"));
+        let truth: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(&truth_file)
+                .with_context(|| format!("reading {}", truth_file.display()))?,
+        )?;
+        let exp = gap::load_experiment(dir, data)?;
+        let sim = SimForceModel::for_experiment(&exp, data)?;
+        let cache_file = root.join(format!("{name}_cache.json"));
+        Ok(Case {
+            name,
+            truth,
+            exp,
+            sim,
+            cache_file,
+        })
+    }
+
+    /// The physics model behind the on-disk replay cache.
+    fn cached_model(&self) -> Cached<'_> {
+        Cached {
+            inner: &self.sim,
+            map: Mutex::new(load_cache(&self.cache_file)),
+            dirty: Mutex::new(false),
+        }
+    }
+}
+
 /// The kept case folders under `root`, sorted.
-fn case_dirs(root: &std::path::Path) -> Vec<PathBuf> {
+fn case_dirs(root: &Path) -> anyhow::Result<Vec<PathBuf>> {
     let mut dirs: Vec<PathBuf> = std::fs::read_dir(root)
-        .unwrap()
+        .with_context(|| format!("reading {}", root.display()))?
         .flatten()
         .map(|e| e.path())
         .filter(|p| p.is_dir())
         .collect();
     dirs.sort();
-    dirs
+    Ok(dirs)
 }
 
-#[test]
-#[ignore]
-fn rediagnose_kept_cases() {
-    let root = PathBuf::from(std::env::var("GAP_DEV_DIR").expect("GAP_DEV_DIR"));
+fn rediagnose_kept_cases(root: &Path) -> anyhow::Result<()> {
     let only: Option<Vec<String>> = std::env::var("GAP_DEV_CASES")
         .ok()
         .map(|s| s.split(',').map(|x| x.to_string()).collect());
-    let dirs = case_dirs(&root);
+    let dirs = case_dirs(root)?;
     let data = gap::data_dir();
     let (mut ok, mut n, mut shrink, mut neff) = (0, 0, 0.0, 0);
     let t_all = std::time::Instant::now();
@@ -87,26 +124,17 @@ fn rediagnose_kept_cases() {
                 continue;
             }
         }
-        let truth: serde_json::Value = serde_json::from_str(
-            &std::fs::read_to_string(root.join(format!("{name}_truth.json"))).unwrap(),
-        )
-        .unwrap();
-        let label = truth["label"].as_str().unwrap().to_string();
-        let exp = gap::load_experiment(&dir, &data).unwrap();
-        let sim = SimForceModel::for_experiment(&exp, &data).unwrap();
-        let cache_file = root.join(format!("{name}_cache.json"));
-        let model = Cached {
-            inner: &sim,
-            map: Mutex::new(load_cache(&cache_file)),
-            dirty: Mutex::new(false),
-        };
+        let case = Case::open(root, &dir, &data)?;
+        let (exp, truth, cache_file) = (&case.exp, &case.truth, &case.cache_file);
+        let label = truth["label"].as_str().unwrap_or("?").to_string();
+        let model = case.cached_model();
         let t0 = std::time::Instant::now();
-        let r = gap::diagnose(&exp, &model, &gap::Options::default()).unwrap();
+        let r = gap::diagnose(exp, &model, &gap::Options::default())?;
         let el = t0.elapsed().as_secs_f64();
         if *model.dirty.lock().unwrap() {
             let v: Vec<(u64, Vec<[f64; 3]>)> =
                 model.map.into_inner().unwrap().into_iter().collect();
-            std::fs::write(&cache_file, serde_json::to_string(&v).unwrap()).unwrap();
+            std::fs::write(cache_file, serde_json::to_string(&v)?)?;
         }
         n += 1;
         let good = r.verdict.effect == label;
@@ -154,43 +182,30 @@ fn rediagnose_kept_cases() {
         100.0 * shrink / neff.max(1) as f64,
         t_all.elapsed().as_secs_f64()
     );
+    Ok(())
 }
 
 /// Per-phase held-out RMSE of the ranked candidates (pair-rule design).
-#[test]
-#[ignore]
-fn phase_table() {
+fn phase_table(root: &Path) -> anyhow::Result<()> {
     use gap_diagnosis::dataset::{build, BuildOptions};
     use gap_diagnosis::effects::Effect;
     use gap_diagnosis::metrics::Phase;
-    let root = PathBuf::from(std::env::var("GAP_DEV_DIR").expect("GAP_DEV_DIR"));
-    let dirs = case_dirs(&root);
+    let dirs = case_dirs(root)?;
     let data = gap::data_dir();
     for dir in dirs {
-        let name = dir.file_name().unwrap().to_string_lossy().to_string();
-        let truth: serde_json::Value = serde_json::from_str(
-            &std::fs::read_to_string(root.join(format!("{name}_truth.json"))).unwrap(),
-        )
-        .unwrap();
-        let exp = gap::load_experiment(&dir, &data).unwrap();
-        let sim = SimForceModel::for_experiment(&exp, &data).unwrap();
-        let cache_file = root.join(format!("{name}_cache.json"));
-        let model = Cached {
-            inner: &sim,
-            map: Mutex::new(load_cache(&cache_file)),
-            dirty: Mutex::new(false),
-        };
+        let case = Case::open(root, &dir, &data)?;
+        let (name, exp, truth) = (&case.name, &case.exp, &case.truth);
+        let model = case.cached_model();
         let effects = Effect::ALL.to_vec();
         let td = build(
-            &exp,
+            exp,
             &model,
             &effects,
             &BuildOptions {
                 dt: 0.02,
                 progress: false,
             },
-        )
-        .unwrap();
+        )?;
         let r = gap::diagnose_data(
             name.clone(),
             String::new(),
@@ -198,11 +213,10 @@ fn phase_table() {
             &effects,
             &gap::Options::default(),
             std::time::Instant::now(),
-        )
-        .unwrap();
+        )?;
         eprintln!(
             "{name} truth {} found {}",
-            truth["label"].as_str().unwrap(),
+            truth["label"].as_str().unwrap_or("?"),
             r.verdict.effect
         );
         let row = |label: &str, pred: &dyn Fn(usize) -> Vec<[f64; 3]>| {
@@ -235,5 +249,19 @@ fn phase_table() {
         for c in r.ranking.iter().take(8) {
             row(&c.effect, &|i| c.heldout_pred[i].clone());
         }
+    }
+    Ok(())
+}
+
+fn main() -> anyhow::Result<()> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let Some(root) = args.first() else {
+        bail!("usage: gap_dev DIR [rediagnose|phase-table]");
+    };
+    let root = PathBuf::from(root);
+    match args.get(1).map(String::as_str) {
+        None | Some("rediagnose") => rediagnose_kept_cases(&root),
+        Some("phase-table") => phase_table(&root),
+        Some(other) => bail!("unknown mode {other:?} (expected rediagnose or phase-table)"),
     }
 }

@@ -1,0 +1,218 @@
+//! `arthrosim gap … --calibrate OUT.toml` as a user meets it: the default scene's tissue
+//! parameters come out of the cadaver table (pinned against the embedded default launch
+//! file), the written file validates, and bad input gets a clear message before any replay.
+
+use std::path::PathBuf;
+
+mod common;
+use common::{arthrosim, text};
+
+fn scratch(name: &str) -> common::Scratch {
+    common::scratch("calibrate", name)
+}
+
+fn data_dir() -> PathBuf {
+    std::env::var_os("ARTHROSIM_DATA")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data")))
+}
+
+fn cadaver_table() -> Option<PathBuf> {
+    let f = data_dir().join("empirical/cadaver_probing_force_displacement.csv");
+    if f.is_file() {
+        return Some(f);
+    }
+    if std::env::var("CI").map(|v| v == "true").unwrap_or(false) {
+        panic!(
+            "CI=true but the cadaver table is missing at {}",
+            f.display()
+        );
+    }
+    None
+}
+
+#[test]
+fn calibrate_refuses_an_output_folder_that_does_not_exist_before_any_replay() {
+    let dir = scratch("no-parent");
+    let out = dir.join("missing/calibrated.toml");
+    let t = std::time::Instant::now();
+    let o = arthrosim(&[
+        "gap",
+        "--force-displacement",
+        "/nonexistent/table.csv",
+        "--out",
+        dir.join("report").to_str().unwrap(),
+        "--calibrate",
+        out.to_str().unwrap(),
+    ]);
+    let msg = text(&o);
+    assert_eq!(o.status.code(), Some(1), "{msg}");
+    assert!(
+        msg.contains("--calibrate") && msg.contains("missing") && msg.contains("does not exist"),
+        "{msg}"
+    );
+    assert!(!msg.contains("panicked"), "{msg}");
+    assert!(
+        t.elapsed().as_secs_f64() < 20.0,
+        "checked before the replays"
+    );
+    // a folder given as the file
+    let o = arthrosim(&[
+        "gap",
+        "--force-displacement",
+        "/nonexistent/table.csv",
+        "--out",
+        dir.join("report").to_str().unwrap(),
+        "--calibrate",
+        dir.to_str().unwrap(),
+    ]);
+    let msg = text(&o);
+    assert_eq!(o.status.code(), Some(1), "{msg}");
+    assert!(msg.contains("is a folder"), "{msg}");
+}
+
+#[test]
+fn calibrate_names_an_unreadable_input_and_a_broken_base_launch_file() {
+    let dir = scratch("bad-input");
+    let out = dir.join("calibrated.toml");
+    // a table that is not a table
+    let table = dir.join("table.csv");
+    std::fs::write(&table, "displacement_mm,force_N\n0.0,zero\n").unwrap();
+    let o = arthrosim(&[
+        "gap",
+        "--force-displacement",
+        table.to_str().unwrap(),
+        "--out",
+        dir.join("report").to_str().unwrap(),
+        "--calibrate",
+        out.to_str().unwrap(),
+    ]);
+    let msg = text(&o);
+    assert_eq!(o.status.code(), Some(1), "{msg}");
+    assert!(
+        msg.contains("table.csv") && !msg.contains("panicked"),
+        "{msg}"
+    );
+    assert!(!out.exists(), "nothing written for a failed calibration");
+    // an experiment folder that does not exist
+    let o = arthrosim(&[
+        "gap",
+        dir.join("no-such-experiment").to_str().unwrap(),
+        "--out",
+        dir.join("report").to_str().unwrap(),
+        "--calibrate",
+        out.to_str().unwrap(),
+    ]);
+    let msg = text(&o);
+    assert_eq!(o.status.code(), Some(1), "{msg}");
+    assert!(
+        msg.contains("no-such-experiment") && !msg.contains("panicked"),
+        "{msg}"
+    );
+    // a base launch file with an unknown key: file, line and key
+    let base = dir.join("base.toml");
+    std::fs::write(&base, "[scene]\ndt = 0.01\nstep = 2\n").unwrap();
+    let o = arthrosim(&[
+        "gap",
+        "--force-displacement",
+        table.to_str().unwrap(),
+        "--out",
+        dir.join("report").to_str().unwrap(),
+        "--calibrate",
+        out.to_str().unwrap(),
+        "--launch",
+        base.to_str().unwrap(),
+    ]);
+    let msg = text(&o);
+    assert_eq!(o.status.code(), Some(1), "{msg}");
+    assert!(
+        msg.contains("base.toml:3:1") && msg.contains("scene.step"),
+        "{msg}"
+    );
+    // --launch without --calibrate is a usage error
+    let o = arthrosim(&[
+        "gap",
+        "--force-displacement",
+        table.to_str().unwrap(),
+        "--out",
+        dir.join("report").to_str().unwrap(),
+        "--launch",
+        base.to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o));
+}
+
+/// The tissue keys `gap --force-displacement TABLE --calibrate` writes for the current default
+/// scene (`default:lateral:coarse`, the hook probe): the verdict is `hardening` with its
+/// small-strain scale at the lower bound of its range (0.01: the coarse mesh under the hook
+/// is ~100× stiffer than the cadaver under a 7.6 mm press, issue 13 point 1) and no support.
+/// When the default launch file carries calibrated tissue keys, the command must give those.
+const PINNED_MODULUS_SCALE: f64 = 0.01;
+const PINNED_SUPPORT_STIFFNESS: f64 = 0.0;
+
+/// Relative tolerance of the pin. The fit is deterministic (same data, same replay), so a
+/// re-run reproduces it to the optimiser's termination tolerance (~1e-6 relative); 5% leaves
+/// room for floating-point differences between builds while staying far inside the fitted
+/// parameter's own standard error (~40% for the small-strain scale), so a changed scene, probe
+/// or convention shows.
+const PIN_TOLERANCE: f64 = 0.05;
+
+fn close(a: f64, b: f64) -> bool {
+    (a - b).abs() <= PIN_TOLERANCE * b.abs().max(1e-12)
+}
+
+#[test]
+fn the_default_scene_tissue_keys_come_from_the_cadaver_table() {
+    let Some(table) = cadaver_table() else {
+        return;
+    };
+    let dir = scratch("table");
+    let out = dir.join("calibrated.toml");
+    let o = arthrosim(&[
+        "gap",
+        "--force-displacement",
+        table.to_str().unwrap(),
+        "--out",
+        dir.join("report").to_str().unwrap(),
+        "--calibrate",
+        out.to_str().unwrap(),
+    ]);
+    let msg = text(&o);
+    assert!(o.status.success(), "{msg}");
+    assert!(msg.contains("calibrated launch file"), "{msg}");
+    // the file passes `arthrosim validate`
+    let v = arthrosim(&["validate", out.to_str().unwrap()]);
+    assert!(v.status.success(), "{}", text(&v));
+    let written = launch_config::load(&out).unwrap();
+    let default = launch_config::load_str(
+        launch_config::DEFAULT_LAUNCH,
+        launch_config::DEFAULT_LAUNCH_ORIGIN,
+    )
+    .unwrap();
+    let (m, k) = (
+        written.scene.material.modulus_scale,
+        written.scene.meniscus.support_stiffness,
+    );
+    eprintln!("{msg}\ncalibrated: modulus_scale {m}, support_stiffness {k}");
+    let d = &default.scene;
+    if d.material.modulus_scale != 1.0 || d.meniscus.support_stiffness != 0.0 {
+        assert!(
+            close(m, d.material.modulus_scale) && close(k, d.meniscus.support_stiffness),
+            "the default launch file's tissue keys (modulus_scale {}, support_stiffness {}) are \
+             not what the command produces from the table ({m}, {k})",
+            d.material.modulus_scale,
+            d.meniscus.support_stiffness
+        );
+    } else {
+        assert!(
+            close(m, PINNED_MODULUS_SCALE) && k == PINNED_SUPPORT_STIFFNESS,
+            "calibrated modulus_scale {m}, support_stiffness {k}; pinned \
+             {PINNED_MODULUS_SCALE}, {PINNED_SUPPORT_STIFFNESS}"
+        );
+    }
+    // everything but the tissue keys is the default launch file's
+    let mut same = written.clone();
+    same.scene.material.modulus_scale = d.material.modulus_scale;
+    same.scene.meniscus.support_stiffness = d.meniscus.support_stiffness;
+    assert_eq!(same, default);
+}

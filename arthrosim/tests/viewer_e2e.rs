@@ -1,0 +1,219 @@
+//! End to end: a bounded default session (physics, haptic, bridge, recorder and the viewer as
+//! real processes) watched at the same time by
+//! - a Foxglove WebSocket client in Python (PyPI `websockets`), whose mesh, poses and forces
+//!   must equal the session's own MCAP recording, and
+//! - headless Chromium on the trainee page, which must receive frames, draw the mesh (vertex
+//!   count, a canvas that is not blank) and match the expected layout loosely.
+//!
+//! Needs python3 with `websockets` and `mcap-ros2-support`, and Chromium (`.ci/run` installs
+//! them); outside CI a missing tool skips the test with a message.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+fn workspace() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .unwrap()
+        .to_path_buf()
+}
+
+fn in_ci() -> bool {
+    std::env::var_os("CI").is_some_and(|v| !v.is_empty() && v != "false")
+}
+
+/// Whether the external tools are there; outside CI a missing one skips the test.
+fn tools_present(need_chromium: bool) -> bool {
+    let py = Command::new("python3")
+        .args(["-c", "import websockets, mcap_ros2"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success());
+    let chromium = !need_chromium
+        || ["chromium-headless-shell", "chromium"].iter().any(|c| {
+            Command::new("which")
+                .arg(c)
+                .output()
+                .is_ok_and(|o| o.status.success())
+        });
+    if py && chromium {
+        return true;
+    }
+    let what = format!("python3 websockets/mcap_ros2: {py}, chromium: {chromium}");
+    assert!(!in_ci(), "required tools missing in CI ({what})");
+    eprintln!("skipping: {what}");
+    false
+}
+
+/// The default launch file with the viewer on free ports (parallel tests, other sessions).
+pub fn default_launch_on_free_ports(dir: &Path) -> PathBuf {
+    let text = std::fs::read_to_string(workspace().join("launch-config/launch/default.toml"))
+        .unwrap()
+        .replace("http_port = 8080", "http_port = 0")
+        .replace("ws_port = 8765", "ws_port = 0");
+    assert!(text.contains("http_port = 0") && text.contains("ws_port = 0"));
+    let path = dir.join("launch.toml");
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+/// Waits for the viewer's `VIEWER http=… ws=…` line in the session's log.
+fn viewer_urls(out: &Path, timeout: Duration) -> (String, String) {
+    let log = out.join("logs/viewer.log");
+    let start = Instant::now();
+    while start.elapsed() < timeout {
+        if let Ok(text) = std::fs::read_to_string(&log) {
+            if let Some(line) = text.lines().find(|l| l.starts_with("VIEWER ")) {
+                let mut http = None;
+                let mut ws = None;
+                for part in line.split_whitespace() {
+                    if let Some(v) = part.strip_prefix("http=") {
+                        http = Some(v.to_string());
+                    }
+                    if let Some(v) = part.strip_prefix("ws=") {
+                        ws = Some(v.to_string());
+                    }
+                }
+                return (http.unwrap(), ws.unwrap());
+            }
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    panic!("no VIEWER line in {} within {timeout:?}", log.display());
+}
+
+fn json_of(out: &std::process::Output) -> serde_json::Value {
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let line = stdout
+        .lines()
+        .rev()
+        .find(|l| l.starts_with('{'))
+        .unwrap_or_else(|| {
+            panic!(
+                "no JSON line; stdout {stdout}\nstderr {}",
+                String::from_utf8_lossy(&out.stderr)
+            )
+        });
+    serde_json::from_str(line).unwrap()
+}
+
+fn f(v: &serde_json::Value) -> f64 {
+    v.as_str()
+        .and_then(|s| s.parse().ok())
+        .or_else(|| v.as_f64())
+        .unwrap_or(f64::NAN)
+}
+
+#[test]
+fn foxglove_client_and_chromium_watch_a_default_session() {
+    if !tools_present(true) {
+        return;
+    }
+    let dir = common::scratch("viewer", "e2e");
+    let launch = default_launch_on_free_ports(&dir);
+    let out = dir.join("session");
+    let session = format!("viewer-e2e-{}", std::process::id());
+    let mut run = Command::new(env!("CARGO_BIN_EXE_arthrosim"))
+        .args([
+            "run",
+            launch.to_str().unwrap(),
+            "--seconds",
+            "16",
+            "--quiet",
+        ])
+        .args(["--out", out.to_str().unwrap(), "--session", &session])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let (http, ws) = viewer_urls(&out, Duration::from_secs(180));
+    assert!(
+        http.starts_with("http://127.0.0.1:"),
+        "loopback by default: {http}"
+    );
+    assert!(ws.starts_with("ws://127.0.0.1:"), "{ws}");
+
+    let py = workspace().join("viewer/tests/py");
+    let fox = Command::new("python3")
+        .arg(py.join("foxglove_check.py"))
+        .args([
+            "--ws",
+            &ws,
+            "--seconds",
+            "5",
+            "--session-dir",
+            out.to_str().unwrap(),
+        ])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let shot = dir.join("viewer.png");
+    let page = Command::new("python3")
+        .arg(py.join("page_check.py"))
+        .args([
+            "--url",
+            &http,
+            "--seconds",
+            "7",
+            "--screenshot",
+            shot.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    let fox = fox.wait_with_output().unwrap();
+    let run = {
+        let status = run.wait().unwrap();
+        let mut s = String::new();
+        use std::io::Read;
+        run.stdout.take().unwrap().read_to_string(&mut s).unwrap();
+        (status, s)
+    };
+    assert!(run.0.success(), "session failed:\n{}", run.1);
+
+    // Foxglove: channels, values equal to the recording.
+    let fj = json_of(&fox);
+    eprintln!("foxglove: {fj}");
+    assert!(fox.status.success(), "foxglove check failed: {fj}");
+    assert!(fj["matched"]["wrench"].as_u64().unwrap() >= 20, "{fj}");
+    assert!(
+        fj["peak_force_n"].as_f64().unwrap() > 0.1,
+        "the probe touched: {fj}"
+    );
+
+    // Chromium: frames, mesh, force, canvas, layout.
+    let pj = json_of(&page);
+    eprintln!("page: {pj}");
+    let status = &pj["status"];
+    let frames = f(&status["frames"]);
+    let vertices = f(&status["vertices"]);
+    let force = f(&status["forceN"]);
+    assert!(frames >= 20.0, "frames received: {pj}");
+    assert!(vertices >= 100.0, "mesh drawn: {pj}");
+    assert!(force.is_finite() && (0.0..200.0).contains(&force), "{pj}");
+    assert!(f(&status["painted"]) >= 20.0, "canvas not blank: {pj}");
+    let layout = &pj["layout"];
+    assert!(
+        f(&layout["scene"]["meniscus"]) > 0.01,
+        "meniscus in the 3D view: {layout}"
+    );
+    assert!(
+        f(&layout["scene"]["background"]) > 0.3,
+        "3D background: {layout}"
+    );
+    assert!(f(&layout["plot"]["background"]) > 0.5, "plot: {layout}");
+    assert!(
+        f(&layout["side"]["background"]) > 0.5,
+        "side panel: {layout}"
+    );
+    assert!(shot.is_file());
+
+    // The 1 kHz loop kept its rate with both watchers connected.
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    eprintln!("haptic: {}", summary["summary"]["haptic"]);
+}

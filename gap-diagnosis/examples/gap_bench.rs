@@ -1,0 +1,45 @@
+//! Benchmark of the gap diagnosis (timing is printed, never asserted).
+//!
+//! `cargo run --release -p gap-diagnosis --example gap_bench` prints one JSON line: a generated
+//! 15-trial experiment (five probings × three regions) diagnosed end to end with the physics
+//! model (`GAP_BENCH_EFFECT`, default `hardening`, picks the injected effect).
+//!
+//! `cargo run --release -p gap-diagnosis --example gap_bench -- selftest-cycle [CASES]` runs the
+//! full case cycle through the physics model (slow; default 14 cases, seed 21) and prints the
+//! table and a JSON summary.
+use anyhow::{bail, Context};
+
+fn diagnose_15_trials() -> anyhow::Result<()> {
+    let effect = std::env::var("GAP_BENCH_EFFECT").unwrap_or_else(|_| "hardening".into());
+    let v = gap_diagnosis::selftest::bench(&effect, 5, &gap_diagnosis::Options::default())?;
+    println!("{v}");
+    Ok(())
+}
+
+fn selftest_cycle(n: usize) -> anyhow::Result<()> {
+    let opts = gap_diagnosis::selftest::SelftestOptions {
+        verbose: true,
+        ..Default::default()
+    };
+    let r = gap_diagnosis::selftest::selftest(n, 21, &opts)?;
+    print!("{}", r.table());
+    println!("{}", serde_json::to_string(&r.summary())?);
+    Ok(())
+}
+
+fn main() -> anyhow::Result<()> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    match args.first().map(String::as_str) {
+        None | Some("diagnose") => diagnose_15_trials(),
+        Some("selftest-cycle") => {
+            let n = match args.get(1) {
+                Some(v) => v
+                    .parse()
+                    .with_context(|| format!("CASES {v:?} is not a count"))?,
+                None => 14,
+            };
+            selftest_cycle(n)
+        }
+        Some(other) => bail!("unknown mode {other:?} (expected diagnose or selftest-cycle)"),
+    }
+}

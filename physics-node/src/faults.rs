@@ -1,0 +1,236 @@
+//! Physics fault detection and rollback: every step is checked before its frame may be
+//! rendered (energy growth without input, a contact force beyond the scene's bound, probe
+//! penetration after the correction, LCP and CG convergence). A faulty step is flagged in
+//! the frame ([`msgs::physics_to_haptic::physics_fault`]), the state goes back to the last
+//! good one (at rest), or to the rest state after repeated faults, and the fault is counted
+//! and logged once per kind.
+//!
+//! Everything here is preallocated at construction: checking, snapshotting and rolling back
+//! allocate nothing.
+
+use crate::fem::FemModel;
+use crate::probe::Probe;
+use launch_config::scene::FaultConfig;
+use msgs::physics_to_haptic::physics_fault;
+use msgs::MAX_ROWS;
+use nalgebra::{Point3, UnitQuaternion, Vector3};
+
+/// What the step reported to the checks.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct StepReport {
+    /// Active contacts in the step.
+    pub contacts: usize,
+    /// Contact force on the probe, N.
+    pub force: [f64; 3],
+    /// Relative residual of the free-motion CG (0 for a direct solve).
+    pub cg_residual: f64,
+    /// The LCP converged (true when there was nothing to solve).
+    pub lcp_converged: bool,
+    /// Deepest penetration after the contact correction, m (≥ 0).
+    pub penetration: f64,
+}
+
+/// Probe pose at the last good step.
+#[derive(Debug, Clone, Copy)]
+struct ProbeSnapshot {
+    position: Vector3<f64>,
+    orientation: UnitQuaternion<f64>,
+}
+
+/// The checks, the last good state and the counters.
+#[derive(Debug)]
+pub struct FaultMonitor {
+    cfg: FaultConfig,
+    good_x: Vec<Point3<f64>>,
+    good_probe: Option<ProbeSnapshot>,
+    /// Tissue mechanical energy (elastic + kinetic + gravity) when the last contact ended, J,
+    /// and its scale for the tolerance; None while in contact.
+    energy_ref: Option<(f64, f64)>,
+    consecutive: u32,
+    /// Faulty steps since start.
+    pub faulty_steps: u64,
+    /// Union of the fault bits seen (each kind is logged once).
+    logged: u32,
+}
+
+/// Deepest penetration left after the correction: −min over normal rows of δ_free + (W λ)ₙ,
+/// clamped at 0. `compliance` is row-major with stride `MAX_ROWS`.
+pub fn corrected_penetration(
+    compliance: &[f64],
+    free_violation: &[f64],
+    lambda: &[f64],
+    rows: usize,
+) -> f64 {
+    let mut deepest: f64 = 0.0;
+    for n in (0..rows).step_by(3) {
+        let w = &compliance[n * MAX_ROWS..n * MAX_ROWS + rows];
+        let delta: f64 = free_violation[n]
+            + w.iter()
+                .zip(&lambda[..rows])
+                .map(|(a, b)| a * b)
+                .sum::<f64>();
+        if delta.is_nan() {
+            return f64::INFINITY;
+        }
+        deepest = deepest.max(-delta);
+    }
+    deepest
+}
+
+impl FaultMonitor {
+    pub fn new(cfg: &FaultConfig, fem: &FemModel) -> FaultMonitor {
+        FaultMonitor {
+            cfg: cfg.clone(),
+            good_x: fem.positions().to_vec(),
+            good_probe: None,
+            energy_ref: None,
+            consecutive: 0,
+            faulty_steps: 0,
+            logged: 0,
+        }
+    }
+
+    /// Checks a completed step; returns its fault bits (0: good). `fem` is the committed
+    /// state after the step.
+    pub fn check(&mut self, report: &StepReport, fem: &mut FemModel) -> u32 {
+        let c = &self.cfg;
+        let mut faults = 0;
+        let f = report.force;
+        let force = (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt();
+        if !(force <= c.max_contact_force_n) {
+            faults |= physics_fault::FORCE_BOUND;
+        }
+        if !(report.penetration <= c.max_penetration_m) {
+            faults |= physics_fault::PENETRATION;
+        }
+        if !report.lcp_converged {
+            faults |= physics_fault::LCP_NOT_CONVERGED;
+        }
+        if !(report.cg_residual <= c.max_cg_residual) {
+            faults |= physics_fault::CG_NOT_CONVERGED;
+        }
+        if report.contacts > 0 {
+            // Contact is the input: the energy reference restarts when it ends.
+            self.energy_ref = None;
+        } else {
+            let moving = fem.kinetic_energy() + fem.gravity_energy();
+            match self.energy_ref {
+                None => {
+                    // Once per contact release (a full element pass, no allocation).
+                    let elastic = fem.elastic_energy();
+                    let total = elastic + moving;
+                    let scale = elastic + fem.kinetic_energy();
+                    if total.is_finite() {
+                        self.energy_ref = Some((total, scale));
+                    } else {
+                        faults |= physics_fault::ENERGY_GROWTH;
+                    }
+                }
+                Some((reference, scale)) => {
+                    // Elastic energy ≥ 0, so kinetic + gravity can only exceed the energy at
+                    // release if the total grew.
+                    let slack = c.energy_tolerance * scale + 1e-9;
+                    if !(moving <= reference + slack) {
+                        faults |= physics_fault::ENERGY_GROWTH;
+                    }
+                }
+            }
+        }
+        faults
+    }
+
+    /// A step that failed numerically (solver error, non-finite state): its detail is
+    /// logged once; the fault itself is counted by [`Self::roll_back`].
+    pub fn note_numerical(&mut self, detail: &str) {
+        if self.logged & physics_fault::NUMERICAL == 0 {
+            tracing::warn!(detail, "physics step failed numerically (logged once)");
+        }
+    }
+
+    /// Remembers the committed state of a good step.
+    pub fn commit_good(&mut self, fem: &FemModel, probe: &Probe) {
+        self.good_x.copy_from_slice(fem.positions());
+        self.good_probe = Some(ProbeSnapshot {
+            position: probe.position,
+            orientation: probe.orientation,
+        });
+        self.consecutive = 0;
+    }
+
+    /// Rolls a faulty step back: the last good positions at rest, or the rest state after
+    /// `rest_after_faults` faults in a row. Counts the fault and logs each kind once.
+    /// Returns true when it went back to the rest state.
+    pub fn roll_back(
+        &mut self,
+        faults: u32,
+        time: f64,
+        fem: &mut FemModel,
+        probe: &mut Probe,
+    ) -> bool {
+        self.faulty_steps += 1;
+        self.consecutive += 1;
+        let new_kinds = faults & !self.logged;
+        if new_kinds != 0 {
+            self.logged |= new_kinds;
+            let what: Vec<&str> = physics_fault::names(new_kinds).collect();
+            tracing::warn!(
+                time_s = time,
+                tripped = what.join(", "),
+                "physics fault: step not rendered, state rolled back (logged once per kind)"
+            );
+        }
+        let to_rest = self.consecutive >= self.cfg.rest_after_faults.max(1);
+        let zero = Vector3::zeros();
+        for n in 0..fem.node_count() {
+            let p = if to_rest {
+                fem.rest_positions()[n]
+            } else {
+                self.good_x[n]
+            };
+            // Both only fail for an out-of-range node or a non-finite value: neither here.
+            let _ = fem.set_position(n, p);
+            let _ = fem.set_velocity(n, zero);
+        }
+        if let Some(s) = self.good_probe {
+            probe.position = s.position;
+            probe.orientation = s.orientation;
+            probe.free_position = s.position;
+            probe.free_orientation = s.orientation;
+        }
+        probe.velocity = zero;
+        probe.angular_velocity = zero;
+        probe.free_velocity = zero;
+        probe.free_angular_velocity = zero;
+        self.energy_ref = None;
+        if to_rest {
+            self.good_x.copy_from_slice(fem.positions());
+            self.consecutive = 0;
+        }
+        to_rest
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn corrected_penetration_reads_normal_rows_only() {
+        let mut w = vec![0.0; MAX_ROWS * MAX_ROWS];
+        // Two contacts; the first normal row is corrected by its own impulse.
+        w[0] = 1e-3;
+        let mut dfree = [0.0; 6];
+        dfree[0] = -2e-3;
+        dfree[1] = -1.0; // a tangent row: ignored
+        dfree[3] = -5e-4;
+        let mut lambda = [0.0; 6];
+        lambda[0] = 1.0; // δ₀ = −2 mm + 1 mm
+        let p = corrected_penetration(&w, &dfree, &lambda, 6);
+        assert!((p - 1e-3).abs() < 1e-12, "{p}");
+        lambda[0] = 3.0;
+        let p = corrected_penetration(&w, &dfree, &lambda, 6);
+        assert!((p - 5e-4).abs() < 1e-12, "{p}");
+        dfree[3] = f64::NAN;
+        assert!(corrected_penetration(&w, &dfree, &lambda, 6).is_infinite());
+    }
+}

@@ -1,0 +1,216 @@
+#!/usr/bin/env python3
+"""Loads a page in headless Chromium (Debian's chromium-headless-shell, or chromium) through
+the DevTools protocol (PyPI `websockets`), waits, reads state from the DOM, and saves a
+screenshot that is checked loosely against the expected layout.
+
+  page_check.py --url http://127.0.0.1:8080/ --seconds 5 --screenshot shot.png [--mode viewer|report]
+
+viewer mode: reads #viewer-status's data attributes (frames, vertices, force-n, fps, latency,
+painted pixels) twice, a second apart; the layout check finds, in the screenshot, the 3D
+view (meniscus-coloured pixels inside the scene box), the force plot (its orange trace or
+background inside the plot box) and the side panel (its background colour).
+report mode: reads the report's tables and the learning curve's size.
+Prints one JSON line; exit 1 when Chromium cannot load the page.
+"""
+import argparse
+import asyncio
+import base64
+import json
+import os
+import shutil
+import struct
+import subprocess
+import sys
+import tempfile
+import time
+import urllib.request
+import zlib
+
+import websockets
+
+
+def find_chromium():
+    for name in ("chromium-headless-shell", "chromium", "chromium-browser", "google-chrome"):
+        path = shutil.which(name)
+        if path:
+            return path
+    sys.exit("no Chromium found (apt-get install chromium-headless-shell)")
+
+
+def decode_png(data):
+    """RGBA/RGB 8-bit non-interlaced PNG → (width, height, channels, rows of bytes)."""
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    pos, idat, w = 8, b"", 0
+    while pos < len(data):
+        n, kind = struct.unpack(">I4s", data[pos:pos + 8])
+        body = data[pos + 8:pos + 8 + n]
+        if kind == b"IHDR":
+            w, h, depth, color, _, _, interlace = struct.unpack(">IIBBBBB", body)
+            assert depth == 8 and interlace == 0 and color in (2, 6), (depth, color, interlace)
+            ch = 4 if color == 6 else 3
+        elif kind == b"IDAT":
+            idat += body
+        pos += 12 + n
+    raw = zlib.decompress(idat)
+    stride = w * ch
+    rows, prev, i = [], bytearray(stride), 0
+    for _ in range(h):
+        f = raw[i]
+        line = bytearray(raw[i + 1:i + 1 + stride])
+        i += 1 + stride
+        for x in range(stride):
+            a = line[x - ch] if x >= ch else 0
+            b = prev[x]
+            c = prev[x - ch] if x >= ch else 0
+            if f == 1:
+                line[x] = (line[x] + a) & 255
+            elif f == 2:
+                line[x] = (line[x] + b) & 255
+            elif f == 3:
+                line[x] = (line[x] + (a + b) // 2) & 255
+            elif f == 4:
+                p = a + b - c
+                pa, pb, pc = abs(p - a), abs(p - b), abs(p - c)
+                line[x] = (line[x] + (a if pa <= pb and pa <= pc else b if pb <= pc else c)) & 255
+        rows.append(bytes(line))
+        prev = line
+    return w, h, ch, rows
+
+
+def box_colours(png, box, dpr, want, tol=48, step=3):
+    """Fraction of sampled pixels in `box` near each wanted colour."""
+    w, h, ch, rows = png
+    x0, y0 = int(box["x"] * dpr), int(box["y"] * dpr)
+    x1, y1 = min(w, int((box["x"] + box["width"]) * dpr)), min(h, int((box["y"] + box["height"]) * dpr))
+    counts = {k: 0 for k in want}
+    total = 0
+    for y in range(max(0, y0), y1, step):
+        row = rows[y]
+        for x in range(max(0, x0), x1, step):
+            r, g, b = row[x * ch], row[x * ch + 1], row[x * ch + 2]
+            total += 1
+            for k, (cr, cg, cb) in want.items():
+                if abs(r - cr) + abs(g - cg) + abs(b - cb) <= tol:
+                    counts[k] += 1
+    return {k: (v / total if total else 0.0) for k, v in counts.items()}
+
+
+class Cdp:
+    def __init__(self, ws):
+        self.ws, self.next_id = ws, 0
+
+    async def call(self, method, **params):
+        self.next_id += 1
+        my = self.next_id
+        await self.ws.send(json.dumps({"id": my, "method": method, "params": params}))
+        while True:
+            msg = json.loads(await self.ws.recv())
+            if msg.get("id") == my:
+                if "error" in msg:
+                    raise RuntimeError(f"{method}: {msg['error']}")
+                return msg.get("result", {})
+
+    async def eval(self, expr):
+        r = await self.call("Runtime.evaluate", expression=expr, returnByValue=True, awaitPromise=True)
+        return r.get("result", {}).get("value")
+
+
+STATUS_JS = """(() => { const e = document.getElementById('viewer-status');
+  if (!e) return null; const d = {...e.dataset}; d.text = e.textContent; return d; })()"""
+RECTS_JS = """(() => { const r = (id) => { const e = document.getElementById(id); if (!e) return null;
+  const b = e.getBoundingClientRect(); return {x: b.x, y: b.y, width: b.width, height: b.height}; };
+  return {scene: r('scene'), plot: r('plot'), side: r('side'), dpr: window.devicePixelRatio}; })()"""
+REPORT_JS = """(() => ({
+  trainee: document.getElementById('trainee')?.textContent,
+  overall: document.getElementById('overall-accuracy')?.textContent,
+  sessions: document.querySelectorAll('#sessions tr').length - 1,
+  confusion: [...document.querySelectorAll('#confusion tr')].slice(1).map(
+      (tr) => [...tr.querySelectorAll('td')].map((td) => +td.textContent)),
+  curve: (() => { const s = document.getElementById('learning-curve'); if (!s) return null;
+      const b = s.getBoundingClientRect(); return {width: b.width, height: b.height,
+      points: s.querySelectorAll('circle').length}; })(),
+}))()"""
+
+
+async def run(args):
+    chromium = find_chromium()
+    profile = tempfile.mkdtemp(prefix="arthrosim-chromium-")
+    proc = subprocess.Popen([
+        chromium, "--headless", "--no-sandbox", "--disable-gpu-sandbox", "--no-first-run",
+        "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--use-gl=angle",
+        "--remote-debugging-port=0", f"--user-data-dir={profile}",
+        f"--window-size={args.width},{args.height}", "about:blank",
+    ], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        port_file = os.path.join(profile, "DevToolsActivePort")
+        deadline = time.monotonic() + 30
+        while not os.path.exists(port_file) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        port = int(open(port_file).read().split()[0])
+        targets = json.load(urllib.request.urlopen(f"http://127.0.0.1:{port}/json/list"))
+        page = next(t for t in targets if t["type"] == "page")
+        async with websockets.connect(page["webSocketDebuggerUrl"], max_size=None) as ws:
+            cdp = Cdp(ws)
+            await cdp.call("Page.enable")
+            await cdp.call("Emulation.setDeviceMetricsOverride", width=args.width,
+                           height=args.height, deviceScaleFactor=1, mobile=False)
+            t0 = time.monotonic()
+            await cdp.call("Page.navigate", url=args.url)
+            result = {"url": args.url}
+            if args.mode == "viewer":
+                first = None
+                while time.monotonic() - t0 < args.seconds:
+                    await asyncio.sleep(0.5)
+                    s = await cdp.eval(STATUS_JS)
+                    if s and first is None and int(s.get("frames", 0)) > 0:
+                        first = time.monotonic() - t0
+                a = await cdp.eval(STATUS_JS)
+                await asyncio.sleep(1.0)
+                b = await cdp.eval(STATUS_JS)
+                result.update(status=b, first_frame_s=first,
+                              frames_per_s=(int(b["frames"]) - int(a["frames"])) / 1.0 if a and b else 0)
+                result["rects"] = await cdp.eval(RECTS_JS)
+            else:
+                await asyncio.sleep(args.seconds)
+                result["report"] = await cdp.eval(REPORT_JS)
+            shot = await cdp.call("Page.captureScreenshot", format="png")
+            data = base64.b64decode(shot["data"])
+            with open(args.screenshot, "wb") as f:
+                f.write(data)
+            result["screenshot"] = args.screenshot
+            if args.mode == "viewer" and result.get("rects"):
+                png = decode_png(data)
+                r = result["rects"]
+                dpr = r.get("dpr") or 1
+                result["layout"] = {
+                    "size": [png[0], png[1]],
+                    "scene": box_colours(png, r["scene"], dpr, {
+                        "background": (0x1b, 0x24, 0x30), "meniscus": (0xd8, 0xb0, 0xa0)}, tol=90),
+                    "plot": box_colours(png, r["plot"], dpr, {
+                        "background": (0x0b, 0x0f, 0x14), "trace": (0xff, 0xb3, 0x47)}),
+                    "side": box_colours(png, r["side"], dpr, {"background": (0x15, 0x1c, 0x25)}),
+                }
+            return result
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+        shutil.rmtree(profile, ignore_errors=True)
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--url", required=True)
+    ap.add_argument("--seconds", type=float, default=5.0)
+    ap.add_argument("--screenshot", required=True)
+    ap.add_argument("--mode", choices=["viewer", "report"], default="viewer")
+    ap.add_argument("--width", type=int, default=1280)
+    ap.add_argument("--height", type=int, default=800)
+    args = ap.parse_args()
+    print(json.dumps(asyncio.run(run(args))))
+
+
+if __name__ == "__main__":
+    main()

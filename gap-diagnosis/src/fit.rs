@@ -120,7 +120,7 @@ const MSE_FLOOR: f64 = 1e-10;
 /// shows where the model is exact (a sensor bias before the tip touches) is fitted to, and
 /// judged by, the contact error instead. Every fit and score here is the Gaussian likelihood
 /// with one variance per phase, profiled out: Σ_g n_g ln(SSE_g / n_g).
-#[derive(Debug, Clone, Copy, Default)]
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct PhaseSse {
     pub sse: [f64; VarGroup::COUNT],
     pub n: [usize; VarGroup::COUNT],
@@ -511,6 +511,24 @@ pub struct CandidateScore {
     pub score: f64,
     #[serde(skip)]
     pub theta: Vec<f64>,
+    /// Held-out squared residuals per variance group (phase), pooled over trials, and per
+    /// trial: the verdict weighs an effect on the phases that carry it and asks that its gain
+    /// hold trial by trial.
+    #[serde(skip)]
+    pub heldout_groups: PhaseSse,
+    #[serde(skip)]
+    pub heldout_trials: Vec<PhaseSse>,
+    /// Parameters fitted per fold (calibration trials only): their spread is the jackknife
+    /// uncertainty of a fit across independent trials.
+    #[serde(skip)]
+    pub fold_theta: Vec<Vec<f64>>,
+    /// The global stiffness scale fitted with this candidate (the nuisance every candidate
+    /// carries; for `hardening` its small-strain scale).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stiffness_scale: Option<f64>,
+    /// The stiffness scale fitted per fold.
+    #[serde(skip)]
+    pub stiffness_folds: Vec<f64>,
     /// Held-out prediction at every measurement time, per trial.
     #[serde(skip)]
     pub heldout_pred: Vec<Vec<[f64; 3]>>,
@@ -585,11 +603,14 @@ pub fn score_candidate(
     let mut held_pred: Vec<Vec<[f64; 3]>> =
         data.iter().map(|d| vec![[0.0; 3]; d.t.len()]).collect();
     let mut held = PhaseSse::default();
+    let mut held_trials = vec![PhaseSse::default(); data.len()];
     let (mut grid, mut out) = (Vec::new(), Vec::new());
+    let mut fold_theta = Vec::with_capacity(folds.len());
     for f in folds {
         let mut fi = inits.to_vec();
         fi.push(theta.clone());
         let (th, _) = fit(c, data, &f.calib, &fi, &free);
+        fold_theta.push(th.clone());
         for (i, d) in data.iter().enumerate() {
             if !f.held[i].iter().any(|&b| b) {
                 continue;
@@ -599,6 +620,7 @@ pub fn score_candidate(
                 if f.held[i][j] {
                     held_pred[i][j] = out[j];
                     held.push(d.var_group[j], sub(out[j], d.f[j]));
+                    held_trials[i].push(d.var_group[j], sub(out[j], d.f[j]));
                 }
             }
         }
@@ -646,6 +668,11 @@ pub fn score_candidate(
         heldout_study_error: study,
         score,
         theta,
+        heldout_groups: held,
+        heldout_trials: held_trials,
+        fold_theta,
+        stiffness_scale: None,
+        stiffness_folds: vec![],
         heldout_pred: held_pred,
     }
 }

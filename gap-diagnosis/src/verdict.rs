@@ -1,0 +1,481 @@
+//! The verdict under a systematic model error (issue 15, point 2).
+//!
+//! No model is the specimen: its stiffness is off by some tens of percent and its
+//! discretisation leaves an error that differs from site to site. Every candidate is
+//! therefore fitted with a global stiffness scale (the nuisance, see
+//! [`super::with_stiffness`]); the stiffness-only fit is the reference an effect must beat,
+//! and the model-error floor ([`Floor`]) is estimated from it and from how consistent the
+//! stiffness is between trials. An effect is named only when its held-out gain over the
+//! reference, on the phases that carry it (friction: sliding; a sensor: the contact onsets
+//! and ramps; ...), is larger than that floor and holds trial by trial (a paired t over the
+//! trials' held-out errors), so a gain that a few trials' model error hands to a flexible
+//! effect does not count. Candidates whose held-out errors cannot be told apart trial by
+//! trial are reported together.
+use super::dataset::{TrialData, VarGroup};
+use super::effects::Effect;
+use super::fit::{CandidateScore, PhaseSse};
+use super::metrics::Phase;
+use super::signal::dot;
+use super::{Options, Verdict};
+use serde::{Deserialize, Serialize};
+
+/// Paired t over trials an effect's held-out gain must reach (≈ p < 0.01 one-sided for 5–15
+/// trials).
+pub const MIN_T: f64 = 3.0;
+/// Fewest trials for the trial-by-trial test; fewer (a single table) fall back to the
+/// pooled shrink and ΔBIC.
+pub const MIN_TRIALS: usize = 3;
+
+/// The model-error floor of an experiment, estimated from the data.
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+pub struct Floor {
+    /// Global stiffness scale (measured / simulated) fitted with no effect, and its
+    /// jackknife standard error over the held-out folds.
+    pub stiffness_scale: f64,
+    pub stiffness_scale_std: f64,
+    /// Standard deviation of ln(scale) fitted trial by trial: how much the model's stiffness
+    /// error differs from site to site (what no global effect can remove).
+    pub between_trial_scale_sd: f64,
+    /// Held-out RMSE with the stiffness scale alone, N, and its part above the noise.
+    pub heldout_rmse: f64,
+    pub model_error_rmse: f64,
+    /// Smallest held-out gain (fraction of the reference's RMSE on the phases that carry an
+    /// effect) an effect must show: the trial-to-trial stiffness scatter, at least
+    /// `Options::min_shrink`.
+    pub min_gain: f64,
+    /// A stiffness offset up to this (fraction, plus two standard errors) is model error,
+    /// not `modulus` (`Options::stiffness_tolerance`).
+    pub stiffness_tolerance: f64,
+    pub summary: String,
+}
+
+/// Which list a candidate of the verdict comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Kind {
+    Reference,
+    Single,
+    Pair,
+}
+
+/// The scored candidates: the stiffness-only reference, the single effects and the pairs
+/// (each with the stiffness nuisance).
+pub struct Scored<'a> {
+    pub reference: &'a CandidateScore,
+    pub singles: &'a [CandidateScore],
+    pub pairs: &'a [CandidateScore],
+}
+
+/// The variance groups (phases) an effect shows in.
+pub fn carrying_groups(e: Effect) -> Vec<VarGroup> {
+    use VarGroup::*;
+    match e {
+        Effect::Friction => vec![Sliding],
+        Effect::Sensor => vec![NearContact, Loading, Unloading],
+        Effect::Viscoelastic => vec![Loading, Hold, Unloading],
+        Effect::Device => vec![Free, NearContact, Loading, Hold, Unloading, Sliding],
+        Effect::Tilt | Effect::Support | Effect::Mesh | Effect::Modulus | Effect::Hardening => {
+            vec![Loading, Hold, Unloading, Sliding]
+        }
+    }
+}
+
+fn groups_of(name: &str) -> Vec<VarGroup> {
+    let mut g: Vec<VarGroup> = name
+        .split('+')
+        .filter_map(Effect::parse)
+        .flat_map(carrying_groups)
+        .collect();
+    g.sort_by_key(|v| *v as usize);
+    g.dedup();
+    g
+}
+
+fn sse_in(acc: &PhaseSse, groups: &[VarGroup]) -> (f64, usize) {
+    groups.iter().fold((0.0, 0), |(s, n), &g| {
+        (s + acc.sse[g as usize], n + acc.n[g as usize])
+    })
+}
+
+/// What a candidate gains over another on held-out data, on the given phases.
+#[derive(Debug, Clone, Copy)]
+pub struct Evidence {
+    /// 1 − RMSE ratio on the phases, pooled over trials.
+    pub gain: f64,
+    /// 1 − phase-weighted RMSE ratio over everything (must not be negative).
+    pub gain_weighted: f64,
+    /// Paired t of ln(SSE_other / SSE_this) over trials, and how many trials had such samples.
+    pub t: f64,
+    pub trials: usize,
+    /// BIC difference (negative: this one is better).
+    pub delta_bic: f64,
+}
+
+pub fn evidence(this: &CandidateScore, other: &CandidateScore, groups: &[VarGroup]) -> Evidence {
+    let (s1, n1) = sse_in(&this.heldout_groups, groups);
+    let (s0, _) = sse_in(&other.heldout_groups, groups);
+    let gain = if n1 > 0 && s0 > 0.0 {
+        1.0 - (s1 / s0).sqrt()
+    } else {
+        0.0
+    };
+    let gain_weighted = if other.heldout_weighted_rmse > 0.0 {
+        1.0 - this.heldout_weighted_rmse / other.heldout_weighted_rmse
+    } else {
+        0.0
+    };
+    let d: Vec<f64> = this
+        .heldout_trials
+        .iter()
+        .zip(&other.heldout_trials)
+        .filter_map(|(a, b)| {
+            let (sa, na) = sse_in(a, groups);
+            let (sb, _) = sse_in(b, groups);
+            (na > 0 && sa > 0.0 && sb > 0.0).then(|| (sb / sa).ln())
+        })
+        .collect();
+    Evidence {
+        gain,
+        gain_weighted,
+        t: paired_t(&d),
+        trials: d.len(),
+        delta_bic: this.bic - other.bic,
+    }
+}
+
+/// t statistic of the mean of `d` (∞ for a consistent non-zero mean without spread).
+fn paired_t(d: &[f64]) -> f64 {
+    let n = d.len();
+    if n < 2 {
+        return 0.0;
+    }
+    let m = d.iter().sum::<f64>() / n as f64;
+    let var = d.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (n - 1) as f64;
+    let se = (var / n as f64).sqrt();
+    if se > 0.0 {
+        m / se
+    } else if m > 0.0 {
+        f64::INFINITY
+    } else {
+        0.0
+    }
+}
+
+/// Jackknife standard error of ln(scale) from the per-fold fits.
+fn jackknife_ln_std(folds: &[f64]) -> f64 {
+    let k = folds.len();
+    if k < 2 {
+        return 0.0;
+    }
+    let l: Vec<f64> = folds.iter().map(|s| s.max(1e-9).ln()).collect();
+    let m = l.iter().sum::<f64>() / k as f64;
+    ((k - 1) as f64 / k as f64 * l.iter().map(|x| (x - m).powi(2)).sum::<f64>()).sqrt()
+}
+
+/// Least-squares stiffness scale of each trial's contact samples (measured against the
+/// baseline along the contact normal).
+fn trial_scales(data: &[TrialData]) -> Vec<f64> {
+    data.iter()
+        .filter_map(|d| {
+            let (mut fb, mut bb) = (0.0, 0.0);
+            for j in 0..d.t.len() {
+                if d.phase[j] == Phase::Approach {
+                    continue;
+                }
+                let (f, b) = (dot(d.f[j], d.normal), dot(d.base_at_t[j], d.normal));
+                fb += f * b;
+                bb += b * b;
+            }
+            (bb > 0.0 && fb > 0.0).then(|| fb / bb)
+        })
+        .collect()
+}
+
+fn sd(v: &[f64]) -> f64 {
+    if v.len() < 2 {
+        return 0.0;
+    }
+    let m = v.iter().sum::<f64>() / v.len() as f64;
+    (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (v.len() - 1) as f64).sqrt()
+}
+
+/// The model-error floor from the stiffness-only reference and the trials.
+pub fn floor(reference: &CandidateScore, data: &[TrialData], noise: f64, opts: &Options) -> Floor {
+    let s = reference.stiffness_scale.unwrap_or(1.0);
+    let ln_sd = jackknife_ln_std(&reference.stiffness_folds);
+    let per_trial: Vec<f64> = trial_scales(data).iter().map(|x| x.ln()).collect();
+    let between = sd(&per_trial);
+    let model_error = (reference.heldout_rmse.powi(2) - noise * noise)
+        .max(0.0)
+        .sqrt();
+    let min_gain = between.max(opts.min_shrink);
+    Floor {
+        stiffness_scale: s,
+        stiffness_scale_std: s * ln_sd,
+        between_trial_scale_sd: between,
+        heldout_rmse: reference.heldout_rmse,
+        model_error_rmse: model_error,
+        min_gain,
+        stiffness_tolerance: opts.stiffness_tolerance,
+        summary: format!(
+            "stiffness scale {s:.3} ± {:.3} (between trials ±{:.1}%); held-out RMSE with it \
+             {:.4} N ({model_error:.4} N above the noise); an effect needs a held-out gain \
+             ≥ {:.1}% on its phases, trial by trial (t ≥ {MIN_T})",
+            s * ln_sd,
+            100.0 * between,
+            reference.heldout_rmse,
+            100.0 * min_gain
+        ),
+    }
+}
+
+/// Whether `this` beats `other` on `groups` beyond the floor, trial by trial.
+fn beats(
+    this: &CandidateScore,
+    other: &CandidateScore,
+    groups: &[VarGroup],
+    fl: &Floor,
+    n_trials: usize,
+    opts: &Options,
+) -> (bool, Evidence) {
+    let ev = evidence(this, other, groups);
+    let ok = if n_trials >= MIN_TRIALS {
+        ev.t >= MIN_T
+            && ev.trials >= MIN_TRIALS
+            && ev.gain >= fl.min_gain
+            && ev.gain_weighted > 0.0
+            && ev.delta_bic <= -10.0
+    } else {
+        ev.gain.max(ev.gain_weighted) >= opts.min_shrink && ev.delta_bic <= -10.0
+    };
+    (ok, ev)
+}
+
+/// What would separate two candidates that the data cannot tell apart.
+pub fn separate_by(a: &str, b: &str) -> &'static str {
+    let has = |x: &str| a.split('+').any(|e| e == x) || b.split('+').any(|e| e == x);
+    if has("support") && (has("modulus") || has("hardening")) {
+        "deeper presses (an elastic support softens the force as it grows, a modulus scales \
+         it) and probings near the fixed edge (where the support matters least)"
+    } else if has("hardening") && has("modulus") {
+        "presses spanning a wider range of depths"
+    } else if has("friction") && has("tilt") {
+        "slides in opposite directions at the same site (friction opposes the motion, a \
+         tilt does not change sign)"
+    } else if has("sensor") && has("viscoelastic") {
+        "a faster ramp and a longer hold (a sensor lags by a fixed time, a relaxation \
+         continues through the hold)"
+    } else if has("mesh") {
+        "a refined replay mesh at the probed sites"
+    } else {
+        "more trials in the phases that carry them"
+    }
+}
+
+/// The verdict; the floor; which candidate it is (None: the baseline, verdict `none`).
+pub fn decide(
+    s: &Scored,
+    data: &[TrialData],
+    r0: f64,
+    noise: f64,
+    opts: &Options,
+) -> (Verdict, Floor, Option<(Kind, usize)>) {
+    let n_trials = data.len();
+    let fl = floor(s.reference, data, noise, opts);
+    let mk = |effect: String, c: Option<&CandidateScore>, reason: String| Verdict {
+        effect,
+        heldout_shrink: c.map(|c| c.heldout_shrink).unwrap_or(0.0),
+        params: c.map(|c| c.params.clone()).unwrap_or_default(),
+        reason,
+        indistinguishable: vec![],
+        separate_by: String::new(),
+    };
+    // a stiffness offset beyond the tolerance and beyond its own uncertainty is `modulus`
+    let stiffness_off = |c: &CandidateScore| {
+        let sc = c.stiffness_scale.unwrap_or(1.0).max(1e-9);
+        let se = jackknife_ln_std(&c.stiffness_folds);
+        let modulus_allowed = opts.effects.contains(&Effect::Modulus);
+        modulus_allowed && sc.ln().abs() > (1.0 + opts.stiffness_tolerance).ln() + 2.0 * se
+    };
+    if r0 <= 1.15 * noise {
+        let v = mk(
+            "none".into(),
+            None,
+            format!("baseline residual {r0:.4} N is within noise ({noise:.4} N)"),
+        );
+        return (v, fl, None);
+    }
+    // singles that beat the stiffness-only reference on their phases
+    let mut sig: Vec<(usize, Evidence)> = s
+        .singles
+        .iter()
+        .enumerate()
+        .filter_map(|(i, c)| {
+            let (ok, ev) = beats(c, s.reference, &groups_of(&c.effect), &fl, n_trials, opts);
+            ok.then_some((i, ev))
+        })
+        .collect();
+    sig.sort_by(|a, b| s.singles[a.0].score.total_cmp(&s.singles[b.0].score));
+    let single_of = |name: &str| s.singles.iter().find(|c| c.effect == name);
+    // pairs in which each effect adds to the other, on its own phases, beyond the floor
+    let mut sig_pairs: Vec<usize> = if n_trials >= MIN_TRIALS && opts.pairs {
+        s.pairs
+            .iter()
+            .enumerate()
+            .filter(|(_, p)| {
+                let parts: Vec<&str> = p.effect.split('+').collect();
+                if parts.len() != 2 {
+                    return false;
+                }
+                let both = (0..2).all(|k| {
+                    let (this, other) = (parts[k], parts[1 - k]);
+                    match single_of(other) {
+                        Some(o) => beats(p, o, &groups_of(this), &fl, n_trials, opts).0,
+                        None => false,
+                    }
+                });
+                both && beats(p, s.reference, &groups_of(&p.effect), &fl, n_trials, opts).0
+            })
+            .map(|(i, _)| i)
+            .collect()
+    } else {
+        vec![]
+    };
+    sig_pairs.sort_by(|&a, &b| s.pairs[a].score.total_cmp(&s.pairs[b].score));
+    let best_single = sig.first().map(|&(i, ev)| (i, ev, &s.singles[i]));
+    let best_pair = sig_pairs.first().map(|&i| (i, &s.pairs[i]));
+    let pair_wins = match (best_single, best_pair) {
+        (_, None) => false,
+        (None, Some(_)) => true,
+        (Some((_, _, a)), Some((_, p))) => p.score < a.score,
+    };
+    let (mut verdict, kind) = if pair_wins {
+        let (i, p) = best_pair.unwrap();
+        let ev = evidence(p, s.reference, &groups_of(&p.effect));
+        let v = mk(
+            p.effect.clone(),
+            Some(p),
+            format!(
+                "the pair {} shrinks the held-out RMSE {r0:.4} → {:.4} N ({:.1}%); each effect \
+                 adds to the other beyond the floor; over the stiffness-only fit: {:.1}% on \
+                 their phases, t = {:.1} over {} trials",
+                p.effect,
+                p.heldout_rmse,
+                100.0 * p.heldout_shrink,
+                100.0 * ev.gain,
+                ev.t,
+                ev.trials
+            ),
+        );
+        (v, Some((Kind::Pair, i)))
+    } else if let Some((i, ev, c)) = best_single {
+        let name = if c.effect != "hardening" && stiffness_off(c) {
+            format!("modulus+{}", c.effect)
+        } else {
+            c.effect.clone()
+        };
+        let v = mk(
+            super::effects::Candidate(
+                name.split('+')
+                    .filter_map(Effect::parse)
+                    .collect::<Vec<_>>(),
+            )
+            .name(),
+            Some(c),
+            format!(
+                "{} shrinks the held-out RMSE {r0:.4} → {:.4} N ({:.1}%); over the stiffness-only \
+                 fit (scale {:.3}): {:.1}% on its phases, t = {:.1} over {} trials (floor: {:.1}%)",
+                c.effect,
+                c.heldout_rmse,
+                100.0 * c.heldout_shrink,
+                c.stiffness_scale.unwrap_or(1.0),
+                100.0 * ev.gain,
+                ev.t,
+                ev.trials,
+                100.0 * fl.min_gain
+            ),
+        );
+        (v, Some((Kind::Single, i)))
+    } else if stiffness_off(s.reference) {
+        let v = mk(
+            "modulus".into(),
+            Some(s.reference),
+            format!(
+                "the stiffness is off by more than the tolerated model error: scale {:.3} ± {:.3} \
+                 (tolerance ±{:.0}%); no effect beats it beyond the floor",
+                fl.stiffness_scale,
+                fl.stiffness_scale_std,
+                100.0 * opts.stiffness_tolerance
+            ),
+        );
+        (v, Some((Kind::Reference, 0)))
+    } else {
+        let best = s
+            .singles
+            .iter()
+            .map(|c| (c, evidence(c, s.reference, &groups_of(&c.effect))))
+            .max_by(|a, b| a.1.gain.total_cmp(&b.1.gain));
+        let v = mk(
+            "none".into(),
+            None,
+            match best {
+                Some((c, ev)) => format!(
+                    "no effect beats the model-error floor: the stiffness scale {:.3} is within \
+                     the tolerated ±{:.0}%; best candidate {} gains {:.1}% on its phases over it \
+                     (t = {:.1}; floor {:.1}%, t ≥ {MIN_T})",
+                    fl.stiffness_scale,
+                    100.0 * opts.stiffness_tolerance,
+                    c.effect,
+                    100.0 * ev.gain,
+                    ev.t,
+                    100.0 * fl.min_gain
+                ),
+                None => "no candidate could be assessed".into(),
+            },
+        );
+        (v, None)
+    };
+    // candidates the data cannot tell from the verdict's: not worse trial by trial
+    if let Some((k, i)) = kind {
+        let win = match k {
+            Kind::Reference => s.reference,
+            Kind::Single => &s.singles[i],
+            Kind::Pair => &s.pairs[i],
+        };
+        let all_groups: Vec<VarGroup> = (0..VarGroup::COUNT)
+            .map(|g| match g {
+                0 => VarGroup::Free,
+                1 => VarGroup::NearContact,
+                2 => VarGroup::Loading,
+                3 => VarGroup::Hold,
+                4 => VarGroup::Unloading,
+                _ => VarGroup::Sliding,
+            })
+            .collect();
+        let rivals: Vec<&CandidateScore> = match k {
+            Kind::Pair => sig_pairs.iter().map(|&j| &s.pairs[j]).collect(),
+            _ => sig.iter().map(|&(j, _)| &s.singles[j]).collect(),
+        };
+        let mut same = vec![];
+        for r in rivals {
+            if std::ptr::eq(r, win) || n_trials < MIN_TRIALS {
+                continue;
+            }
+            let ev = evidence(win, r, &all_groups);
+            if ev.t < 2.0 {
+                same.push(r.effect.clone());
+            }
+        }
+        if !same.is_empty() {
+            let mut names = vec![verdict.effect.clone()];
+            names.extend(same);
+            verdict.separate_by = separate_by(&names[0], &names[1]).to_string();
+            verdict.reason.push_str(&format!(
+                "; indistinguishable on held-out data from {} (would separate them: {})",
+                names[1..].join(", "),
+                verdict.separate_by
+            ));
+            verdict.indistinguishable = names;
+        }
+    }
+    (verdict, fl, kind)
+}

@@ -220,6 +220,10 @@ pub enum GapCommand {
         /// of a refined mesh, a ball tip and a ±15% stiffness offset.
         #[arg(long)]
         self_consistent: bool,
+        /// Case labels to cycle through instead of the default cycle (`none`, `friction`,
+        /// `modulus+sensor`, ...).
+        #[arg(long = "case", value_name = "LABEL", value_delimiter = ',')]
+        only: Vec<String>,
     },
 }
 

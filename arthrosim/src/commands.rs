@@ -314,6 +314,7 @@ fn gap_command(args: GapArgs) -> Result<i32> {
         verbose,
         json,
         self_consistent,
+        only,
     }) = args.command
     {
         if cases == 0 {
@@ -322,6 +323,7 @@ fn gap_command(args: GapArgs) -> Result<i32> {
         let opts = gap::selftest::SelftestOptions {
             keep_dir: keep,
             verbose,
+            cases: (!only.is_empty()).then_some(only),
             fidelity: if self_consistent {
                 gap::reality::Fidelity::SelfConsistent
             } else {

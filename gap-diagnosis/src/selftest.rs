@@ -221,10 +221,24 @@ pub fn selftest(
     scene.meniscus.mesh = "default:lateral:coarse".into();
     let model = SimForceModel::from_scene(scene, &data);
     let sites = model.sites()?;
+    // the nominal match is a property of the two models, not of a case: computed once
+    let match_cache = std::sync::Mutex::new(None::<f64>);
     let truth_for = |spec: &RealitySpec| -> Result<Box<dyn ForceModel>, GapError> {
         Ok(Box::new(truth_model(spec, &data)))
     };
-    run_cases(cases, seed, opts, &truth_for, &sites, &|exp| {
+    let nominal = |spec: &RealitySpec, truth: &dyn ForceModel| -> Result<f64, GapError> {
+        if spec.fidelity != Fidelity::Reality {
+            return Ok(1.0);
+        }
+        let mut c = match_cache.lock().unwrap();
+        if let Some(v) = *c {
+            return Ok(v);
+        }
+        let v = super::reality::nominal_match(truth, &model, &sites, spec.truth_dt)?;
+        *c = Some(v);
+        Ok(v)
+    };
+    run_cases(cases, seed, opts, &truth_for, &nominal, &sites, &|exp| {
         SimForceModel::for_experiment(exp, &data).map(|m| Box::new(m) as Box<dyn ForceModel>)
     })
 }
@@ -268,7 +282,16 @@ pub fn selftest_with(
     let truth_for = |_: &RealitySpec| -> Result<Box<dyn ForceModel + '_>, GapError> {
         Ok(Box::new(Borrowed(truth_model)))
     };
-    run_cases(cases, seed, opts, &truth_for, sites, model_for)
+    // a given truth model is taken as it is (its nominal stiffness is the caller's)
+    run_cases(
+        cases,
+        seed,
+        opts,
+        &truth_for,
+        &|_, _| Ok(1.0),
+        sites,
+        model_for,
+    )
 }
 
 fn run_cases(
@@ -276,6 +299,7 @@ fn run_cases(
     seed: u64,
     opts: &SelftestOptions,
     truth_for: &TruthFor,
+    nominal: &dyn Fn(&RealitySpec, &dyn ForceModel) -> Result<f64, GapError>,
     sites: &[Site],
     model_for: &ModelFor,
 ) -> Result<SelftestResult, GapError> {
@@ -298,6 +322,7 @@ fn run_cases(
         let dir = root.join(format!("case{i:03}"));
         let truth_file = root.join(format!("case{i:03}_truth.json"));
         let truth_model = truth_for(&spec)?;
+        spec.nominal_match = nominal(&spec, truth_model.as_ref())?;
         let truth = write_experiment_with(&spec, truth_model.as_ref(), sites, &dir, &truth_file)?;
         let exp = load_experiment(&dir, &super::data_dir())?;
         let model = model_for(&exp)?;

@@ -237,7 +237,12 @@ fn beats(
     n_trials: usize,
     opts: &Options,
 ) -> (bool, Evidence) {
-    let ev = evidence(this, other, groups);
+    let mut ev = evidence(this, other, groups);
+    if ev.trials == 0 {
+        // the phases that carry it are absent (no slides): judged on every contact phase
+        use VarGroup::*;
+        ev = evidence(this, other, &[Loading, Hold, Unloading, Sliding]);
+    }
     let ok = if n_trials >= MIN_TRIALS {
         ev.t >= MIN_T
             && ev.trials >= MIN_TRIALS

@@ -19,18 +19,10 @@ fn data_present() -> bool {
     ok
 }
 
-/// The cases: no effect (the stiffness offset alone, twice), the effects the hidden sets
-/// missed behind a stiffness offset (friction, support), a sensor and a modulus beyond the
-/// model's own error, and a pair.
-const CASES: [&str; 7] = [
-    "none",
-    "friction",
-    "support",
-    "none",
-    "sensor",
-    "modulus",
-    "modulus+friction",
-];
+/// The cases: no effect (the stiffness offset alone), the two effects the hidden sets
+/// missed or mistook behind a stiffness offset (friction, support), and a modulus beyond the
+/// model's own error. Four cases of fifteen trials keep it within CI's time.
+const CASES: [&str; 4] = ["none", "friction", "support", "modulus"];
 
 #[test]
 fn reality_like_selftest_reaches_its_accuracy() {

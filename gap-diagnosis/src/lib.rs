@@ -21,7 +21,7 @@
 //!     report.rendering_gap = Some(gap_diagnosis::session_rendering_gap(mcap)?);  // checked before the replays
 //! arthrosim gap --force-displacement FILE.csv --out REPORT_DIR
 //!     let report = gap_diagnosis::diagnose_force_displacement(file, &opts)?; gap_diagnosis::write_report(&report, out)?;
-//! arthrosim gap selftest --cases N --seed S [--json]
+//! arthrosim gap selftest --cases N --seed S [--json] [--case LABEL,...] [--self-consistent]
 //!     let r = gap_diagnosis::selftest::selftest(n, seed, &gap_diagnosis::selftest::SelftestOptions { verbose: true, ..Default::default() })?;
 //!     print!("{}", r.table());                          // per-case lines + confusion matrix
 //!     if json { println!("{}", serde_json::to_string(&r.summary())?) }  // cases, correct, accuracy, heldout_shrink_mean
@@ -31,7 +31,7 @@
 //!     calibrate::check_out_path(out)?;                  // before the replays
 //!     let (report, cal) = calibrate::calibrate_input(&input, base, &opts)?;
 //!     calibrate::write_launch(&cal, out)?;              // the verdict as scene keys, validated
-//! arthrosim reality --effect NAME[=STRENGTH] [--effect ...] --seed S --out DIR --truth FILE
+//! arthrosim reality --effect NAME[=STRENGTH] [--effect ...] --seed S --out DIR --truth FILE [--self-consistent]
 //!     let spec = gap_diagnosis::reality::RealitySpec::from_effects(&["friction=0.3", "sensor"], seed)?;
 //!     gap_diagnosis::reality::write_experiment(&spec, dir, truth_file)?;   // truth file must lie outside DIR
 //! ```

@@ -74,3 +74,35 @@ pub fn workspace_binary(package: &str, bin: &str) -> PathBuf {
     }
     path
 }
+
+/// Processes whose command line names `session` (the launcher passes `--session NAME` to
+/// every node), with their arguments; the calling test itself is left out. Zombies and
+/// exiting processes have an empty command line and are not found.
+pub fn processes_of_session(session: &str) -> Vec<(u32, Vec<String>)> {
+    let mut found = Vec::new();
+    let Ok(entries) = std::fs::read_dir("/proc") else {
+        return found;
+    };
+    for entry in entries.flatten() {
+        let Ok(pid) = entry.file_name().to_string_lossy().parse::<u32>() else {
+            continue;
+        };
+        if pid == std::process::id() {
+            continue;
+        }
+        let Ok(raw) = std::fs::read(entry.path().join("cmdline")) else {
+            continue;
+        };
+        let args: Vec<String> = raw
+            .split(|b| *b == 0)
+            .map(|a| String::from_utf8_lossy(a).into_owned())
+            .collect();
+        if args
+            .windows(2)
+            .any(|w| w[0] == "--session" && w[1] == session)
+        {
+            found.push((pid, args));
+        }
+    }
+    found
+}

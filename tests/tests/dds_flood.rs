@@ -27,31 +27,6 @@ const TICK_S: f64 = 0.001;
 /// DeviceState fault bit: frame not computed for this device (msgs::haptic_to_physics::fault).
 const FOREIGN_FRAME: u32 = 1 << 7;
 
-fn workspace_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .parent()
-        .unwrap()
-        .to_path_buf()
-}
-
-fn arthrosim_binary() -> PathBuf {
-    let exe = std::env::current_exe().unwrap();
-    let profile_dir = exe.parent().and_then(Path::parent).unwrap().to_path_buf();
-    let release = profile_dir.file_name().is_some_and(|n| n == "release");
-    let mut build = Command::new(env!("CARGO"));
-    build
-        .current_dir(workspace_root())
-        .args(["build", "-p", "arthrosim"]);
-    if release {
-        build.arg("--release");
-    }
-    assert!(
-        build.status().expect("cargo build").success(),
-        "cargo build -p arthrosim failed"
-    );
-    profile_dir.join("arthrosim")
-}
-
 fn python() -> String {
     std::env::var("PYTHON").unwrap_or_else(|_| "python3".into())
 }
@@ -129,30 +104,6 @@ impl Drop for NetNs {
     }
 }
 
-/// Processes whose command line names this session.
-fn processes_of_session(session: &str) -> Vec<u32> {
-    let mut found = Vec::new();
-    for entry in std::fs::read_dir("/proc").unwrap().flatten() {
-        let Ok(pid) = entry.file_name().to_string_lossy().parse::<u32>() else {
-            continue;
-        };
-        let Ok(raw) = std::fs::read(entry.path().join("cmdline")) else {
-            continue;
-        };
-        let args: Vec<String> = raw
-            .split(|b| *b == 0)
-            .map(|a| String::from_utf8_lossy(a).into_owned())
-            .collect();
-        if args
-            .windows(2)
-            .any(|w| w[0] == "--session" && w[1] == session)
-        {
-            found.push(pid);
-        }
-    }
-    found
-}
-
 fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
     ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
 }
@@ -172,7 +123,7 @@ struct Flooded {
 
 /// Runs `arthrosim run --seconds 14` in a fresh namespace with the flooding peer in it.
 fn flooded_session(tag: &str, launch: Option<&str>) -> Flooded {
-    let bin = arthrosim_binary();
+    let bin = tests::workspace_binary("arthrosim", "arthrosim");
     let ns = NetNs::new(tag);
     let session = format!("{tag}-{}", std::process::id());
     let out = std::env::temp_dir().join(format!("arthrosim-{tag}-{}", std::process::id()));
@@ -207,7 +158,7 @@ fn flooded_session(tag: &str, launch: Option<&str>) -> Flooded {
                <Peers><Peer address=\"127.0.0.1\"/></Peers></Discovery></Domain></CycloneDDS>";
     let peer = ns
         .command(Path::new(&python()))
-        .arg(workspace_root().join("viz-bridge/tests/py/ros_peer.py"))
+        .arg(tests::workspace_root().join("viz-bridge/tests/py/ros_peer.py"))
         .args(["flood", "--seconds", "12", "--grade-hz", "50"])
         .env("CYCLONEDDS_URI", uri)
         .stdin(Stdio::null())
@@ -226,7 +177,7 @@ fn flooded_session(tag: &str, launch: Option<&str>) -> Flooded {
         }
         std::thread::sleep(Duration::from_millis(100));
     };
-    for pid in processes_of_session(&session) {
+    for (pid, _) in tests::processes_of_session(&session) {
         let _ = Command::new("kill").args(["-9", &pid.to_string()]).status();
     }
     let context = format!(

@@ -11,32 +11,12 @@ fn arthrosim_binary() -> PathBuf {
     tests::workspace_binary("arthrosim", "arthrosim")
 }
 
-/// Processes whose command line names this session (the launcher passes `--session NAME`
-/// to every node).
+/// Processes of `session`, each with its command line.
 fn processes_of_session(session: &str) -> Vec<(u32, String)> {
-    let mut found = Vec::new();
-    for entry in std::fs::read_dir("/proc").unwrap().flatten() {
-        let Ok(pid) = entry.file_name().to_string_lossy().parse::<u32>() else {
-            continue;
-        };
-        if pid == std::process::id() {
-            continue;
-        }
-        let Ok(raw) = std::fs::read(entry.path().join("cmdline")) else {
-            continue;
-        };
-        let args: Vec<String> = raw
-            .split(|b| *b == 0)
-            .map(|a| String::from_utf8_lossy(a).into_owned())
-            .collect();
-        if args
-            .windows(2)
-            .any(|w| w[0] == "--session" && w[1] == session)
-        {
-            found.push((pid, args.join(" ")));
-        }
-    }
-    found
+    tests::processes_of_session(session)
+        .into_iter()
+        .map(|(pid, args)| (pid, args.join(" ")))
+        .collect()
 }
 
 #[test]

@@ -13,63 +13,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-fn workspace_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .parent()
-        .unwrap()
-        .to_path_buf()
-}
-
-/// The `arthrosim` binary of this test's profile, built (or brought up to date) first.
-fn arthrosim_binary() -> PathBuf {
-    let exe = std::env::current_exe().unwrap();
-    let profile_dir = exe.parent().and_then(Path::parent).unwrap().to_path_buf();
-    let release = profile_dir.file_name().is_some_and(|n| n == "release");
-    let mut build = Command::new(env!("CARGO"));
-    build
-        .current_dir(workspace_root())
-        .args(["build", "-p", "arthrosim"]);
-    if release {
-        build.arg("--release");
-    }
-    let status = build.status().expect("run cargo build -p arthrosim");
-    assert!(status.success(), "cargo build -p arthrosim failed");
-    let bin = profile_dir.join("arthrosim");
-    assert!(bin.is_file(), "{} not found after the build", bin.display());
-    bin
-}
-
-/// Processes whose command line names this session (the launcher passes `--session NAME`
-/// to every node), with their arguments.
-fn processes_of_session(session: &str) -> Vec<(u32, Vec<String>)> {
-    let mut found = Vec::new();
-    for entry in std::fs::read_dir("/proc").unwrap().flatten() {
-        let Ok(pid) = entry.file_name().to_string_lossy().parse::<u32>() else {
-            continue;
-        };
-        if pid == std::process::id() {
-            continue;
-        }
-        let Ok(raw) = std::fs::read(entry.path().join("cmdline")) else {
-            continue;
-        };
-        let args: Vec<String> = raw
-            .split(|b| *b == 0)
-            .map(|a| String::from_utf8_lossy(a).into_owned())
-            .collect();
-        // Zombies and exiting processes have an empty command line.
-        if args
-            .windows(2)
-            .any(|w| w[0] == "--session" && w[1] == session)
-        {
-            found.push((pid, args));
-        }
-    }
-    found
-}
-
 fn node_pids(session: &str) -> Vec<(u32, String)> {
-    processes_of_session(session)
+    tests::processes_of_session(session)
         .into_iter()
         .filter_map(|(pid, args)| {
             let i = args.iter().position(|a| a == "node")?;
@@ -215,7 +160,7 @@ const STEP: &str = "/arthrosim/recording/contact_step";
 
 #[test]
 fn recorder_killed_mid_session_loses_nothing_and_sighup_stops_in_order() {
-    let bin = arthrosim_binary();
+    let bin = tests::workspace_binary("arthrosim", "arthrosim");
     let session = format!("safety-{}", std::process::id());
     let tmp = std::env::temp_dir().join(format!("arthrosim-safety-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&tmp);
@@ -363,7 +308,7 @@ fn recorder_killed_mid_session_loses_nothing_and_sighup_stops_in_order() {
 
 #[test]
 fn launcher_killed_with_sigkill_leaves_no_node_running() {
-    let bin = arthrosim_binary();
+    let bin = tests::workspace_binary("arthrosim", "arthrosim");
     let session = format!("orphan-{}", std::process::id());
     let tmp = std::env::temp_dir().join(format!("arthrosim-orphan-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&tmp);

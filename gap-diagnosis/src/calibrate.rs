@@ -66,6 +66,7 @@ impl SceneChange {
 pub const TISSUE_KEYS: &[&str] = &[
     "scene.material.modulus_scale",
     "scene.meniscus.support_stiffness",
+    "scene.material.strain_stiffening",
 ];
 
 /// `scene` with every key of [`TISSUE_KEYS`] at its neutral value.
@@ -73,6 +74,7 @@ pub fn neutral_tissue(scene: &SceneConfig) -> SceneConfig {
     let mut s = scene.clone();
     s.material.modulus_scale = 1.0;
     s.meniscus.support_stiffness = 0.0;
+    s.material.strain_stiffening = 0.0;
     s
 }
 
@@ -482,7 +484,68 @@ pub fn calibrate_input(
     report.rendering_gap = rendering;
     let mut cal = calibrate_report(&report, &model.scene, &base)?;
     cal.refined = refined;
+    if let Input::Table(file) = input {
+        apply_table_fit(&mut cal, file, &data_dir)?;
+    }
     Ok((report, cal))
+}
+
+/// A force–displacement table carries the tissue's normal response alone, and the scene can
+/// render it as physics: the support stiffness and stiffening rate are fitted to the table
+/// by probe curves of the scene itself (`physics_node::tissue_fit`, the mid-body site,
+/// displacement as measured, first row the offset), and replace what the verdict's effects
+/// set for the tissue keys. The diagnosis' `hardening` is a force × exp(rate · depth) fit in
+/// the replay, not a scene key; the fit is what makes the written scene reproduce the table.
+fn apply_table_fit(cal: &mut Calibration, file: &Path, data_dir: &Path) -> Result<(), GapError> {
+    use physics_node::probe_curve::{ForceTable, Region};
+    let bad = |msg: String| GapError::Input {
+        file: file.to_path_buf(),
+        msg,
+    };
+    let table = ForceTable::load(file).map_err(|e| bad(e.to_string()))?;
+    let scene = neutral_tissue(&cal.launch.scene);
+    let fit = physics_node::tissue_fit::fit_table(&scene, data_dir, &table, Region::Mid)
+        .map_err(|e| bad(format!("fitting the scene's tissue to the table: {e}")))?;
+    let from = format!(
+        "probe curves of the scene fitted to the table at the mid site: largest error {:.3} N \
+         = {:.1}% of the table's peak ({} curves)",
+        fit.max_error_n, fit.max_error_percent_of_peak, fit.evaluations
+    );
+    let before = cal.launch.scene.clone();
+    let out = &mut cal.launch.scene;
+    out.material.modulus_scale = scene.material.modulus_scale;
+    out.meniscus.support_stiffness = fit.support_stiffness;
+    out.material.strain_stiffening = fit.strain_stiffening;
+    // The verdict's own tissue changes (and its notes on hardening) are superseded.
+    cal.changes.retain(|c| match c {
+        SceneChange::Set { key, .. } => !TISSUE_KEYS.contains(&key.as_str()),
+        SceneChange::Note { effect, .. } => effect != Effect::Hardening.name(),
+    });
+    let set = |key: &str, before: f64, after: f64| SceneChange::Set {
+        effect: "table".into(),
+        key: key.into(),
+        before: format!("{before}"),
+        after: format!("{after}"),
+        from: from.clone(),
+    };
+    cal.changes.extend([
+        set(
+            "scene.material.modulus_scale",
+            before.material.modulus_scale,
+            out.material.modulus_scale,
+        ),
+        set(
+            "scene.meniscus.support_stiffness",
+            before.meniscus.support_stiffness,
+            out.meniscus.support_stiffness,
+        ),
+        set(
+            "scene.material.strain_stiffening",
+            before.material.strain_stiffening,
+            out.material.strain_stiffening,
+        ),
+    ]);
+    Ok(())
 }
 
 /// Adds a re-simulated knot at the fitted value of every piecewise-linear effect of the

@@ -17,6 +17,7 @@ pub mod node;
 pub mod probe;
 pub mod probe_curve;
 pub mod sim;
+pub mod tissue_fit;
 
 // The contact frame's W is laid out with msgs' row stride and solved by contact-lcp, which
 // has no dependencies and so keeps its own copy of the capacities: check they agree.

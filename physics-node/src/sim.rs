@@ -236,6 +236,7 @@ impl Simulation {
             .map_err(|e| PhysicsError::Fem(e.to_string()))?;
 
         let triangles = boundary_triangles(&mesh.tets);
+        fem.set_support_length(support_length(&mesh, &triangles, &fixed));
         let mut surface = TissueSurface::new(triangles.clone(), &mesh.nodes)
             .ok_or_else(|| PhysicsError::Mesh("tet mesh has no boundary surface".into()))?;
         // Support sheet: boundary triangles whose nodes are all held, turned to face the tissue.
@@ -401,6 +402,15 @@ impl Simulation {
         self.fem
             .set_material(material)
             .map_err(|e| PhysicsError::Fem(e.to_string()))?;
+        if self.scene.meniscus.support_stiffness > 0.0 {
+            // As `FemSettings::from_scene` does for a scene built at this grade.
+            let k = self.scene.meniscus.support_stiffness
+                * Material::degeneration_factor(grade)
+                    .map_err(|e| PhysicsError::Fem(e.to_string()))?;
+            self.fem
+                .set_support_stiffness(k)
+                .map_err(|e| PhysicsError::Fem(e.to_string()))?;
+        }
         let rest = self
             .fem
             .rest_compliance(self.dt, BLOCK_COLUMNS)
@@ -629,17 +639,33 @@ impl Simulation {
         // the violation and the stiffening has to be in W. One factor for the patch (the
         // mean node factor under the contacts, weighted by their free penetration) scales
         // W and the tissue correction alike, so the deformed shape stays the rest response.
+        //
+        // A stiffening elastic support (see `fem::stiffening`) is in series with the tissue:
+        // W = W_support / f_support + W_tissue / f_tissue. The share of the support in the
+        // patch's compliance is the share of the patch's displacement that is the support's
+        // (largest support displacement over the patch's mean displacement), so the factor
+        // is 1 / (α / f_support + (1 − α) / f_tissue).
         let rotations = if self.fem.stiffening().is_active() {
             let factors = self.fem.node_stiffening();
-            let (mut sum, mut weight) = (0.0, 0.0);
+            let x = self.fem.positions();
+            let (mut sum, mut weight, mut moved) = (0.0, 0.0, 0.0);
             for c in contacts.iter() {
                 let w = (-c.free_violation[0]).max(0.0);
                 for a in 0..3 {
-                    sum += w * c.weights[a] * factors[c.nodes[a]];
+                    let n = c.nodes[a];
+                    sum += w * c.weights[a] * factors[n];
+                    moved += w * c.weights[a] * (x[n] - self.rest_positions[n]).norm();
                     weight += w * c.weights[a];
                 }
             }
-            let patch = if weight > 0.0 { sum / weight } else { 1.0 };
+            let tissue = if weight > 0.0 { sum / weight } else { 1.0 };
+            let (support_u, support_factor) = self.fem.support_hardening();
+            let share = if weight > 0.0 && moved > 0.0 {
+                (support_u / (moved / weight)).min(1.0)
+            } else {
+                0.0
+            };
+            let patch = 1.0 / (share / support_factor + (1.0 - share) / tissue);
             self.patch_stiffening = patch;
             let inv_sqrt = 1.0 / patch.sqrt();
             for (w, r) in self.warp.iter_mut().zip(self.fem.node_rotations()) {
@@ -979,5 +1005,38 @@ impl ContactForceCsv {
 
     pub fn flush(&mut self) -> std::io::Result<()> {
         self.out.flush()
+    }
+}
+
+/// Mean thickness of the body above its support: tet volume over the area of the boundary
+/// triangles whose three nodes are all in `fixed`, m (0 without such a triangle). The
+/// stiffening law reads a support displacement over this length as a strain.
+fn support_length(mesh: &crate::mesh::TetMesh, triangles: &[[usize; 3]], fixed: &[usize]) -> f64 {
+    let mut is_fixed = vec![false; mesh.nodes.len()];
+    for &i in fixed {
+        if let Some(f) = is_fixed.get_mut(i) {
+            *f = true;
+        }
+    }
+    let area: f64 = triangles
+        .iter()
+        .filter(|t| t.iter().all(|&n| is_fixed[n]))
+        .map(|t| {
+            let [a, b, c] = t.map(|n| mesh.nodes[n]);
+            0.5 * (b - a).cross(&(c - a)).norm()
+        })
+        .sum();
+    let volume: f64 = mesh
+        .tets
+        .iter()
+        .map(|t| {
+            let [a, b, c, d] = t.map(|n| mesh.nodes[n]);
+            ((b - a).cross(&(c - a)).dot(&(d - a)) / 6.0).abs()
+        })
+        .sum();
+    if area > 0.0 {
+        volume / area
+    } else {
+        0.0
     }
 }

@@ -1,7 +1,10 @@
 //! Physics step benchmark: the probe indents a probing site and slides around it on the
 //! surface with contact active the whole time; prints ONE JSON line.
 //!
-//! `cargo run --release -p physics-node --bin physics-bench -- --mesh SPEC --seconds 5`
+//! `cargo run --release -p physics-node --bin physics-bench -- [--launch FILE] [--mesh SPEC] --seconds 5`
+//!
+//! The scene is the default session's (`launch-config/launch/default.toml`, the calibrated
+//! tissue), or the `[scene]` of `--launch FILE`; every option given overrides its key.
 //! SPEC: default:coarse | default:fine | default:finest | study:lateral | study:medial | FILE.msh
 use anyhow::{bail, Context};
 use clap::Parser;
@@ -13,18 +16,22 @@ use std::time::Instant;
 #[derive(Parser, Debug)]
 #[command(name = "physics-bench")]
 struct Args {
-    /// Mesh spec (see module docs).
-    #[arg(long, default_value = "default:coarse")]
-    mesh: String,
+    /// Launch file whose `[scene]` is stepped (default: the embedded default session's).
+    #[arg(long)]
+    launch: Option<PathBuf>,
+    /// Mesh spec (see module docs; default: the scene's).
+    #[arg(long)]
+    mesh: Option<String>,
     /// Wall-clock seconds of timed stepping.
     #[arg(long, default_value_t = 5.0)]
     seconds: f64,
-    /// Coulomb friction of the contact.
-    #[arg(long, default_value_t = 0.0)]
-    friction: f64,
-    /// FEM linear solver (`cg`, `cg-jacobi`, `cg-cholesky`, `cg-warped-cholesky`, `direct`).
-    #[arg(long, default_value = "cg")]
-    solver: launch_config::scene::SolverKind,
+    /// Coulomb friction of the contact (default: the scene's).
+    #[arg(long)]
+    friction: Option<f64>,
+    /// FEM linear solver (`cg`, `cg-jacobi`, `cg-cholesky`, `cg-warped-cholesky`, `direct`;
+    /// default: the scene's).
+    #[arg(long)]
+    solver: Option<launch_config::scene::SolverKind>,
     /// CG iteration cap (default: the scene's, SOFA's 25).
     #[arg(long)]
     cg_iterations: Option<u32>,
@@ -42,9 +49,9 @@ struct Args {
     /// comparisons of the force).
     #[arg(long)]
     steps: Option<usize>,
-    /// Element rotation (`qr` = SOFA's "large", or `polar`).
-    #[arg(long, default_value = "qr")]
-    rotation: launch_config::scene::RotationMethod,
+    /// Element rotation (`qr` = SOFA's "large", or `polar`; default: the scene's).
+    #[arg(long)]
+    rotation: Option<launch_config::scene::RotationMethod>,
     /// Study data folder (default: $ARTHROSIM_DATA, else ../shared/data).
     #[arg(long)]
     data: Option<PathBuf>,
@@ -63,15 +70,33 @@ fn main() -> anyhow::Result<()> {
         bail!("--seconds must be > 0");
     }
     let data_dir = args.data.clone().unwrap_or_else(launch_config::data_dir);
-    let mut scene = launch_config::SceneConfig::default();
-    scene.meniscus.mesh = args.mesh.clone();
-    if args.mesh.starts_with("study:") {
-        // The study's mesh carries its own fixed set (lateral) — the loader decides.
-        scene.meniscus.fixed = "inferior".into();
+    let launch = match &args.launch {
+        Some(path) => {
+            launch_config::load(path).with_context(|| format!("loading {}", path.display()))?
+        }
+        None => launch_config::load_str(
+            launch_config::DEFAULT_LAUNCH,
+            launch_config::DEFAULT_LAUNCH_ORIGIN,
+        )
+        .context("the embedded default launch file")?,
+    };
+    let mut scene = launch.scene;
+    if let Some(mesh) = &args.mesh {
+        scene.meniscus.mesh = mesh.clone();
+        if mesh.starts_with("study:") {
+            // The study's mesh carries its own fixed set (lateral) — the loader decides.
+            scene.meniscus.fixed = "inferior".into();
+        }
     }
-    scene.contact.friction = args.friction;
-    scene.solver.kind = args.solver;
-    scene.solver.rotation = args.rotation;
+    if let Some(f) = args.friction {
+        scene.contact.friction = f;
+    }
+    if let Some(k) = args.solver {
+        scene.solver.kind = k;
+    }
+    if let Some(r) = args.rotation {
+        scene.solver.rotation = r;
+    }
     if let Some(n) = args.cg_iterations {
         scene.solver.cg_iterations = n;
     }
@@ -91,7 +116,7 @@ fn main() -> anyhow::Result<()> {
         other => bail!("--compliance {other}: expected prefetch or inline"),
     };
     let mut sim = Simulation::with_filling(&scene, &data_dir, filling)
-        .with_context(|| format!("building scene for {}", args.mesh))?;
+        .with_context(|| format!("building scene for {}", scene.meniscus.mesh))?;
     let build_s = t_build.elapsed().as_secs_f64();
 
     let (site, normal) = probing_site(&sim);
@@ -156,7 +181,10 @@ fn main() -> anyhow::Result<()> {
         "correction": per_step(t1.correction_ns, times_before.correction_ns),
     });
     let json = serde_json::json!({
-        "mesh": args.mesh,
+        "mesh": scene.meniscus.mesh,
+        "support_stiffness": scene.meniscus.support_stiffness,
+        "strain_stiffening": scene.material.strain_stiffening,
+        "support_length_m": sim.fem().support_length(),
         "nodes": sim.node_count(),
         "tets": sim.tet_count(),
         "steps": steps,
@@ -169,14 +197,14 @@ fn main() -> anyhow::Result<()> {
         "contacts_mean": contacts_sum as f64 / steps as f64,
         "contact_fraction": in_contact as f64 / steps as f64,
         "force_mean_n": force_sum / steps as f64,
-        "solver": args.solver,
-        "rotation": args.rotation,
+        "solver": scene.solver.kind,
+        "rotation": scene.solver.rotation,
         "cg_iterations": scene.solver.cg_iterations,
         "cg_tolerance": scene.solver.cg_tolerance,
         "cg_matrix": scene.solver.cg_matrix,
         "stiffness_rotation_tolerance": scene.solver.stiffness_rotation_tolerance,
         "stiffness_updates_mean": stiffness_updates as f64 / steps as f64,
-        "friction": args.friction,
+        "friction": scene.contact.friction,
         "compliance_slots": slots,
         "compliance_complete": complete,
         "compliance_misses": sim.compliance_misses() - misses_before,

@@ -205,7 +205,8 @@ impl FemModel {
         let k_scale = dt * beta + dt * dt;
         self.assemble(true, k_scale, true, true);
         for (row, &node) in self.free_nodes.iter().enumerate() {
-            let d = (1.0 + dt * alpha) * self.mass[node] + k_scale * self.support[node];
+            // The rest system: the support at its rest stiffness, whatever the committed state.
+            let d = (1.0 + dt * alpha) * self.mass[node] + k_scale * self.support_rest[node];
             let blk = &mut self.a[self.pattern.diag[row]];
             blk[(0, 0)] += d;
             blk[(1, 1)] += d;

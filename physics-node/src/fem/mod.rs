@@ -116,8 +116,14 @@ pub struct FemModel {
     x_free: Vec<Point3<f64>>,
     v_free: Vec<Vector3<f64>>,
     mass: Vec<f64>,
-    /// Spring stiffness to the rest position per node (support), N/m.
+    /// Spring stiffness to the rest position per node (support), N/m: the secant stiffness
+    /// of the committed state (`support_rest` stiffened, see `stiffening`).
     support: Vec<f64>,
+    /// Support spring stiffness per node at rest, N/m (0: not supported).
+    support_rest: Vec<f64>,
+    /// Mean thickness of the body above its support (volume / supported area), m: the length
+    /// that turns a support displacement into a strain.
+    support_length: f64,
     /// Free row of each node, NO_BLOCK when held.
     free_index: Vec<u32>,
     free_nodes: Vec<usize>,

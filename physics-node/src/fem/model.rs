@@ -94,7 +94,9 @@ impl FemModel {
             x_free: mesh.nodes.clone(),
             v_free: vec![Vector3::zeros(); n],
             mass,
+            support_rest: support.clone(),
             support,
+            support_length: 0.0,
             free_index,
             free_nodes,
             elem_rot: vec![UnitQuaternion::identity(); mesh.tets.len()],
@@ -239,11 +241,56 @@ impl FemModel {
         self.prepare_solver()
     }
 
+    /// Support spring stiffness of every supported node at rest, N/m (a degeneration grade
+    /// scales it with the modulus). Refactors like [`Self::set_material`].
+    pub fn set_support_stiffness(&mut self, stiffness: f64) -> Result<(), FemError> {
+        if !(stiffness.is_finite() && stiffness > 0.0) {
+            return Err(FemError::Input(format!(
+                "support stiffness must be finite and > 0 N/m, got {stiffness}"
+            )));
+        }
+        for (k, s) in self.support_rest.iter_mut().zip(self.support.iter_mut()) {
+            if *k > 0.0 {
+                *k = stiffness;
+                *s = stiffness;
+            }
+        }
+        self.stiffening.support_factor = 1.0;
+        self.stiffening.support_displacement = 0.0;
+        self.upper32_k_scale = f64::NAN;
+        self.prepare_solver()
+    }
+
+    /// Sets the length over which a support displacement is a strain for the stiffening law
+    /// (the body's mean thickness above its support), m.
+    pub fn set_support_length(&mut self, length: f64) {
+        self.support_length = if length.is_finite() && length > 0.0 {
+            length
+        } else {
+            0.0
+        };
+    }
+
+    /// Length over which a support displacement is a strain, m (0: not set).
+    pub fn support_length(&self) -> f64 {
+        self.support_length
+    }
+
+    /// Largest support displacement of the committed state at the last `free_motion`, m,
+    /// and the support's stiffening factor at it (1 with the linear law or no support).
+    pub fn support_hardening(&self) -> (f64, f64) {
+        (
+            self.stiffening.support_displacement,
+            self.stiffening.support_factor,
+        )
+    }
+
     /// Sets the strain-stiffening law (see [`StrainStiffening`]); the factors follow from the
     /// next step's committed state.
     pub fn set_stiffening(&mut self, law: StrainStiffening) {
         self.stiffening.law = law;
         self.stiffening.reset();
+        self.support.copy_from_slice(&self.support_rest);
         self.upper32_k_scale = f64::NAN;
     }
 
@@ -301,6 +348,7 @@ impl FemModel {
         self.dv.fill(0.0);
         self.upper32_k_scale = f64::NAN;
         self.stiffening.reset();
+        self.support.copy_from_slice(&self.support_rest);
     }
 
     // ---- assembly --------------------------------------------------------------------

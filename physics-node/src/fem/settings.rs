@@ -122,7 +122,10 @@ impl FemSettings {
             rayleigh_mass: scene.material.rayleigh_mass,
             rayleigh_stiffness: scene.material.rayleigh_stiffness,
             solver,
-            support_stiffness: scene.meniscus.support_stiffness,
+            // The support lumps collagenous structures of the meniscus' own kind (horn and
+            // coronary attachments): a degeneration grade softens it as it softens the tissue.
+            support_stiffness: scene.meniscus.support_stiffness
+                * super::Material::degeneration_factor(scene.material.degeneration_grade)?,
             project_tangent: true,
             rotation: scene.solver.rotation,
             cg_matrix: scene.solver.cg_matrix,

@@ -26,6 +26,13 @@ impl FemModel {
         // Secant modulus factors of the committed state (no-op for the linear law).
         self.stiffening
             .update(&self.tets, &self.rest_elems, &self.x, &self.elem_rot_m);
+        self.stiffening.update_support(
+            &self.support_rest,
+            &mut self.support,
+            &self.x,
+            &self.rest,
+            self.support_length,
+        );
         let (alpha, beta) = (
             self.settings.rayleigh_mass,
             self.settings.rayleigh_stiffness,

@@ -3,6 +3,13 @@
 //! factor (volume-weighted mean of the incident elements) for the stiffness-warped contact
 //! compliance.
 //!
+//! The elastic support stiffens by the same law: a supported node's spring stiffness is
+//! k · factor(|u| / L), with u the node's displacement from rest and L the body's mean
+//! thickness above its support (volume / supported area). The support lumps what holds the
+//! meniscus in the joint (horn and coronary attachments, the capsule, the cartilage under it),
+//! all collagenous and strain-stiffening as the tissue is, so one fitted rate describes both;
+//! dividing by L makes the support's displacement a strain of the body it carries.
+//!
 //! The factors are taken from the committed state at the start of a step (a secant modulus
 //! lagging one step), the way the element rotations of the corotational model are: the
 //! implicit step then treats them as constants. Allocation-free after construction.
@@ -22,6 +29,9 @@ pub(crate) struct StiffeningState {
     /// Volume-weighted mean factor of the elements around each node.
     pub node: Vec<f64>,
     node_volume: Vec<f64>,
+    /// Largest support displacement of the committed state, m, and the support factor at it.
+    pub support_displacement: f64,
+    pub support_factor: f64,
 }
 
 impl StiffeningState {
@@ -38,7 +48,41 @@ impl StiffeningState {
             elem_k: vec![1.0; tets.len()],
             node: vec![1.0; nodes],
             node_volume,
+            support_displacement: 0.0,
+            support_factor: 1.0,
         }
+    }
+
+    /// Secant support stiffness of the state `x`: `support[i] = support_rest[i] ·
+    /// factor(|x_i − rest_i| / length)` for every supported node (`support_rest[i] > 0`).
+    /// With the linear law the support stays at rest stiffness. Allocation-free.
+    pub fn update_support(
+        &mut self,
+        support_rest: &[f64],
+        support: &mut [f64],
+        x: &[Point3<f64>],
+        rest: &[Point3<f64>],
+        length: f64,
+    ) {
+        let mut largest = 0.0f64;
+        for (i, (&k, s)) in support_rest.iter().zip(support.iter_mut()).enumerate() {
+            if k <= 0.0 {
+                continue;
+            }
+            let u = (x[i] - rest[i]).norm();
+            largest = largest.max(u);
+            *s = if self.law.is_active() && length > 0.0 {
+                k * self.law.factor(u / length)
+            } else {
+                k
+            };
+        }
+        self.support_displacement = largest;
+        self.support_factor = if self.law.is_active() && length > 0.0 {
+            self.law.factor(largest / length)
+        } else {
+            1.0
+        };
     }
 
     /// Factors of the state `x` (element rotations by QR of F, falling back on `rotations`
@@ -79,5 +123,7 @@ impl StiffeningState {
     pub fn reset(&mut self) {
         self.elem.fill(1.0);
         self.node.fill(1.0);
+        self.support_displacement = 0.0;
+        self.support_factor = 1.0;
     }
 }

@@ -546,6 +546,38 @@ fn support_springs_carry_the_weight() {
     );
 }
 
+/// The support stiffens by the tissue's law, its displacement over the body's thickness
+/// read as a strain (the calibrated default tissue rests on it).
+#[test]
+fn stiffening_support_follows_the_law_of_its_displacement() {
+    let mesh = box_mesh(0.01, 0.01, 0.005, 2, 2, 1);
+    let support = nodes_where(&mesh, |p| p.z < 1e-9);
+    let s = FemSettings {
+        support_stiffness: 500.0,
+        ..settings(LinearSolver::Direct)
+    };
+    let mut m = FemModel::new(&mesh, Material::lateral(), &support, s).unwrap();
+    m.set_support_length(0.005);
+    m.set_stiffening(StrainStiffening::new(2.0).unwrap());
+    let i = support[0];
+    m.set_position(i, mesh.nodes[i] + Vector3::new(0.0, 0.0, -1e-3))
+        .unwrap();
+    m.free_motion(0.01, &zero_forces(&m)).unwrap();
+    let (u, f) = m.support_hardening();
+    assert!((u - 1e-3).abs() < 1e-12, "largest support displacement {u}");
+    assert!(
+        (f - (2.0f64 * 1e-3 / 0.005).exp()).abs() < 1e-12,
+        "factor {f}"
+    );
+    // The linear law leaves the support at its rest stiffness.
+    m.set_stiffening(StrainStiffening::NONE);
+    m.free_motion(0.01, &zero_forces(&m)).unwrap();
+    assert_eq!(m.support_hardening().1, 1.0);
+    // A softer support (a degeneration grade) is a new rest stiffness.
+    m.set_support_stiffness(500.0 * 0.59).unwrap();
+    assert!(m.set_support_stiffness(f64::NAN).is_err());
+}
+
 #[test]
 fn material_change_rescales_response() {
     let mut m = cube_model(LinearSolver::Direct);

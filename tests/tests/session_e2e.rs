@@ -106,6 +106,22 @@ fn bounded_default_session_covers_three_regions_and_leaves_nothing_running() {
         );
         let d = region["max_probe_displacement_m"].as_f64().unwrap();
         assert!(d > 0.0 && d < 0.02, "probe displacement {d} m");
+        // Issue 13, point 6: the study's two numbers together, from outside the project:
+        // mean normal force in contact −4.16 N simulated (−4.0 N measured) within ±25%, and a
+        // deepest probe displacement of the study's order (5–8 mm; the study: 7.7 mm).
+        eprintln!(
+            "{name}: mean F_n {f_n:.3} N, max displacement {:.2} mm",
+            d * 1e3
+        );
+        assert!(
+            (f_n + 4.16).abs() <= 0.25 * 4.16,
+            "{name}: mean normal force in contact {f_n:.3} N, study −4.16 N ± 25%"
+        );
+        assert!(
+            (0.005..=0.008).contains(&d),
+            "{name}: deepest probe displacement {:.2} mm, study 7.7 mm (5–8 mm)",
+            d * 1e3
+        );
     }
     let physics_hz = summary["summary"]["physics_hz"].as_f64().unwrap();
     assert!(physics_hz > 10.0, "physics rate {physics_hz} Hz");

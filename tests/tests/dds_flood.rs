@@ -244,6 +244,7 @@ fn measure(session_dir: &Path, context: &str) -> (f64, f64, f64, usize, (usize, 
     let mut own = 0;
     let mut max_distance: f64 = 0.0;
     let mut newest_stylus: Option<[f64; 3]> = None;
+    let mut first_driven = false;
     let mut tick_i = 0;
     let mut ticks_by_time: Vec<&recordings::channels::DeviceTick> = ticks.iter().collect();
     ticks_by_time.sort_by_key(|t| t.publish_ns);
@@ -259,13 +260,17 @@ fn measure(session_dir: &Path, context: &str) -> (f64, f64, f64, usize, (usize, 
             s.probe_pose.position.y,
             s.probe_pose.position.z,
         ];
-        if instances
+        let driven = instances
             .iter()
-            .any(|&i| by_seq.contains_key(&(i, s.device_sequence_used)))
-        {
+            .any(|&i| by_seq.contains_key(&(i, s.device_sequence_used)));
+        if driven {
             own += 1;
+            first_driven = true;
         }
-        if let Some(stylus) = newest_stylus {
+        // From the first step a device sample drove on: before it the probe waits at its start
+        // pose wherever the stylus is (46 mm from the hand's hover pose at the first step of
+        // a default session, with or without a flood).
+        if let (true, Some(stylus)) = (first_driven, newest_stylus) {
             max_distance = max_distance.max(distance(probe, stylus));
         }
     }

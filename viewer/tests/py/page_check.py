@@ -148,9 +148,20 @@ async def run(args):
     try:
         port_file = os.path.join(profile, "DevToolsActivePort")
         deadline = time.monotonic() + 30
-        while not os.path.exists(port_file) and time.monotonic() < deadline:
-            time.sleep(0.1)
-        port = int(open(port_file).read().split()[0])
+        # Chromium creates the file before it writes the port into it: wait for the port,
+        # not for the file (an empty file was read once under load).
+        port = None
+        while port is None and time.monotonic() < deadline:
+            try:
+                with open(port_file) as f:
+                    words = f.read().split()
+                port = int(words[0]) if words else None
+            except (FileNotFoundError, ValueError):
+                port = None
+            if port is None:
+                time.sleep(0.1)
+        if port is None:
+            raise RuntimeError(f"Chromium wrote no DevTools port into {port_file} within 30 s")
         targets = json.load(urllib.request.urlopen(f"http://127.0.0.1:{port}/json/list"))
         page = next(t for t in targets if t["type"] == "page")
         async with websockets.connect(page["webSocketDebuggerUrl"], max_size=None) as ws:

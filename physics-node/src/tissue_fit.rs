@@ -51,7 +51,7 @@ pub enum TissueFitError {
     Curve(#[from] ProbeCurveError),
     #[error("the scene's inferior surface is held rigidly (`fixed = \"none\"`?): a support stiffness needs supported nodes")]
     NoSupport,
-    #[error("no stiffening rate in {lo}..={hi} gives a press without physics faults that meets the table's peak")]
+    #[error("no stiffening rate in {lo}..={hi} gives a press that meets the table's peak without physics faults and with the tip still pressing at the table's last point")]
     NoFit { lo: f64, hi: f64 },
 }
 

@@ -216,6 +216,14 @@ pub enum GapCommand {
         /// Last line: one JSON object (cases, correct, accuracy, heldout_shrink_mean).
         #[arg(long)]
         json: bool,
+        /// Generate the truth with the replay model itself (the old, fast unit check) instead
+        /// of a refined mesh, a ball tip and a ±15% stiffness offset.
+        #[arg(long)]
+        self_consistent: bool,
+        /// Case labels to cycle through instead of the default cycle (`none`, `friction`,
+        /// `modulus+sensor`, ...).
+        #[arg(long = "case", value_name = "LABEL", value_delimiter = ',')]
+        only: Vec<String>,
     },
 }
 
@@ -228,6 +236,10 @@ pub struct RealityArgs {
     /// Seed of the generated strengths, noise and sampling.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Generate the truth with the replay model itself (no refined mesh, ball tip or
+    /// stiffness offset).
+    #[arg(long)]
+    pub self_consistent: bool,
     /// Experiment folder to write.
     #[arg(long, value_name = "DIR")]
     pub out: PathBuf,

@@ -322,6 +322,8 @@ fn gap_command(args: GapArgs) -> Result<i32> {
         keep,
         verbose,
         json,
+        self_consistent,
+        only,
     }) = args.command
     {
         if cases == 0 {
@@ -330,6 +332,12 @@ fn gap_command(args: GapArgs) -> Result<i32> {
         let opts = gap::selftest::SelftestOptions {
             keep_dir: keep,
             verbose,
+            cases: (!only.is_empty()).then_some(only),
+            fidelity: if self_consistent {
+                gap::reality::Fidelity::SelfConsistent
+            } else {
+                gap::reality::Fidelity::Reality
+            },
             diagnose: gap::Options {
                 progress: !json,
                 ..gap::Options::default()
@@ -466,7 +474,12 @@ fn reality(args: RealityArgs) -> Result<i32> {
         );
     }
     let effects: Vec<&str> = args.effects.iter().map(String::as_str).collect();
-    let spec = gap::reality::RealitySpec::from_effects(&effects, args.seed)?;
+    let fidelity = if args.self_consistent {
+        gap::reality::Fidelity::SelfConsistent
+    } else {
+        gap::reality::Fidelity::Reality
+    };
+    let spec = gap::reality::RealitySpec::from_effects_with(&effects, args.seed, fidelity)?;
     let truth = gap::reality::write_experiment(&spec, &args.out, &args.truth)
         .with_context(|| format!("writing the experiment to {}", args.out.display()))?;
     println!(

@@ -301,11 +301,32 @@ pub fn predict(
     grid: &mut Vec<[f64; 3]>,
     out: &mut Vec<[f64; 3]>,
 ) {
+    predict_scaled(c, theta, td, 1.0, grid, out)
+}
+
+/// [`predict`] with the tissue's force (everything before the device and the sensor) scaled
+/// by `tissue_scale`: the per-trial stiffness nuisance (see `fit::Nuisance::PerTrial`). The
+/// device and sensor stages are affine in the tissue force, so the prediction is
+/// `B + s·A` in it.
+pub fn predict_scaled(
+    c: &Candidate,
+    theta: &[f64],
+    td: &TrialData,
+    tissue_scale: f64,
+    grid: &mut Vec<[f64; 3]>,
+    out: &mut Vec<[f64; 3]>,
+) {
     grid.clear();
     grid.extend_from_slice(&td.base);
     let mut k = 0;
     let mut delay = 0.0;
+    let mut scaled = tissue_scale == 1.0;
     for &e in &c.0 {
+        if !scaled && matches!(e, Effect::Device | Effect::Sensor) {
+            grid.iter_mut()
+                .for_each(|g| *g = g.map(|v| v * tissue_scale));
+            scaled = true;
+        }
         let np = e.params().len();
         let th = &theta[k..k + np];
         k += np;
@@ -365,6 +386,10 @@ pub fn predict(
                 delay = th[0];
             }
         }
+    }
+    if !scaled {
+        grid.iter_mut()
+            .for_each(|g| *g = g.map(|v| v * tissue_scale));
     }
     out.clear();
     out.extend(

@@ -12,6 +12,9 @@
 //! poisson_ratio = 0.29                 # optional override
 //!
 //! [probe]
+//! model = "hook"                       # hook (default: the arthroscopic hook, whose second ball
+//!                                      # also presses) | sphere (a ball-tipped indenter) | path
+//!                                      # to an OBJ collision model (relative to the folder)
 //! tip_radius = 1.5e-3                  # m
 //! mass = 0.035                         # kg
 //!
@@ -98,6 +101,11 @@ impl Default for MaterialSpec {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ProbeSpec {
+    /// The probe's geometry as replayed: `hook`, `sphere` or an OBJ path (see the module
+    /// docs). A ball-tipped indenter replayed as the hook is ~10% too stiff (the hook's
+    /// second ball also presses), a systematic error every effect would have to beat.
+    #[serde(default = "default_probe_model")]
+    pub model: String,
     #[serde(default = "default_tip")]
     pub tip_radius: f64,
     #[serde(default = "default_probe_mass")]
@@ -106,12 +114,36 @@ pub struct ProbeSpec {
 fn default_tip() -> f64 {
     1.5e-3
 }
+fn default_probe_model() -> String {
+    "hook".into()
+}
+
+impl ProbeSpec {
+    /// The physics scene's `probe.model` for this probe (`hook` is the scene's `default`);
+    /// an OBJ path is resolved against the experiment folder `dir`.
+    pub fn scene_model(&self, dir: &Path) -> String {
+        match self.model.as_str() {
+            "hook" => "default".into(),
+            "sphere" => "sphere".into(),
+            path => dir.join(path).display().to_string(),
+        }
+    }
+
+    /// The experiment's name of a scene's `probe.model` (inverse of [`Self::scene_model`]).
+    pub fn model_of_scene(scene_model: &str) -> String {
+        match scene_model {
+            "default" | "" => "hook".into(),
+            other => other.into(),
+        }
+    }
+}
 fn default_probe_mass() -> f64 {
     0.035
 }
 impl Default for ProbeSpec {
     fn default() -> Self {
         ProbeSpec {
+            model: default_probe_model(),
             tip_radius: default_tip(),
             mass: default_probe_mass(),
         }
@@ -304,6 +336,12 @@ fn check_material(spec: &ExperimentSpec) -> Result<(), String> {
     }
     if !(spec.probe.tip_radius > 0.0 && spec.probe.mass > 0.0) {
         return Err("probe tip_radius and mass must be > 0".into());
+    }
+    let m = spec.probe.model.as_str();
+    if !(matches!(m, "hook" | "sphere") || m.to_ascii_lowercase().ends_with(".obj")) {
+        return Err(format!(
+            "probe model must be \"hook\", \"sphere\" or a path to an .obj, got {m:?}"
+        ));
     }
     Ok(())
 }

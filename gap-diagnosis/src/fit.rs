@@ -1,6 +1,6 @@
 //! Fitting candidates on calibration trials, scoring them on held-out trials, ranking.
 use super::dataset::{TrialData, VarGroup};
-use super::effects::{predict, Candidate, Effect, ParamSpec};
+use super::effects::{predict_scaled, Candidate, Effect, ParamSpec};
 use super::experiment::Region;
 use super::signal::{dot, sub};
 use serde::{Deserialize, Serialize};
@@ -120,7 +120,7 @@ const MSE_FLOOR: f64 = 1e-10;
 /// shows where the model is exact (a sensor bias before the tip touches) is fitted to, and
 /// judged by, the contact error instead. Every fit and score here is the Gaussian likelihood
 /// with one variance per phase, profiled out: Σ_g n_g ln(SSE_g / n_g).
-#[derive(Debug, Clone, Copy, Default)]
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct PhaseSse {
     pub sse: [f64; VarGroup::COUNT],
     pub n: [usize; VarGroup::COUNT],
@@ -179,15 +179,88 @@ impl PhaseSse {
     }
 }
 
+/// How the model's own stiffness error is carried by a candidate.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Nuisance {
+    /// As the candidate says (a global stiffness scale where it has `modulus`).
+    #[default]
+    Global,
+    /// Each trial's tissue force scaled by its own least-squares factor, profiled on the
+    /// samples that are fitted or scored. A model's stiffness error differs from site to
+    /// site (the discretisation locks differently where the specimen is thinner; a ball
+    /// rolls over facets): against a coarse replay tens of percent, far more than a small
+    /// tangential, onset or hold effect changes the normal force. Profiled per trial, that
+    /// error no longer decides whether friction, a tilt, a sensor, a relaxation or a device
+    /// bias is there; a scale cannot create a tangential force, a lag or a relaxation.
+    PerTrial,
+}
+
+/// Bounds of a per-trial scale (the refined study meshes are ~5× softer than coarse ones).
+const SITE_SCALE_RANGE: (f64, f64) = (0.05, 20.0);
+
+/// The prediction of `c` for one trial under `nuisance`; returns the tissue scale used.
+/// `mask` selects the samples the per-trial scale is profiled on.
+pub fn predict_in(
+    c: &Candidate,
+    theta: &[f64],
+    d: &TrialData,
+    mask: &[bool],
+    nuisance: Nuisance,
+    grid: &mut Vec<[f64; 3]>,
+    out: &mut Vec<[f64; 3]>,
+) -> f64 {
+    match nuisance {
+        Nuisance::Global => {
+            predict_scaled(c, theta, d, 1.0, grid, out);
+            1.0
+        }
+        Nuisance::PerTrial => {
+            // affine in the scale: out(s) = B + s·A (see `predict_scaled`)
+            predict_scaled(c, theta, d, 0.0, grid, out);
+            let b = out.clone();
+            predict_scaled(c, theta, d, 1.0, grid, out);
+            let (mut num, mut den) = (0.0, 0.0);
+            for j in 0..out.len() {
+                if mask[j] {
+                    let a = sub(out[j], b[j]);
+                    num += dot(a, sub(d.f[j], b[j]));
+                    den += dot(a, a);
+                }
+            }
+            let sc = if den > 0.0 {
+                (num / den).clamp(SITE_SCALE_RANGE.0, SITE_SCALE_RANGE.1)
+            } else {
+                1.0
+            };
+            for (o, bj) in out.iter_mut().zip(&b) {
+                let a = sub(*o, *bj);
+                *o = [bj[0] + sc * a[0], bj[1] + sc * a[1], bj[2] + sc * a[2]];
+            }
+            sc
+        }
+    }
+}
+
 /// Residual sums of `c` at `theta` over the masked samples, per phase.
 pub fn phase_sse(c: &Candidate, theta: &[f64], data: &[TrialData], mask: &[Vec<bool>]) -> PhaseSse {
+    phase_sse_in(c, theta, data, mask, Nuisance::Global)
+}
+
+/// [`phase_sse`] under a given [`Nuisance`].
+pub fn phase_sse_in(
+    c: &Candidate,
+    theta: &[f64],
+    data: &[TrialData],
+    mask: &[Vec<bool>],
+    nuisance: Nuisance,
+) -> PhaseSse {
     let (mut grid, mut out) = (Vec::new(), Vec::new());
     let mut acc = PhaseSse::default();
     for (d, m) in data.iter().zip(mask) {
         if !m.iter().any(|&b| b) {
             continue;
         }
-        predict(c, theta, d, &mut grid, &mut out);
+        predict_in(c, theta, d, m, nuisance, &mut grid, &mut out);
         for (j, (p, f)) in out.iter().zip(&d.f).enumerate() {
             if m[j] {
                 acc.push(d.var_group[j], sub(*p, *f));
@@ -226,13 +299,23 @@ impl Baseline {
 
 /// Sum of squared residuals over the masked samples.
 pub fn sse(c: &Candidate, theta: &[f64], data: &[TrialData], mask: &[Vec<bool>]) -> (f64, usize) {
+    sse_in(c, theta, data, mask, Nuisance::Global)
+}
+
+fn sse_in(
+    c: &Candidate,
+    theta: &[f64],
+    data: &[TrialData],
+    mask: &[Vec<bool>],
+    nuisance: Nuisance,
+) -> (f64, usize) {
     let (mut grid, mut out) = (Vec::new(), Vec::new());
     let (mut s, mut n) = (0.0, 0usize);
     for (d, m) in data.iter().zip(mask) {
         if !m.iter().any(|&b| b) {
             continue;
         }
-        predict(c, theta, d, &mut grid, &mut out);
+        predict_in(c, theta, d, m, nuisance, &mut grid, &mut out);
         for ((p, f), &b) in out.iter().zip(&d.f).zip(m) {
             if b {
                 let r = sub(*p, *f);
@@ -357,6 +440,18 @@ pub fn fit(
     inits: &[Vec<f64>],
     free: &[bool],
 ) -> (Vec<f64>, f64) {
+    fit_in(c, data, mask, inits, free, Nuisance::Global)
+}
+
+/// [`fit`] under a given [`Nuisance`].
+pub fn fit_in(
+    c: &Candidate,
+    data: &[TrialData],
+    mask: &[Vec<bool>],
+    inits: &[Vec<f64>],
+    free: &[bool],
+    nuisance: Nuisance,
+) -> (Vec<f64>, f64) {
     let specs: Vec<ParamSpec> = c.params().into_iter().map(|(_, p)| p).collect();
     let idx: Vec<usize> = (0..specs.len()).filter(|&i| free[i]).collect();
     let k = idx.len();
@@ -370,12 +465,12 @@ pub fn fit(
     };
     // the phase-variance likelihood (see `PhaseSse`)
     let obj = |u: &[f64]| {
-        let acc = phase_sse(c, &full(u), data, mask);
+        let acc = phase_sse_in(c, &full(u), data, mask, nuisance);
         acc.log_mse_sum(acc.total().1 as f64)
     };
     if k == 0 {
         let theta = full(&[]);
-        let plain = sse(c, &theta, data, mask).0;
+        let plain = sse_in(c, &theta, data, mask, nuisance).0;
         return (theta, plain);
     }
     let sub_unit = |th: &[f64]| -> Vec<f64> {
@@ -422,13 +517,19 @@ pub fn fit(
         best = (u, v);
     }
     let theta = full(&best.0);
-    let plain = sse(c, &theta, data, mask).0;
+    let plain = sse_in(c, &theta, data, mask, nuisance).0;
     (theta, plain)
 }
 
 /// Standard errors from the Gauss–Newton covariance s²(JᵀJ)⁻¹ at the optimum, for the
 /// `free` parameters (the others are held: 0).
-pub fn uncertainty(c: &Candidate, theta: &[f64], data: &[TrialData], free: &[bool]) -> Vec<f64> {
+pub fn uncertainty(
+    c: &Candidate,
+    theta: &[f64],
+    data: &[TrialData],
+    free: &[bool],
+    nuisance: Nuisance,
+) -> Vec<f64> {
     let specs: Vec<ParamSpec> = c.params().into_iter().map(|(_, p)| p).collect();
     let idx: Vec<usize> = (0..specs.len()).filter(|&i| free[i]).collect();
     let k = idx.len();
@@ -439,7 +540,8 @@ pub fn uncertainty(c: &Candidate, theta: &[f64], data: &[TrialData], free: &[boo
         let (mut grid, mut out) = (Vec::new(), Vec::new());
         let mut r = Vec::new();
         for d in data {
-            predict(c, th, d, &mut grid, &mut out);
+            let all = vec![true; d.t.len()];
+            predict_in(c, th, d, &all, nuisance, &mut grid, &mut out);
             for (p, f) in out.iter().zip(&d.f) {
                 r.extend_from_slice(&sub(*p, *f));
             }
@@ -511,6 +613,24 @@ pub struct CandidateScore {
     pub score: f64,
     #[serde(skip)]
     pub theta: Vec<f64>,
+    /// Held-out squared residuals per variance group (phase), pooled over trials, and per
+    /// trial: the verdict weighs an effect on the phases that carry it and asks that its gain
+    /// hold trial by trial.
+    #[serde(skip)]
+    pub heldout_groups: PhaseSse,
+    #[serde(skip)]
+    pub heldout_trials: Vec<PhaseSse>,
+    /// Parameters fitted per fold (calibration trials only): their spread is the jackknife
+    /// uncertainty of a fit across independent trials.
+    #[serde(skip)]
+    pub fold_theta: Vec<Vec<f64>>,
+    /// The global stiffness scale fitted with this candidate (the nuisance every candidate
+    /// carries; for `hardening` its small-strain scale).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stiffness_scale: Option<f64>,
+    /// The stiffness scale fitted per fold.
+    #[serde(skip)]
+    pub stiffness_folds: Vec<f64>,
     /// Held-out prediction at every measurement time, per trial.
     #[serde(skip)]
     pub heldout_pred: Vec<Vec<[f64; 3]>>,
@@ -541,6 +661,19 @@ pub fn score_candidate(
     baseline: &Baseline,
     inits: &[Vec<f64>],
 ) -> CandidateScore {
+    score_candidate_in(c, data, folds, baseline, inits, Nuisance::Global)
+}
+
+/// [`score_candidate`] under a given [`Nuisance`]: in `PerTrial` every trial, calibration
+/// or held out, gets its own tissue scale, profiled on its own samples.
+pub fn score_candidate_in(
+    c: &Candidate,
+    data: &[TrialData],
+    folds: &[Fold],
+    baseline: &Baseline,
+    inits: &[Vec<f64>],
+    nuisance: Nuisance,
+) -> CandidateScore {
     let all: Vec<Vec<bool>> = data.iter().map(|d| vec![true; d.t.len()]).collect();
     let n_all = data.iter().map(|d| 3 * d.t.len()).sum::<usize>();
     let ne_all = effective_n(n_all);
@@ -550,9 +683,9 @@ pub fn score_candidate(
         |acc: &PhaseSse, k: usize| acc.log_mse_sum(n_all as f64) + k as f64 * (n_all as f64).ln();
     let crit = |acc: &PhaseSse, k: usize| acc.log_mse_sum(ne_all) + k as f64 * ne_all.ln();
     let mut free = default_free(c);
-    let (mut theta, mut sse_all) = fit(c, data, &all, inits, &free);
+    let (mut theta, mut sse_all) = fit_in(c, data, &all, inits, &free, nuisance);
     let mut k = free.iter().filter(|&&f| f).count();
-    let mut acc_all = phase_sse(c, &theta, data, &all);
+    let mut acc_all = phase_sse_in(c, &theta, data, &all, nuisance);
     let mut bic = bic_of(&acc_all, k);
     if free.iter().any(|f| !f) {
         // the optional parameters (second Prony term) are kept only when they lower the
@@ -569,9 +702,9 @@ pub fn score_candidate(
         let mut fi = inits.to_vec();
         fi.push(theta.clone());
         fi.push(seeded);
-        let (theta2, sse2) = fit(c, data, &all, &fi, &all_free);
+        let (theta2, sse2) = fit_in(c, data, &all, &fi, &all_free, nuisance);
         let k2 = all_free.len();
-        let acc2 = phase_sse(c, &theta2, data, &all);
+        let acc2 = phase_sse_in(c, &theta2, data, &all, nuisance);
         // and the extra term must remove a quarter of what the simpler fit leaves: a few
         // percent is what it absorbs of other effects' model error (a tilt, a coarse mesh)
         if crit(&acc2, k2) < crit(&acc_all, k) - 10.0
@@ -585,27 +718,31 @@ pub fn score_candidate(
     let mut held_pred: Vec<Vec<[f64; 3]>> =
         data.iter().map(|d| vec![[0.0; 3]; d.t.len()]).collect();
     let mut held = PhaseSse::default();
+    let mut held_trials = vec![PhaseSse::default(); data.len()];
     let (mut grid, mut out) = (Vec::new(), Vec::new());
+    let mut fold_theta = Vec::with_capacity(folds.len());
     for f in folds {
         let mut fi = inits.to_vec();
         fi.push(theta.clone());
-        let (th, _) = fit(c, data, &f.calib, &fi, &free);
+        let (th, _) = fit_in(c, data, &f.calib, &fi, &free, nuisance);
+        fold_theta.push(th.clone());
         for (i, d) in data.iter().enumerate() {
             if !f.held[i].iter().any(|&b| b) {
                 continue;
             }
-            predict(c, &th, d, &mut grid, &mut out);
+            predict_in(c, &th, d, &f.held[i], nuisance, &mut grid, &mut out);
             for j in 0..d.t.len() {
                 if f.held[i][j] {
                     held_pred[i][j] = out[j];
                     held.push(d.var_group[j], sub(out[j], d.f[j]));
+                    held_trials[i].push(d.var_group[j], sub(out[j], d.f[j]));
                 }
             }
         }
     }
     let heldout_rmse = held.rmse();
     let heldout_weighted_rmse = held.weighted_rmse();
-    let se = uncertainty(c, &theta, data, &free);
+    let se = uncertainty(c, &theta, data, &free, nuisance);
     let params = c
         .params()
         .into_iter()
@@ -646,6 +783,11 @@ pub fn score_candidate(
         heldout_study_error: study,
         score,
         theta,
+        heldout_groups: held,
+        heldout_trials: held_trials,
+        fold_theta,
+        stiffness_scale: None,
+        stiffness_folds: vec![],
         heldout_pred: held_pred,
     }
 }

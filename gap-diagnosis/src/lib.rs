@@ -21,7 +21,7 @@
 //!     report.rendering_gap = Some(gap_diagnosis::session_rendering_gap(mcap)?);  // checked before the replays
 //! arthrosim gap --force-displacement FILE.csv --out REPORT_DIR
 //!     let report = gap_diagnosis::diagnose_force_displacement(file, &opts)?; gap_diagnosis::write_report(&report, out)?;
-//! arthrosim gap selftest --cases N --seed S [--json]
+//! arthrosim gap selftest --cases N --seed S [--json] [--case LABEL,...] [--self-consistent]
 //!     let r = gap_diagnosis::selftest::selftest(n, seed, &gap_diagnosis::selftest::SelftestOptions { verbose: true, ..Default::default() })?;
 //!     print!("{}", r.table());                          // per-case lines + confusion matrix
 //!     if json { println!("{}", serde_json::to_string(&r.summary())?) }  // cases, correct, accuracy, heldout_shrink_mean
@@ -31,7 +31,7 @@
 //!     calibrate::check_out_path(out)?;                  // before the replays
 //!     let (report, cal) = calibrate::calibrate_input(&input, base, &opts)?;
 //!     calibrate::write_launch(&cal, out)?;              // the verdict as scene keys, validated
-//! arthrosim reality --effect NAME[=STRENGTH] [--effect ...] --seed S --out DIR --truth FILE
+//! arthrosim reality --effect NAME[=STRENGTH] [--effect ...] --seed S --out DIR --truth FILE [--self-consistent]
 //!     let spec = gap_diagnosis::reality::RealitySpec::from_effects(&["friction=0.3", "sensor"], seed)?;
 //!     gap_diagnosis::reality::write_experiment(&spec, dir, truth_file)?;   // truth file must lie outside DIR
 //! ```
@@ -54,6 +54,7 @@ pub mod replay;
 pub mod selftest;
 pub mod session;
 pub mod signal;
+pub mod verdict;
 
 pub use effects::{Candidate, Effect};
 pub use experiment::{
@@ -63,7 +64,7 @@ pub use fd::diagnose_force_displacement;
 pub use model::{ForceModel, ProbePath, Variant};
 
 use dataset::{BuildOptions, TrialData};
-use fit::{make_folds, score_candidate, Baseline, CandidateScore};
+use fit::{make_folds, Baseline, CandidateScore};
 use metrics::{
     band_label, band_of, region_label, trial_metrics, Acc, GroupResidual, Phase, TrialMetrics,
 };
@@ -126,6 +127,10 @@ pub struct Options {
     pub pairs: bool,
     /// Minimum held-out shrink for an effect to count as identified.
     pub min_shrink: f64,
+    /// A global stiffness offset up to this fraction (beyond two standard errors) is the
+    /// model's own error, not `modulus`: the replay's discretisation and probe geometry alone
+    /// make it some 10–20% stiffer or softer than a specimen.
+    pub stiffness_tolerance: f64,
 }
 
 impl Default for Options {
@@ -136,6 +141,7 @@ impl Default for Options {
             effects: Effect::ALL.to_vec(),
             pairs: true,
             min_shrink: 0.08,
+            stiffness_tolerance: 0.25,
         }
     }
 }
@@ -206,6 +212,13 @@ pub struct Verdict {
     pub heldout_shrink: f64,
     pub params: Vec<fit::FittedParam>,
     pub reason: String,
+    /// Candidates the held-out data cannot tell apart from the verdict within their
+    /// uncertainty (the verdict's own name first; empty when it stands alone).
+    #[serde(default)]
+    pub indistinguishable: Vec<String>,
+    /// What would separate the indistinguishable candidates (a deeper press, ...).
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub separate_by: String,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -221,6 +234,8 @@ pub struct Report {
     pub ranking: Vec<CandidateScore>,
     pub heldout: Heldout,
     pub verdict: Verdict,
+    /// The model-error floor estimated from the data (what no effect is credited with).
+    pub floor: verdict::Floor,
     pub elapsed_s: f64,
     pub trial_reports: Vec<TrialReport>,
     /// Re-simulations left out as diverged (`trial: variant`); the effects needing them
@@ -383,78 +398,37 @@ pub fn diagnose_data(
         .copied()
         .filter(|&e| data.iter().all(|d| d.has_resims(e)))
         .collect();
-    let bar = dataset::progress_bar(opts.progress, usable.len() as u64, "fitting");
-    let mut singles: Vec<CandidateScore> = usable
-        .par_iter()
-        .map(|&e| {
-            let s = score_candidate(&Candidate::single(e), data, &folds, &base, &[]);
-            if let Some(b) = &bar {
-                b.inc(1);
-            }
-            s
-        })
-        .collect();
-    if let Some(b) = bar {
-        b.finish_and_clear();
-    }
-    singles.sort_by(|a, b| a.score.total_cmp(&b.score));
-    let mut ranking = singles.clone();
-    if opts.pairs {
-        // every pair: a second effect can be invisible alone while the first dominates the
-        // residual, and two can hide each other (a tilt's extra force under a relaxation's
-        // loss: neither alone beat the baseline)
-        let top: Vec<&CandidateScore> = singles.iter().collect();
-        let mut pairs: Vec<(Candidate, Vec<f64>)> = Vec::new();
-        for t in &top {
-            let a = Effect::parse(&t.effect).unwrap();
-            for o in &singles {
-                let b = Effect::parse(&o.effect).unwrap();
-                if !fit::pair_allowed(a, b) {
-                    continue;
-                }
-                let c = Candidate::pair(a, b);
-                if pairs.iter().any(|(p, _)| *p == c) {
-                    continue;
-                }
-                let theta_of = |e: Effect| {
-                    if e == a {
-                        t.theta.clone()
-                    } else {
-                        o.theta.clone()
-                    }
-                };
-                let init: Vec<f64> = c.0.iter().flat_map(|&e| theta_of(e)).collect();
-                pairs.push((c, init));
-            }
-        }
-        let bar = dataset::progress_bar(opts.progress, pairs.len() as u64, "pairs");
-        let scored: Vec<CandidateScore> = pairs
-            .par_iter()
-            .map(|(c, init)| {
-                let s = score_candidate(c, data, &folds, &base, std::slice::from_ref(init));
-                if let Some(b) = &bar {
-                    b.inc(1);
-                }
-                s
-            })
-            .collect();
-        if let Some(b) = bar {
-            b.finish_and_clear();
-        }
-        ranking.extend(scored);
-    }
-    ranking.sort_by(|a, b| a.score.total_cmp(&b.score));
-
-    // two effects need several independent trials to be told apart (not one table)
-    let verdict = decide(
-        &singles,
-        &ranking,
+    let scores = score_all(data, &usable, &folds, &base, opts);
+    let (mut verdict, floor, named) = verdict::decide(
+        &verdict::Scored {
+            reference: &scores.reference,
+            singles: &scores.singles,
+            local_reference: &scores.local_reference,
+            local_singles: &scores.local_singles,
+            local_pairs: &scores.local_pairs,
+        },
+        data,
         r0,
         noise,
-        opts.min_shrink,
-        data.len() >= 3,
+        opts,
     );
-    let winner = ranking.iter().find(|c| c.effect == verdict.effect);
+    let mut ranking = scores.ranking();
+    // the named effects scored together as the model a calibration would run (one global
+    // stiffness, no per-trial scales): its parameters and held-out shrink are the verdict's
+    if !named.is_empty() {
+        let mut v = named.clone();
+        v.sort(); // the order effects apply in
+        let c = Candidate(v);
+        let mut w = score_one(&c, fit::Nuisance::Global, data, &folds, &base, &[]);
+        w.effect = verdict.effect.clone();
+        verdict.params = w.params.clone();
+        verdict.heldout_shrink = w.heldout_shrink;
+        ranking.retain(|r| r.effect != w.effect);
+        ranking.push(w);
+    }
+    let winner_name = (!named.is_empty()).then(|| verdict.effect.clone());
+    ranking.sort_by(|a, b| a.score.total_cmp(&b.score));
+    let winner = winner_name.and_then(|n| ranking.iter().find(|c| c.effect == n));
     let heldout = Heldout {
         scheme,
         baseline_rmse: r0,
@@ -498,6 +472,7 @@ pub fn diagnose_data(
         ranking,
         heldout,
         verdict,
+        floor,
         elapsed_s: start.elapsed().as_secs_f64(),
         trial_reports,
         diverged_replays: data.iter().flat_map(|d| d.diverged_labels()).collect(),
@@ -505,122 +480,205 @@ pub fn diagnose_data(
     })
 }
 
-/// The verdict: the best-ranked candidate if it beats the baseline beyond noise; a pair only
-/// when the best single leaves a residual well above noise and the pair removes much of it.
-///
-/// Shrinks and gains are weighed on the phase-weighted RMSE (one residual variance per phase,
-/// see [`fit::PhaseSse`]): a sensor bias of tenths of a newton is invisible in the plain RMSE
-/// under tens of newtons of contact force and a coarse mesh's model error, but is the whole
-/// residual before the tip touches, where the model is exact.
-fn decide(
-    singles: &[CandidateScore],
-    ranking: &[CandidateScore],
-    r0: f64,
-    noise: f64,
-    min_shrink: f64,
-    pairs_allowed: bool,
-) -> Verdict {
-    let none = |reason: String| Verdict {
-        effect: "none".into(),
-        heldout_shrink: 0.0,
-        params: vec![],
-        reason,
-    };
-    if r0 <= 1.15 * noise {
-        return none(format!(
-            "baseline residual {r0:.4} N is within noise ({noise:.4} N)"
-        ));
+/// `c` with the global stiffness nuisance: a modulus scale fitted jointly, unless `c`
+/// carries a scale of its own (`modulus`, `hardening`'s small-strain scale). No model is the
+/// specimen: without it a persistent stiffness offset is absorbed by whichever effect can
+/// bend towards it (`support`, `modulus`) and hides the small ones (friction in sliding).
+pub fn with_stiffness(c: &Candidate) -> Candidate {
+    if c.0
+        .iter()
+        .any(|e| matches!(e, Effect::Modulus | Effect::Hardening))
+    {
+        return c.clone();
     }
-    let best = match singles.first() {
-        Some(b) => b,
-        None => return none("no candidate could be assessed".into()),
+    let mut v = c.0.clone();
+    v.push(Effect::Modulus);
+    v.sort();
+    Candidate(v)
+}
+
+/// The parameters of effect `e` inside `theta` of candidate `c`.
+fn theta_of(c: &Candidate, theta: &[f64], e: Effect) -> Option<Vec<f64>> {
+    let mut k = 0;
+    for &x in &c.0 {
+        let n = x.params().len();
+        if x == e {
+            return theta.get(k..k + n).map(|s| s.to_vec());
+        }
+        k += n;
+    }
+    None
+}
+
+/// The stiffness scale of a fitted candidate (its modulus or hardening small-strain scale).
+fn stiffness_of(c: &Candidate, theta: &[f64]) -> Option<f64> {
+    theta_of(c, theta, Effect::Modulus)
+        .or_else(|| theta_of(c, theta, Effect::Hardening))
+        .map(|t| t[0])
+}
+
+/// Whether `e` is judged with a per-trial stiffness (see [`verdict::Scored`]): its
+/// signature is not a pattern of stiffness over sites, so the model's site-to-site
+/// stiffness error must not decide it.
+pub fn judged_per_trial(e: Effect) -> bool {
+    matches!(
+        e,
+        Effect::Friction
+            | Effect::Tilt
+            | Effect::Sensor
+            | Effect::Viscoelastic
+            | Effect::Device
+            | Effect::Hardening
+    )
+}
+
+/// Suffix of the ranking names of candidates scored with a per-trial stiffness.
+pub const PER_TRIAL_SUFFIX: &str = " | per-trial stiffness";
+
+/// Every scored candidate, by group (see [`verdict::Scored`]).
+struct Scores {
+    reference: CandidateScore,
+    singles: Vec<CandidateScore>,
+    local_reference: CandidateScore,
+    local_singles: Vec<CandidateScore>,
+    local_pairs: Vec<CandidateScore>,
+}
+
+impl Scores {
+    /// The ranking as reported: every candidate, per-trial ones marked.
+    fn ranking(&self) -> Vec<CandidateScore> {
+        let mark = |c: &CandidateScore| {
+            let mut c = c.clone();
+            c.effect.push_str(PER_TRIAL_SUFFIX);
+            c
+        };
+        let mut all = vec![self.reference.clone()];
+        all.extend(self.singles.iter().cloned());
+        all.push(mark(&self.local_reference));
+        all.extend(self.local_singles.iter().map(mark));
+        all.extend(self.local_pairs.iter().map(mark));
+        all
+    }
+}
+
+/// Scores a candidate under a nuisance; named by its effects without the nuisance.
+fn score_one(
+    c: &Candidate,
+    nuisance: fit::Nuisance,
+    data: &[TrialData],
+    folds: &[fit::Fold],
+    base: &Baseline,
+    inits: &[Vec<f64>],
+) -> CandidateScore {
+    let full = match nuisance {
+        fit::Nuisance::Global => with_stiffness(c),
+        // the per-trial scale is the stiffness: a global one on top would be redundant
+        fit::Nuisance::PerTrial => c.clone(),
     };
-    // identified: a clear held-out shrink, phase-weighted or plain, with positive evidence
-    let shrink = best.heldout_weighted_shrink.max(best.heldout_shrink);
-    if !(shrink >= min_shrink && best.delta_bic <= -10.0) {
-        // two effects that hide each other: the best pair, identified on its own and well
-        // ahead of every single
-        let pair = ranking
-            .iter()
-            .filter(|c| c.effect.contains('+'))
-            .min_by(|a, b| a.score.total_cmp(&b.score));
-        if let Some(pair) = pair.filter(|_| pairs_allowed) {
-            let pair_shrink = pair.heldout_weighted_shrink.max(pair.heldout_shrink);
-            let gain = (1.0 - pair.heldout_weighted_rmse / best.heldout_weighted_rmse)
-                .max(1.0 - pair.heldout_rmse / best.heldout_rmse);
-            if pair_shrink >= min_shrink
-                && pair.delta_bic <= -10.0
-                && gain > 0.2
-                && pair.score < best.score
-            {
-                return Verdict {
-                    effect: pair.effect.clone(),
-                    heldout_shrink: pair.heldout_shrink,
-                    params: pair.params.clone(),
-                    reason: format!(
-                        "no single effect shrinks the held-out RMSE clearly (best {} {:.1}%); \
-                         the pair {} does: {:.4} → {:.4} N ({:.1}%; {:.1}% phase-weighted), ΔBIC {:.1}",
-                        best.effect,
-                        100.0 * best.heldout_shrink,
-                        pair.effect,
-                        r0,
-                        pair.heldout_rmse,
-                        100.0 * pair.heldout_shrink,
-                        100.0 * pair.heldout_weighted_shrink,
-                        pair.delta_bic
-                    ),
-                };
+    let mut s = fit::score_candidate_in(&full, data, folds, base, inits, nuisance);
+    s.effect = if c.0.is_empty() {
+        "stiffness".into()
+    } else {
+        c.name()
+    };
+    s.stiffness_scale = stiffness_of(&full, &s.theta);
+    s.stiffness_folds = s
+        .fold_theta
+        .iter()
+        .filter_map(|t| stiffness_of(&full, t))
+        .collect();
+    s
+}
+
+/// Scores the global group (the stiffness-only reference `modulus`, `support`, `mesh`, each
+/// with the global scale) and the local group (no effect, every other effect alone and every
+/// allowed pair of them, each trial with its own stiffness).
+fn score_all(
+    data: &[TrialData],
+    usable: &[Effect],
+    folds: &[fit::Fold],
+    base: &Baseline,
+    opts: &Options,
+) -> Scores {
+    use fit::Nuisance::{Global, PerTrial};
+    let global: Vec<Effect> = usable
+        .iter()
+        .copied()
+        .filter(|&e| e != Effect::Modulus && !judged_per_trial(e))
+        .collect();
+    let local: Vec<Effect> = usable
+        .iter()
+        .copied()
+        .filter(|&e| judged_per_trial(e))
+        .collect();
+    let mut jobs: Vec<(Candidate, fit::Nuisance)> = vec![
+        (Candidate::single(Effect::Modulus), Global),
+        (Candidate(vec![]), PerTrial),
+    ];
+    jobs.extend(global.iter().map(|&e| (Candidate::single(e), Global)));
+    jobs.extend(local.iter().map(|&e| (Candidate::single(e), PerTrial)));
+    let bar = dataset::progress_bar(opts.progress, jobs.len() as u64, "fitting");
+    let mut scored: Vec<CandidateScore> = jobs
+        .par_iter()
+        .map(|(c, n)| {
+            let s = score_one(c, *n, data, folds, base, &[]);
+            if let Some(b) = &bar {
+                b.inc(1);
+            }
+            s
+        })
+        .collect();
+    if let Some(b) = bar {
+        b.finish_and_clear();
+    }
+    let local_singles = scored.split_off(2 + global.len());
+    let singles = scored.split_off(2);
+    let local_reference = scored.pop().expect("two references");
+    let reference = scored.pop().expect("two references");
+    let mut local_pairs = Vec::new();
+    if opts.pairs {
+        // every pair: a second effect can be invisible alone while the first dominates the
+        // residual, and two can hide each other (a tilt's extra force under a relaxation's
+        // loss: neither alone beat the baseline)
+        let mut pairs: Vec<(Candidate, Vec<f64>)> = Vec::new();
+        for (i, &a) in local.iter().enumerate() {
+            for &b in &local[i + 1..] {
+                if !fit::pair_allowed(a, b) {
+                    continue;
+                }
+                let c = Candidate::pair(a, b);
+                // start from each single's optimum
+                let init: Vec<f64> =
+                    c.0.iter()
+                        .flat_map(|&e| {
+                            let k = local.iter().position(|&x| x == e).expect("a local effect");
+                            local_singles[k].theta.clone()
+                        })
+                        .collect();
+                pairs.push((c, init));
             }
         }
-        return none(format!(
-            "best candidate {} shrinks held-out RMSE by only {:.1}% ({:.1}% phase-weighted, ΔBIC {:.1})",
-            best.effect,
-            100.0 * best.heldout_shrink,
-            100.0 * best.heldout_weighted_shrink,
-            best.delta_bic
-        ));
-    }
-    let mut win = best;
-    let mut reason = format!(
-        "{} shrinks held-out RMSE {:.4} → {:.4} N ({:.1}%; {:.1}% phase-weighted), ΔBIC {:.1}",
-        best.effect,
-        r0,
-        best.heldout_rmse,
-        100.0 * best.heldout_shrink,
-        100.0 * best.heldout_weighted_shrink,
-        best.delta_bic
-    );
-    if pairs_allowed && best.heldout_rmse > 1.3 * noise {
-        if let Some(pair) = ranking
-            .iter()
-            .filter(|c| c.effect.contains('+'))
-            .min_by(|a, b| a.score.total_cmp(&b.score))
-        {
-            // what the pair removes of the single's residual, phase-weighted or plain
-            let gain = (1.0 - pair.heldout_weighted_rmse / best.heldout_weighted_rmse)
-                .max(1.0 - pair.heldout_rmse / best.heldout_rmse);
-            if gain > 0.2 && pair.score < best.score {
-                reason = format!(
-                    "{} leaves {:.4} N phase-weighted ({:.4} N plain, noise {:.4} N); the pair {} \
-                     removes {:.0}% more ({:.4} N phase-weighted, {:.4} N plain)",
-                    best.effect,
-                    best.heldout_weighted_rmse,
-                    best.heldout_rmse,
-                    noise,
-                    pair.effect,
-                    100.0 * gain,
-                    pair.heldout_weighted_rmse,
-                    pair.heldout_rmse
-                );
-                win = pair;
-            }
+        let bar = dataset::progress_bar(opts.progress, pairs.len() as u64, "pairs");
+        local_pairs = pairs
+            .par_iter()
+            .map(|(c, init)| {
+                let s = score_one(c, PerTrial, data, folds, base, std::slice::from_ref(init));
+                if let Some(b) = &bar {
+                    b.inc(1);
+                }
+                s
+            })
+            .collect();
+        if let Some(b) = bar {
+            b.finish_and_clear();
         }
     }
-    Verdict {
-        effect: win.effect.clone(),
-        heldout_shrink: win.heldout_shrink,
-        params: win.params.clone(),
-        reason,
+    Scores {
+        reference,
+        singles,
+        local_reference,
+        local_singles,
+        local_pairs,
     }
 }
 

@@ -457,6 +457,7 @@ fn trials_from_session(
             poisson_ratio: sc.material.poisson_ratio,
         },
         probe: ProbeSpec {
+            model: ProbeSpec::model_of_scene(&sc.probe.model),
             tip_radius: sc.probe.tip_radius,
             mass: sc.probe.mass,
         },

@@ -4,7 +4,7 @@
 //! on top) reproduces the held-out error the report promised.
 use gap_diagnosis::calibrate::{self, Input, SceneChange};
 use gap_diagnosis::dataset::{self, BuildOptions};
-use gap_diagnosis::reality::RealitySpec;
+use gap_diagnosis::reality::{Fidelity, RealitySpec};
 use gap_diagnosis::{self as gap, fit, Effect, Options, SimForceModel};
 use std::path::{Path, PathBuf};
 
@@ -50,7 +50,7 @@ fn resimulated_rmse(exp_dir: &Path, launch: &Path, dt: f64) -> f64 {
 fn close_the_loop(effect: &str, key: &str, within_below: f64) {
     let dir = scratch(effect.split('=').next().unwrap());
     let exp_dir = dir.join("experiment");
-    let mut spec = RealitySpec::from_effects(&[effect], 3).unwrap();
+    let mut spec = RealitySpec::from_effects_with(&[effect], 3, Fidelity::SelfConsistent).unwrap();
     spec.probings_per_region = 2;
     gap::reality::write_experiment(&spec, &exp_dir, &dir.join("truth.json")).unwrap();
 
@@ -129,7 +129,7 @@ fn calibrated_support_reproduces_the_promised_heldout_error() {
 fn verdict_none_writes_the_input_scene_unchanged() {
     let dir = scratch("none");
     let exp_dir = dir.join("experiment");
-    let mut spec = RealitySpec::from_effects(&["none"], 5).unwrap();
+    let mut spec = RealitySpec::from_effects_with(&["none"], 5, Fidelity::SelfConsistent).unwrap();
     spec.probings_per_region = 2;
     gap::reality::write_experiment(&spec, &exp_dir, &dir.join("truth.json")).unwrap();
     let (report, cal) =

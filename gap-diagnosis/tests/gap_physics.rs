@@ -95,6 +95,8 @@ fn cadaver_table_names_hardening() {
 #[test]
 fn small_selftest_identifies_effects() {
     let opts = SelftestOptions {
+        // the old self-consistent truth: a fast unit check of the statistics
+        fidelity: gap_diagnosis::reality::Fidelity::SelfConsistent,
         probings_per_region: 1,
         verbose: true,
         cases: Some(vec!["none".into(), "modulus".into(), "friction".into()]),

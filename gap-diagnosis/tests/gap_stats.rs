@@ -120,6 +120,8 @@ fn run(cases: usize, seed: u64, verbose: bool) -> gap_diagnosis::selftest::Selft
         e: 3.5e6,
     };
     let opts = SelftestOptions {
+        // the old self-consistent truth: a fast unit check of the statistics
+        fidelity: gap_diagnosis::reality::Fidelity::SelfConsistent,
         verbose,
         ..Default::default()
     };

@@ -1,16 +1,24 @@
-//! The verdict under a systematic model error (issue 15, point 2).
+//! The verdict under a systematic model error (issue 15, points 2 and 3).
 //!
-//! No model is the specimen: its stiffness is off by some tens of percent and its
-//! discretisation leaves an error that differs from site to site. Every candidate is
-//! therefore fitted with a global stiffness scale (the nuisance, see
-//! [`super::with_stiffness`]); the stiffness-only fit is the reference an effect must beat,
-//! and the model-error floor ([`Floor`]) is estimated from it and from how consistent the
-//! stiffness is between trials. An effect is named only when its held-out gain over the
-//! reference, on the phases that carry it (friction: sliding; a sensor: the contact onsets
-//! and ramps; ...), is larger than that floor and holds trial by trial (a paired t over the
-//! trials' held-out errors), so a gain that a few trials' model error hands to a flexible
-//! effect does not count. Candidates whose held-out errors cannot be told apart trial by
-//! trial are reported together.
+//! No model is the specimen: its stiffness is off by some tens of percent, and its
+//! discretisation leaves an error that differs from site to site. The candidates are
+//! therefore judged in two groups ([`Scored`]):
+//! - global (`hardening`, `support`, `mesh`): each fitted with one stiffness scale for the
+//!   specimen; the stiffness-only fit (`modulus`) is the reference they must beat, by more
+//!   than the model-error floor ([`Floor::min_gain`]: the trial-to-trial scatter of the
+//!   stiffness, estimated from the data). A scale beyond `Options::stiffness_tolerance` and
+//!   its own jackknife error is `modulus`; a persistent offset within it is nobody's effect.
+//! - local (`friction`, `tilt`, `sensor`, `viscoelastic`, `device`, and their pairs): each
+//!   trial with its own stiffness (`fit::Nuisance::PerTrial`), so the site-to-site stiffness
+//!   error is carried by the nuisance and not handed to whichever effect bends towards it.
+//!   The reference is the per-trial stiffness alone.
+//!
+//! In both, an effect is named only when its held-out gain over the reference, on the phases
+//! that carry it (friction: sliding; a sensor: the contact onsets and ramps; ...), is larger
+//! than the floor and holds trial by trial (a paired t over the trials' held-out errors, or the
+//! floor beaten in every trial), with ΔBIC ≤ −10. The two groups' choices are joined (at most
+//! two names). Candidates whose held-out errors cannot be told apart trial by trial are
+//! reported together.
 use super::dataset::{TrialData, VarGroup};
 use super::effects::Effect;
 use super::fit::{CandidateScore, PhaseSse};
@@ -56,12 +64,11 @@ pub struct Floor {
 /// The scored candidates, in two groups by how the model's stiffness error is carried.
 ///
 /// Global: the stiffness-only reference (`modulus`: one scale for the specimen) and the
-/// effects whose signature *is* a pattern of stiffness over sites and depths (`support`,
-/// `mesh`), each with the global scale. Local: the per-trial-stiffness reference (each trial
+/// effects whose signature *is* a pattern of stiffness over sites and depths (`hardening`,
+/// `support`, `mesh`), each with the global scale. Local: the per-trial-stiffness reference (each trial
 /// its own scale, see `fit::Nuisance::PerTrial`) and the effects that show where a stiffness
 /// cannot reach (friction and tilt on the tangential axes and in sliding, a sensor at the
-/// onsets, a relaxation in the hold, a device bias out of contact, a hardening in the shape of
-/// one press), singles and pairs.
+/// onsets, a relaxation in the hold, a device bias out of contact), singles and pairs.
 pub struct Scored<'a> {
     pub reference: &'a CandidateScore,
     pub singles: &'a [CandidateScore],
@@ -110,6 +117,8 @@ pub struct Evidence {
     pub gain_weighted: f64,
     /// Paired t of ln(SSE_other / SSE_this) over trials, and how many trials had such samples.
     pub t: f64,
+    /// The smallest of those per-trial gains (fraction, 1 − RMSE ratio).
+    pub min_trial_gain: f64,
     pub trials: usize,
     /// BIC difference (negative: this one is better).
     pub delta_bic: f64,
@@ -138,9 +147,15 @@ pub fn evidence(this: &CandidateScore, other: &CandidateScore, groups: &[VarGrou
             (na > 0 && sa > 0.0 && sb > 0.0).then(|| (sb / sa).ln())
         })
         .collect();
+    let min_d = d.iter().copied().fold(f64::INFINITY, f64::min);
     Evidence {
         gain,
         gain_weighted,
+        min_trial_gain: if d.is_empty() {
+            0.0
+        } else {
+            1.0 - (-0.5 * min_d).exp()
+        },
         t: paired_t(&d),
         trials: d.len(),
         delta_bic: this.bic - other.bic,
@@ -226,7 +241,7 @@ pub fn floor(reference: &CandidateScore, data: &[TrialData], noise: f64, opts: &
             "stiffness scale {s:.3} ± {:.3} (between trials ±{:.1}%); held-out RMSE with it \
              {:.4} N ({model_error:.4} N above the noise); an effect needs a held-out gain \
              ≥ {:.1}% on its phases, trial by trial (t ≥ {MIN_T}), or {:.1}% with a per-trial \
-             stiffness (friction, tilt, sensor, viscoelastic, device, hardening)",
+             stiffness (friction, tilt, sensor, viscoelastic, device)",
             s * ln_sd,
             100.0 * between,
             reference.heldout_rmse,
@@ -252,7 +267,9 @@ fn beats(
         ev = evidence(this, other, &[Loading, Hold, Unloading, Sliding]);
     }
     let ok = if n_trials >= MIN_TRIALS {
-        ev.t >= MIN_T
+        // trial by trial: significant on average, or beyond the floor in every trial (with
+        // three to five trials a large, consistent gain can miss t ≥ 3 on their spread)
+        (ev.t >= MIN_T || ev.min_trial_gain >= min_gain)
             && ev.trials >= MIN_TRIALS
             && ev.gain >= min_gain
             && ev.gain_weighted > 0.0
@@ -362,6 +379,22 @@ fn choose<'a>(
     }
 }
 
+/// The effects the local group names on its own (empty: none): what the global group is
+/// then fitted with, so a tilt's or a relaxation's change of the normal force is not read as
+/// a stiffness offset.
+pub fn local_effects(
+    reference: &CandidateScore,
+    singles: &[CandidateScore],
+    pairs: &[CandidateScore],
+    n_trials: usize,
+    opts: &Options,
+) -> Vec<Effect> {
+    choose(reference, singles, pairs, opts.min_shrink, n_trials, opts)
+        .win
+        .map(|c| c.effect.split('+').filter_map(Effect::parse).collect())
+        .unwrap_or_default()
+}
+
 /// Rivals the data cannot tell from `win`: not worse trial by trial on any phase (t < 2).
 fn indistinguishable_from(
     win: &CandidateScore,
@@ -434,7 +467,8 @@ pub fn decide(
     let mut same: Vec<String> = vec![];
     match (global.win, global.ev) {
         (Some(c), Some(ev)) => {
-            if stiffness_off(c) {
+            // hardening carries its own small-strain scale (modulus+hardening is nested)
+            if c.effect != "hardening" && stiffness_off(c) {
                 names.push(Effect::Modulus);
             }
             names.extend(c.effect.split('+').filter_map(Effect::parse));

@@ -203,3 +203,45 @@ fn force_displacement_table() {
     }
     let _ = std::fs::remove_dir_all(&d);
 }
+
+/// `[probe] model` names the replayed geometry: the hook by default, a ball, or an OBJ
+/// resolved against the folder; anything else is an input error naming experiment.toml.
+#[test]
+fn probe_model_is_named_and_checked() {
+    use gap_diagnosis::experiment::ProbeSpec;
+    let data = gap_diagnosis::data_dir();
+    let d = dir("probe");
+    std::fs::write(d.join("a.csv"), rows(6)).unwrap();
+    let write = |probe: &str| {
+        std::fs::write(
+            d.join("experiment.toml"),
+            format!("[probe]\n{probe}tip_radius = 0.002\n\n[[trial]]\nfile = \"a.csv\"\n"),
+        )
+        .unwrap()
+    };
+    write("");
+    let exp = load_experiment(&d, &data).unwrap();
+    assert_eq!(exp.spec.probe.model, "hook");
+    assert_eq!(exp.spec.probe.scene_model(&d), "default");
+    write("model = \"sphere\"\n");
+    let exp = load_experiment(&d, &data).unwrap();
+    assert_eq!(exp.spec.probe.model, "sphere");
+    assert_eq!(exp.spec.probe.scene_model(&d), "sphere");
+    assert_eq!(exp.spec.probe.tip_radius, 0.002);
+    write("model = \"tools/indenter.obj\"\n");
+    let exp = load_experiment(&d, &data).unwrap();
+    assert_eq!(
+        exp.spec.probe.scene_model(&d),
+        d.join("tools/indenter.obj").display().to_string()
+    );
+    write("model = \"cone\"\n");
+    let e = load_experiment(&d, &data).unwrap_err();
+    assert!(
+        e.to_string().contains("experiment.toml") && e.to_string().contains("probe model"),
+        "{e}"
+    );
+    // a recording's scene names map back
+    assert_eq!(ProbeSpec::model_of_scene("default"), "hook");
+    assert_eq!(ProbeSpec::model_of_scene("sphere"), "sphere");
+    let _ = std::fs::remove_dir_all(&d);
+}

@@ -598,16 +598,15 @@ fn score_all(
     opts: &Options,
 ) -> Scores {
     use fit::Nuisance::{Global, PerTrial};
+    // With fewer trials than the trial-by-trial test needs (a single force–displacement
+    // table), a per-trial scale is the global one fitted on less: everything is global.
+    let per_trial = |e: Effect| judged_per_trial(e) && data.len() >= verdict::MIN_TRIALS;
     let global: Vec<Effect> = usable
         .iter()
         .copied()
-        .filter(|&e| e != Effect::Modulus && !judged_per_trial(e))
+        .filter(|&e| e != Effect::Modulus && !per_trial(e))
         .collect();
-    let local: Vec<Effect> = usable
-        .iter()
-        .copied()
-        .filter(|&e| judged_per_trial(e))
-        .collect();
+    let local: Vec<Effect> = usable.iter().copied().filter(|&e| per_trial(e)).collect();
     // the local group first: what it names is part of every global candidate
     let mut jobs: Vec<Candidate> = vec![Candidate(vec![])];
     jobs.extend(local.iter().map(|&e| Candidate::single(e)));

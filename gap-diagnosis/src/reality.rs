@@ -482,15 +482,14 @@ pub fn nominal_match(
 }
 
 /// The model the diagnosis of a spec's experiment replays: the named mesh, the probe the
-/// experiment names (a ball-tipped truth is named `sphere`), converged offline solve (what
-/// `SimForceModel::for_experiment` builds from the written folder).
+/// experiment names (a ball-tipped truth is named `sphere`): what
+/// `SimForceModel::for_experiment` builds from the written folder.
 pub fn replay_model(spec: &RealitySpec, data_dir: &Path) -> SimForceModel {
     let mut scene = SceneConfig::default();
     scene.meniscus.mesh = spec.mesh.clone();
     if !spec.truth_probe.is_empty() {
         scene.probe.model = spec.truth_probe.clone();
     }
-    super::sim_model::converged_solver(&mut scene);
     SimForceModel::from_scene(scene, data_dir)
 }
 
@@ -553,7 +552,7 @@ fn protocol_jobs(
     Ok(jobs)
 }
 
-/// The physics model a spec's truth runs on: its `truth_mesh` and `truth_probe`, converged.
+/// The physics model a spec's truth runs on: its `truth_mesh` and `truth_probe`.
 pub fn truth_model(spec: &RealitySpec, data_dir: &Path) -> SimForceModel {
     let mut scene = SceneConfig::default();
     scene.meniscus.mesh = if spec.truth_mesh.is_empty() {
@@ -564,7 +563,6 @@ pub fn truth_model(spec: &RealitySpec, data_dir: &Path) -> SimForceModel {
     if !spec.truth_probe.is_empty() {
         scene.probe.model = spec.truth_probe.clone();
     }
-    super::sim_model::converged_solver(&mut scene);
     let mut m = SimForceModel::from_scene(scene, data_dir);
     // the self-consistent `mesh` truth refines the named mesh (see `truth_variant`)
     m.fine_mesh = super::sim_model::refined_spec(&spec.mesh);

@@ -30,26 +30,6 @@ pub fn refined_spec(spec: &str) -> Option<String> {
     Some(format!("default:{side}:{next}"))
 }
 
-/// CG iteration cap of an offline replay: a ceiling, not the stopping rule (the tolerance is).
-pub const OFFLINE_CG_ITERATIONS: u32 = 200;
-/// Relative residual an offline replay's CG stops at.
-pub const OFFLINE_CG_TOLERANCE: f64 = 1e-8;
-
-/// A converged linear solve for offline replays (gap, `reality`), instead of the live
-/// node's 25-iteration CG that must fit a 1 ms budget: CG preconditioned by the
-/// rotation-warped rest factor, in double precision, to a relative residual of
-/// [`OFFLINE_CG_TOLERANCE`], every element re-rotated every step. Offline there is no
-/// real-time budget, and a truncated solve under-resolves the tissue's deformation (a
-/// dissipation that is model error, not an effect).
-pub fn converged_solver(scene: &mut SceneConfig) {
-    use launch_config::scene::{CgMatrix, SolverKind};
-    scene.solver.kind = SolverKind::CgWarpedCholesky;
-    scene.solver.cg_iterations = OFFLINE_CG_ITERATIONS;
-    scene.solver.cg_tolerance = OFFLINE_CG_TOLERANCE;
-    scene.solver.cg_matrix = CgMatrix::F64;
-    scene.solver.stiffness_rotation_tolerance = 0.0;
-}
-
 impl SimForceModel {
     pub fn from_scene(scene: SceneConfig, data_dir: &Path) -> SimForceModel {
         let fine_mesh = refined_spec(&scene.meniscus.mesh);
@@ -86,8 +66,6 @@ impl SimForceModel {
         scene.probe.model = s.probe.scene_model(&exp.dir);
         scene.probe.tip_radius = s.probe.tip_radius;
         scene.probe.mass = s.probe.mass;
-        // an experiment is replayed offline: converged, not the live node's capped CG
-        converged_solver(&mut scene);
         // check the scene builds now, so a bad mesh is reported before any replay
         Simulation::new(&scene, data_dir).map_err(|e| GapError::Input {
             file: exp.dir.join("experiment.toml"),

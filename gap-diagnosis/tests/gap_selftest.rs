@@ -1,5 +1,5 @@
 //! The blind self-test on truth that differs from the replay model as reality does (issue 15,
-//! point 4): the truth runs on the refined mesh with a ball tip, converged, where the replay
+//! point 4): the truth runs on the refined mesh with a ball tip, where the replay
 //! presses a ball on the coarse mesh (the experiment names its probe); every case carries a
 //! random ±15% stiffness offset; the presses are the study's 0.5–1.2 mm; sampling is
 //! irregular at ~38 Hz with noise. The assertions are what the diagnosis reaches on these

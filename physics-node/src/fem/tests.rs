@@ -524,15 +524,21 @@ fn node_rotations_follow_a_rigid_rotation_and_correction_moves_nodes() {
     assert!((m.positions()[3] - before).z > 0.0);
 }
 
-#[test]
-fn support_springs_carry_the_weight() {
+/// A 10 × 10 × 5 mm block whose bottom nodes hang on springs of `stiffness` N/m each.
+fn supported_block(stiffness: f64) -> (TetMesh, Vec<usize>, FemModel) {
     let mesh = box_mesh(0.01, 0.01, 0.005, 2, 2, 1);
     let support = nodes_where(&mesh, |p| p.z < 1e-9);
     let s = FemSettings {
-        support_stiffness: 500.0,
+        support_stiffness: stiffness,
         ..settings(LinearSolver::Direct)
     };
-    let mut m = FemModel::new(&mesh, Material::lateral(), &support, s).unwrap();
+    let m = FemModel::new(&mesh, Material::lateral(), &support, s).unwrap();
+    (mesh, support, m)
+}
+
+#[test]
+fn support_springs_carry_the_weight() {
+    let (mesh, support, mut m) = supported_block(500.0);
     assert!(m.free_nodes().len() == mesh.nodes.len());
     m.solve_static(&zero_forces(&m), true, 30, 1e-10).unwrap();
     let weight: f64 = m.masses().iter().sum::<f64>() * 9.81;
@@ -550,13 +556,7 @@ fn support_springs_carry_the_weight() {
 /// read as a strain (the calibrated default tissue rests on it).
 #[test]
 fn stiffening_support_follows_the_law_of_its_displacement() {
-    let mesh = box_mesh(0.01, 0.01, 0.005, 2, 2, 1);
-    let support = nodes_where(&mesh, |p| p.z < 1e-9);
-    let s = FemSettings {
-        support_stiffness: 500.0,
-        ..settings(LinearSolver::Direct)
-    };
-    let mut m = FemModel::new(&mesh, Material::lateral(), &support, s).unwrap();
+    let (mesh, support, mut m) = supported_block(500.0);
     m.set_support_length(0.005);
     m.set_stiffening(StrainStiffening::new(2.0).unwrap());
     let i = support[0];

@@ -3,7 +3,7 @@
 //! profile, built first when it is another package's.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
 /// The workspace folder (this crate sits one level below it).
@@ -105,4 +105,34 @@ pub fn processes_of_session(session: &str) -> Vec<(u32, Vec<String>)> {
         }
     }
     found
+}
+
+/// Runs `command` (an `arthrosim run … --session SESSION`) with stdin closed and stdout and
+/// stderr captured on a thread, so full pipes never stall the session, for at most `timeout`.
+/// Past it, the command and every process of `session` are killed and the test panics.
+pub fn run_bounded(mut command: Command, session: &str, timeout: Duration) -> Output {
+    let child = command
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap_or_else(|e| panic!("starting {command:?}: {e}"));
+    let pid = child.id();
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let _ = tx.send(child.wait_with_output());
+    });
+    match rx.recv_timeout(timeout) {
+        Ok(output) => output.unwrap_or_else(|e| panic!("waiting for {command:?}: {e}")),
+        Err(_) => {
+            let _ = Command::new("kill").args(["-9", &pid.to_string()]).status();
+            for (pid, _) in processes_of_session(session) {
+                let _ = Command::new("kill").args(["-9", &pid.to_string()]).status();
+            }
+            panic!(
+                "{command:?} did not finish within {} s",
+                timeout.as_secs_f64()
+            )
+        }
+    }
 }

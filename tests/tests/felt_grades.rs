@@ -8,8 +8,8 @@
 //! (printed, not asserted).
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
+use std::process::Command;
+use std::time::Duration;
 
 /// `operator::Phase` codes of the press and the hold.
 const PRESS: u32 = 2;
@@ -52,31 +52,14 @@ fn run_session(bin: &Path, name: &str, launch: &str, seconds: u32) -> PathBuf {
     let file = out.with_extension("toml");
     std::fs::write(&file, launch).unwrap();
     let session = format!("{name}-{}", std::process::id());
-    let child = Command::new(bin)
+    let mut command = Command::new(bin);
+    command
         .arg("run")
         .arg(&file)
         .args(["--seconds", &seconds.to_string(), "--plain", "--out"])
         .arg(&out)
-        .args(["--session", &session])
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("start arthrosim run");
-    let deadline = Instant::now() + Duration::from_secs(180);
-    let (tx, rx) = std::sync::mpsc::channel();
-    std::thread::spawn(move || {
-        let _ = tx.send(child.wait_with_output());
-    });
-    let output = rx
-        .recv_timeout(deadline - Instant::now())
-        .unwrap_or_else(|_| {
-            for (pid, _) in tests::processes_of_session(&session) {
-                let _ = Command::new("kill").args(["-9", &pid.to_string()]).status();
-            }
-            panic!("{name}: arthrosim run did not finish within 180 s")
-        })
-        .expect("arthrosim run");
+        .args(["--session", &session]);
+    let output = tests::run_bounded(command, &session, Duration::from_secs(180));
     let context = format!(
         "--- stdout\n{}\n--- stderr\n{}",
         String::from_utf8_lossy(&output.stdout),

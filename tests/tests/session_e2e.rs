@@ -4,7 +4,7 @@
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 /// The `arthrosim` binary of this test's profile, built (or brought up to date) first.
 fn arthrosim_binary() -> PathBuf {
@@ -26,38 +26,16 @@ fn bounded_default_session_covers_three_regions_and_leaves_nothing_running() {
     let out = std::env::temp_dir().join(format!("arthrosim-e2e-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&out);
 
-    let mut child = Command::new(&bin)
+    // 20 s of session plus start-up (mesh, compliance) and ordered shutdown, bounded.
+    let mut command = Command::new(&bin);
+    command
         .args(["run", "--seconds", "20", "--plain", "--out"])
         .arg(&out)
-        .args(["--session", &session])
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("start arthrosim run");
-    // Read the output on threads so full pipes never stall the session.
-    let stdout = child.stdout.take().unwrap();
-    let stderr = child.stderr.take().unwrap();
-    let out_reader =
-        std::thread::spawn(move || std::io::read_to_string(stdout).unwrap_or_default());
-    let err_reader =
-        std::thread::spawn(move || std::io::read_to_string(stderr).unwrap_or_default());
-
-    // 20 s of session plus start-up (mesh, compliance) and ordered shutdown, bounded.
-    let deadline = Instant::now() + Duration::from_secs(240);
-    let status = loop {
-        if let Some(status) = child.try_wait().unwrap() {
-            break status;
-        }
-        if Instant::now() > deadline {
-            let _ = child.kill();
-            let _ = child.wait();
-            panic!("arthrosim run did not finish within 240 s");
-        }
-        std::thread::sleep(Duration::from_millis(100));
-    };
-    let stdout = out_reader.join().unwrap();
-    let stderr = err_reader.join().unwrap();
+        .args(["--session", &session]);
+    let output = tests::run_bounded(command, &session, Duration::from_secs(240));
+    let status = output.status;
+    let stdout = String::from_utf8_lossy(&output.stdout).into_owned();
+    let stderr = String::from_utf8_lossy(&output.stderr).into_owned();
     let context = format!("--- stdout\n{stdout}\n--- stderr\n{stderr}");
 
     // No node of this session is left, whatever the outcome.

@@ -230,6 +230,24 @@ pub struct BridgeStreams {
     pub degeneration_grade: StreamConfig,
 }
 
+impl BridgeStreams {
+    /// The settings of an outbound session topic.
+    pub fn of(&self, topic: msgs::ros_mapping::Topic) -> &StreamConfig {
+        use msgs::ros_mapping::Topic;
+        match topic {
+            Topic::ProbePose => &self.probe_pose,
+            Topic::ProbeWrench => &self.probe_wrench,
+            Topic::DeviceWrench => &self.device_wrench,
+            Topic::JointStates => &self.joint_states,
+            Topic::Buttons => &self.buttons,
+            Topic::Mesh => &self.mesh,
+            Topic::Contacts => &self.contacts,
+            Topic::Tf => &self.tf,
+            Topic::Diagnostics => &self.diagnostics,
+        }
+    }
+}
+
 impl Default for BridgeStreams {
     fn default() -> Self {
         BridgeStreams {

@@ -93,7 +93,10 @@ pub enum Topic {
 }
 
 impl Topic {
-    pub const ALL: [Topic; 9] = [
+    /// How many session topics there are (the length of [`Topic::ALL`]).
+    pub const COUNT: usize = 9;
+
+    pub const ALL: [Topic; Topic::COUNT] = [
         Topic::ProbePose,
         Topic::ProbeWrench,
         Topic::DeviceWrench,
@@ -103,6 +106,19 @@ impl Topic {
         Topic::Contacts,
         Topic::Tf,
         Topic::Diagnostics,
+    ];
+
+    /// The topics the bridge streams from shared memory, in [`Topic::ALL`] order: all but
+    /// `/diagnostics`, which it writes itself from its counters.
+    pub const STREAMED: [Topic; 8] = [
+        Topic::ProbePose,
+        Topic::ProbeWrench,
+        Topic::DeviceWrench,
+        Topic::JointStates,
+        Topic::Buttons,
+        Topic::Mesh,
+        Topic::Contacts,
+        Topic::Tf,
     ];
 
     /// Name relative to the namespace; `/tf` and `/diagnostics` are absolute.

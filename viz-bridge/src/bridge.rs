@@ -24,7 +24,8 @@ use msgs::ros::{JointState, Joy, Marker, MarkerArray, PoseStamped, TFMessage, Wr
 use msgs::ros_mapping::{ClockOffsetError, Mapping, StampClock};
 
 use crate::dds::{self, DdsError, DdsThread, Envelope, Inbound, Outbound};
-use crate::stats::{BridgeStats, Stream, OUT_STREAMS};
+use crate::stats::BridgeStats;
+use msgs::ros_mapping::Topic;
 use crate::target_gate::TargetGate;
 
 #[derive(Debug, thiserror::Error)]
@@ -58,7 +59,7 @@ struct Running {
     surface: Box<MaybeUninit<SurfaceFrame>>,
     haptic: Box<MaybeUninit<HapticStats>>,
     /// Source time (monotonic ns) of the last publication per stream, for rate limits.
-    last_emit: [Option<u64>; OUT_STREAMS],
+    last_emit: [Option<u64>; Topic::COUNT],
     last_buttons: Option<u32>,
     target_sequence: u64,
     material_sequence: u64,
@@ -78,26 +79,16 @@ pub struct Bridge {
 /// What one outbound stream needs to decide whether a sample is published.
 struct Gate<'a> {
     config: &'a BridgeConfig,
-    last_emit: &'a mut [Option<u64>; OUT_STREAMS],
+    last_emit: &'a mut [Option<u64>; Topic::COUNT],
 }
 
 impl Gate<'_> {
-    fn open(&mut self, stream: Stream, source_ns: u64) -> bool {
-        let s = &self.config.streams;
-        let cfg = match stream {
-            Stream::ProbePose => &s.probe_pose,
-            Stream::ProbeWrench => &s.probe_wrench,
-            Stream::DeviceWrench => &s.device_wrench,
-            Stream::JointStates => &s.joint_states,
-            Stream::Buttons => &s.buttons,
-            Stream::Mesh => &s.mesh,
-            Stream::Contacts => &s.contacts,
-            Stream::Tf => &s.tf,
-        };
+    fn open(&mut self, topic: Topic, source_ns: u64) -> bool {
+        let cfg = self.config.streams.of(topic);
         if !cfg.enabled {
             return false;
         }
-        let last = &mut self.last_emit[stream as usize];
+        let last = &mut self.last_emit[topic as usize];
         let due = match *last {
             None => true,
             Some(t) => source_ns.saturating_sub(t) >= cfg.min_interval_ns() || source_ns < t,
@@ -110,7 +101,7 @@ impl Gate<'_> {
 }
 
 fn enqueue(tx: &SyncSender<Envelope>, stats: &BridgeStats, source_ns: u64, msg: Outbound) {
-    let counters = stats.stream(msg.stream());
+    let counters = stats.stream(msg.topic());
     match tx.try_send(Envelope { source_ns, msg }) {
         Ok(()) => BridgeStats::add(&counters.enqueued, 1),
         // DDS side behind: drop, count, report in diagnostics; never wait.
@@ -178,7 +169,7 @@ impl Bridge {
             dds: Some(dds),
             surface,
             haptic,
-            last_emit: [None; OUT_STREAMS],
+            last_emit: [None; Topic::COUNT],
             last_buttons: None,
             target_sequence: 0,
             material_sequence: 0,
@@ -214,22 +205,22 @@ impl Bridge {
                 .store(frame.step_duration_ns, Ordering::Relaxed);
             let src = frame.publish_ns;
             let stamp = clock.stamp(src);
-            if gate.open(Stream::ProbePose, src) {
+            if gate.open(Topic::ProbePose, src) {
                 let mut m = PoseStamped::default();
                 map.probe_pose_into(&mut m, frame, stamp);
                 enqueue(tx, stats, src, Outbound::ProbePose(m));
             }
-            if gate.open(Stream::ProbeWrench, src) {
+            if gate.open(Topic::ProbeWrench, src) {
                 let mut m = WrenchStamped::default();
                 map.probe_wrench_into(&mut m, frame, stamp);
                 enqueue(tx, stats, src, Outbound::ProbeWrench(m));
             }
-            if gate.open(Stream::Contacts, src) {
+            if gate.open(Topic::Contacts, src) {
                 let mut m = MarkerArray::default();
                 map.contact_markers_into(&mut m, frame, stamp);
                 enqueue(tx, stats, src, Outbound::Contacts(m));
             }
-            if gate.open(Stream::Tf, src) {
+            if gate.open(Topic::Tf, src) {
                 let mut m = TFMessage::default();
                 map.transforms_into(&mut m, frame, stamp);
                 enqueue(tx, stats, src, Outbound::Tf(m));
@@ -243,19 +234,19 @@ impl Bridge {
             stats.record_ipc_latency(now.saturating_sub(state.publish_ns));
             let src = state.publish_ns;
             let stamp = clock.stamp(src);
-            if gate.open(Stream::DeviceWrench, src) {
+            if gate.open(Topic::DeviceWrench, src) {
                 let mut m = WrenchStamped::default();
                 map.device_wrench_into(&mut m, state, stamp);
                 enqueue(tx, stats, src, Outbound::DeviceWrench(m));
             }
-            if gate.open(Stream::JointStates, src) {
+            if gate.open(Topic::JointStates, src) {
                 let mut m = JointState::default();
                 map.joint_states_into(&mut m, state, stamp);
                 enqueue(tx, stats, src, Outbound::JointStates(m));
             }
             // Buttons: at their rate, and always at once when they change.
             let changed = *last_buttons != Some(state.buttons);
-            let due = gate.open(Stream::Buttons, src);
+            let due = gate.open(Topic::Buttons, src);
             if (due || changed) && self.config.streams.buttons.enabled {
                 *last_buttons = Some(state.buttons);
                 let mut m = Joy::default();
@@ -281,7 +272,7 @@ impl Bridge {
                 );
             }
             let src = surface.publish_ns;
-            if gate.open(Stream::Mesh, src) {
+            if gate.open(Topic::Mesh, src) {
                 let mut mesh = Box::<Marker>::default();
                 let skipped = map.mesh_marker_into(&mut mesh, surface, clock.stamp(src));
                 BridgeStats::add(&stats.skipped_triangles, skipped as u64);

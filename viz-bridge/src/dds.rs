@@ -18,7 +18,7 @@ use serde::Serialize;
 use msgs::ros_mapping::{self, Mapping, StampClock, Topic};
 
 use crate::convert;
-use crate::stats::{BridgeStats, LatencyWindow, Stream, OUT_STREAMS};
+use crate::stats::{BridgeStats, LatencyWindow};
 use crate::target_gate::Refusal;
 
 /// A message for the DDS side, with the monotonic publish time of the sample it came from.
@@ -39,16 +39,16 @@ pub enum Outbound {
 }
 
 impl Outbound {
-    pub fn stream(&self) -> Stream {
+    pub fn topic(&self) -> Topic {
         match self {
-            Outbound::ProbePose(_) => Stream::ProbePose,
-            Outbound::ProbeWrench(_) => Stream::ProbeWrench,
-            Outbound::DeviceWrench(_) => Stream::DeviceWrench,
-            Outbound::JointStates(_) => Stream::JointStates,
-            Outbound::Buttons(_) => Stream::Buttons,
-            Outbound::Mesh(_) => Stream::Mesh,
-            Outbound::Contacts(_) => Stream::Contacts,
-            Outbound::Tf(_) => Stream::Tf,
+            Outbound::ProbePose(_) => Topic::ProbePose,
+            Outbound::ProbeWrench(_) => Topic::ProbeWrench,
+            Outbound::DeviceWrench(_) => Topic::DeviceWrench,
+            Outbound::JointStates(_) => Topic::JointStates,
+            Outbound::Buttons(_) => Topic::Buttons,
+            Outbound::Mesh(_) => Topic::Mesh,
+            Outbound::Contacts(_) => Topic::Contacts,
+            Outbound::Tf(_) => Topic::Tf,
         }
     }
 }
@@ -169,10 +169,10 @@ struct DdsSide {
     _spinner: JoinHandle<()>,
     inbound: SyncSender<Inbound>,
     /// Source publish → DDS write latency per stream in the current window, ns.
-    latency_ns: [LatencyWindow; OUT_STREAMS],
+    latency_ns: [LatencyWindow; Topic::COUNT],
     window_start: Instant,
-    last_published: [u64; OUT_STREAMS],
-    last_dropped: [u64; OUT_STREAMS],
+    last_published: [u64; Topic::COUNT],
+    last_dropped: [u64; Topic::COUNT],
     last_inputs: [u64; 3],
 }
 
@@ -251,19 +251,19 @@ impl DdsSide {
         let ns = config.namespace.clone();
         let s = &config.streams;
         let publishers = Publishers {
-            probe_pose: publisher(&mut node, &ns, Stream::ProbePose.topic(), &s.probe_pose)?,
-            probe_wrench: publisher(&mut node, &ns, Stream::ProbeWrench.topic(), &s.probe_wrench)?,
+            probe_pose: publisher(&mut node, &ns, Topic::ProbePose.relative(), &s.probe_pose)?,
+            probe_wrench: publisher(&mut node, &ns, Topic::ProbeWrench.relative(), &s.probe_wrench)?,
             device_wrench: publisher(
                 &mut node,
                 &ns,
-                Stream::DeviceWrench.topic(),
+                Topic::DeviceWrench.relative(),
                 &s.device_wrench,
             )?,
-            joint_states: publisher(&mut node, &ns, Stream::JointStates.topic(), &s.joint_states)?,
-            buttons: publisher(&mut node, &ns, Stream::Buttons.topic(), &s.buttons)?,
-            mesh: publisher(&mut node, &ns, Stream::Mesh.topic(), &s.mesh)?,
-            contacts: publisher(&mut node, &ns, Stream::Contacts.topic(), &s.contacts)?,
-            tf: publisher(&mut node, &ns, Stream::Tf.topic(), &s.tf)?,
+            joint_states: publisher(&mut node, &ns, Topic::JointStates.relative(), &s.joint_states)?,
+            buttons: publisher(&mut node, &ns, Topic::Buttons.relative(), &s.buttons)?,
+            mesh: publisher(&mut node, &ns, Topic::Mesh.relative(), &s.mesh)?,
+            contacts: publisher(&mut node, &ns, Topic::Contacts.relative(), &s.contacts)?,
+            tf: publisher(&mut node, &ns, Topic::Tf.relative(), &s.tf)?,
             diagnostics: publisher(
                 &mut node,
                 &ns,
@@ -297,8 +297,8 @@ impl DdsSide {
             inbound,
             latency_ns: Default::default(),
             window_start: Instant::now(),
-            last_published: [0; OUT_STREAMS],
-            last_dropped: [0; OUT_STREAMS],
+            last_published: [0; Topic::COUNT],
+            last_dropped: [0; Topic::COUNT],
             last_inputs: [0; 3],
         })
     }
@@ -340,7 +340,7 @@ impl DdsSide {
     }
 
     fn write(&mut self, envelope: Envelope) {
-        let stream = envelope.msg.stream();
+        let stream = envelope.msg.topic();
         let p = &self.publishers;
         let ok = match envelope.msg {
             Outbound::ProbePose(m) => put(&p.probe_pose, m),
@@ -409,7 +409,7 @@ impl DdsSide {
             values: Vec::new(),
         };
         let mut dropped_now = 0;
-        for stream in Stream::ALL {
+        for stream in Topic::STREAMED {
             let i = stream as usize;
             let c = stats.stream(stream);
             let published = BridgeStats::get(&c.published);
@@ -420,7 +420,7 @@ impl DdsSide {
             self.last_published[i] = published;
             self.last_dropped[i] = dropped_queue + dropped_dds;
             let (p50, p99) = self.latency_ns[i].take_p50_p99_us();
-            let t = stream.topic().trim_start_matches('/');
+            let t = stream.relative().trim_start_matches('/');
             bridge.values.extend([
                 KeyValue::new(&format!("{t} rate_hz"), format!("{rate:.1}")),
                 KeyValue::new(&format!("{t} published"), published),

@@ -5,55 +5,8 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Mutex;
 
 use msgs::haptic_to_monitor::HapticStats;
+use msgs::ros_mapping::Topic;
 use msgs::timing::LatencyHistogram;
-
-/// Published (outbound) streams.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Stream {
-    ProbePose = 0,
-    ProbeWrench,
-    DeviceWrench,
-    JointStates,
-    Buttons,
-    Mesh,
-    Contacts,
-    Tf,
-}
-
-pub const OUT_STREAMS: usize = 8;
-
-impl Stream {
-    pub const ALL: [Stream; OUT_STREAMS] = [
-        Stream::ProbePose,
-        Stream::ProbeWrench,
-        Stream::DeviceWrench,
-        Stream::JointStates,
-        Stream::Buttons,
-        Stream::Mesh,
-        Stream::Contacts,
-        Stream::Tf,
-    ];
-
-    /// The session topic of this stream (`msgs::ros_mapping`, shared with the recorder).
-    pub fn ros_topic(self) -> msgs::ros_mapping::Topic {
-        use msgs::ros_mapping::Topic;
-        match self {
-            Stream::ProbePose => Topic::ProbePose,
-            Stream::ProbeWrench => Topic::ProbeWrench,
-            Stream::DeviceWrench => Topic::DeviceWrench,
-            Stream::JointStates => Topic::JointStates,
-            Stream::Buttons => Topic::Buttons,
-            Stream::Mesh => Topic::Mesh,
-            Stream::Contacts => Topic::Contacts,
-            Stream::Tf => Topic::Tf,
-        }
-    }
-
-    /// Topic relative to the namespace (`/tf` is absolute).
-    pub fn topic(self) -> &'static str {
-        self.ros_topic().relative()
-    }
-}
 
 /// Counts of one outbound stream.
 #[derive(Debug, Default)]
@@ -71,7 +24,8 @@ pub struct StreamCounters {
 /// Everything the bridge counts.
 #[derive(Debug, Default)]
 pub struct BridgeStats {
-    pub out: [StreamCounters; OUT_STREAMS],
+    /// Per session topic, indexed by [`Topic`] (`/diagnostics` is written, not streamed).
+    pub out: [StreamCounters; Topic::COUNT],
     pub contact_frames: AtomicU64,
     pub device_states: AtomicU64,
     pub surfaces: AtomicU64,
@@ -91,8 +45,8 @@ pub struct BridgeStats {
 }
 
 impl BridgeStats {
-    pub fn stream(&self, s: Stream) -> &StreamCounters {
-        &self.out[s as usize]
+    pub fn stream(&self, topic: Topic) -> &StreamCounters {
+        &self.out[topic as usize]
     }
 
     pub fn add(counter: &AtomicU64, n: u64) {

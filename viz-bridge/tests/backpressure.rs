@@ -12,7 +12,8 @@ use common::*;
 use launch_config::BridgeConfig;
 use msgs::ipc;
 use msgs::physics_to_haptic::ContactFrame;
-use viz_bridge::stats::{BridgeStats, Stream};
+use msgs::ros_mapping::Topic;
+use viz_bridge::stats::BridgeStats;
 use viz_bridge::Bridge;
 
 #[test]
@@ -59,8 +60,8 @@ fn a_full_queue_drops_and_counts_and_never_waits() {
         );
         assert_eq!(BridgeStats::get(&stats.contact_frames), BURST);
 
-        let pose = stats.stream(Stream::ProbePose);
-        let wrench = stats.stream(Stream::ProbeWrench);
+        let pose = stats.stream(Topic::ProbePose);
+        let wrench = stats.stream(Topic::ProbeWrench);
         let mut dropped = 0;
         for c in [pose, wrench] {
             let queued = BridgeStats::get(&c.enqueued);

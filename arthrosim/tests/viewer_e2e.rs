@@ -8,6 +8,8 @@
 //! Needs python3 with `websockets` and `mcap-ros2-support`, and Chromium (`.ci/run` installs
 //! them); outside CI a missing tool skips the test with a message.
 
+// The CLI tests' shared helpers; this test uses only some of them.
+#[allow(dead_code)]
 mod common;
 
 use std::path::{Path, PathBuf};

@@ -180,7 +180,7 @@ pub fn solve(
     settings: &Settings,
 ) -> Result<Solution, LcpError> {
     let rows = problem.row_count;
-    if rows > MAX_ROWS || rows % ROWS_PER_CONTACT != 0 {
+    if rows > MAX_ROWS || !rows.is_multiple_of(ROWS_PER_CONTACT) {
         return Err(LcpError::RowCount { rows });
     }
     if !(settings.tolerance.is_finite() && settings.tolerance >= 0.0) {
@@ -440,12 +440,10 @@ fn zero(lambda: &mut [f64], rows: usize) {
 fn project_cone(l: &mut [f64], mu: f64) {
     let limit = mu * l[0];
     let t = (l[1] * l[1] + l[2] * l[2]).sqrt();
-    if t > limit {
-        if t > 0.0 {
-            let s = limit / t;
-            l[1] *= s;
-            l[2] *= s;
-        }
+    if t > limit && t > 0.0 {
+        let s = limit / t;
+        l[1] *= s;
+        l[2] *= s;
     }
 }
 

@@ -155,10 +155,7 @@ fn rediagnose_kept_cases(root: &Path) -> anyhow::Result<()> {
         if !r.diverged_replays.is_empty() {
             eprintln!("    diverged: {:?}", r.diverged_replays);
         }
-        eprintln!(
-            "    truth params: {}",
-            truth["spec"]["injected"].to_string()
-        );
+        eprintln!("    truth params: {}", truth["spec"]["injected"]);
         for c in r.ranking.iter().take(10) {
             eprintln!(
                 "    {:24} held {:.4} shrink {:6.1}% w {:.4} {:6.1}% dBIC {:9.1} score {:9.1} {}",
@@ -220,7 +217,7 @@ fn phase_table(root: &Path) -> anyhow::Result<()> {
             r.verdict.effect
         );
         let row = |label: &str, pred: &dyn Fn(usize) -> Vec<[f64; 3]>| {
-            let mut s = vec![(0.0, 0usize); 5];
+            let mut s = [(0.0, 0usize); 5];
             for (i, d) in td.iter().enumerate() {
                 let p = pred(i);
                 for j in 0..d.t.len() {

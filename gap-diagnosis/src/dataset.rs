@@ -10,6 +10,9 @@ use msgs::Pose;
 use rayon::prelude::*;
 use std::collections::HashMap;
 
+/// A re-simulation at a fitted parameter value: (parameter value, force on the grid).
+pub type ExtraKnot = (f64, Vec<[f64; 3]>);
+
 #[derive(Debug, Clone)]
 pub struct TrialData {
     pub name: String,
@@ -32,7 +35,7 @@ pub struct TrialData {
     /// Re-simulations added at fitted parameter values (calibration's refinement, see
     /// `calibrate::refine`): (parameter value, force on the grid) per piecewise-linear effect.
     /// Empty for a plain diagnosis.
-    pub extra_knots: HashMap<Effect, Vec<(f64, Vec<[f64; 3]>)>>,
+    pub extra_knots: HashMap<Effect, Vec<ExtraKnot>>,
     /// Contact normal (outward), depth (mm) and phase at the measurement times.
     pub normal: [f64; 3],
     pub depth: Vec<f64>,

@@ -249,12 +249,12 @@ fn probing_ranges(steps: &[&ContactStep], ann: &[(u32, u32, u32)]) -> Vec<(usize
     let mut runs: Vec<(usize, usize)> = Vec::new();
     let mut i = 0;
     while i < steps.len() {
-        if !in_contact(&steps[i]) {
+        if !in_contact(steps[i]) {
             i += 1;
             continue;
         }
         let mut j = i + 1;
-        while j < steps.len() && in_contact(&steps[j]) {
+        while j < steps.len() && in_contact(steps[j]) {
             j += 1;
         }
         match runs.last_mut() {

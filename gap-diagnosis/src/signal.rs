@@ -129,8 +129,8 @@ pub fn lowpass_in_place(y: &mut [[f64; 3]], dt: f64, tau: f64) {
     for v in y.iter_mut() {
         for k in 0..3 {
             s[k] += a * (v[k] - s[k]);
-            v[k] = s[k];
         }
+        *v = s;
     }
 }
 
@@ -248,7 +248,7 @@ mod tests {
         assert_eq!(interp(&[0.0, 1.0, 3.0], &[0.0, 2.0, 6.0], 2.0), 4.0);
         assert_eq!(interp(&[0.0, 1.0], &[1.0, 2.0], -1.0), 1.0);
         let mut y = vec![[0.0; 3]; 1];
-        y.extend(std::iter::repeat([1.0; 3]).take(1000));
+        y.extend(std::iter::repeat_n([1.0; 3], 1000));
         lowpass_in_place(&mut y, 0.001, 0.05);
         // step response at t = tau reaches 1 - 1/e
         assert!(

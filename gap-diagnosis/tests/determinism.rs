@@ -46,7 +46,7 @@ fn record_scripted(dir: &std::path::Path) -> Vec<[f64; 3]> {
     let data_dir = launch_config::data_dir();
     let mut sim = Simulation::new(&scene, &data_dir).expect("default scene builds");
     sim.set_instance_id(4242);
-    let site = sim.probing_sites()[0].clone();
+    let site = sim.probing_sites()[0];
     let point = [site.point.x, site.point.y, site.point.z];
     let normal = [site.normal.x, site.normal.y, site.normal.z];
 

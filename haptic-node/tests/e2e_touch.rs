@@ -402,8 +402,10 @@ fn touch_servo_watchdog_fades_the_force_when_the_node_loop_stalls() {
     let dir = temp_dir("touch-watchdog");
     let report = dir.join("libhd-report.txt");
     let _one = in_process_libhd(&report);
-    let mut config = launch_config::DeviceConfig::default();
-    config.backend = launch_config::device::DeviceBackend::Touch;
+    let mut config = launch_config::DeviceConfig {
+        backend: launch_config::device::DeviceBackend::Touch,
+        ..Default::default()
+    };
     config.touch.library = fake_libhd().display().to_string();
     let watchdog_ms = config.touch.servo_watchdog_s * 1e3;
     let mut touch =
@@ -483,8 +485,10 @@ fn touch_servo_holds_the_last_force_while_the_shared_state_is_contended() {
     let dir = temp_dir("touch-contended");
     let report = dir.join("libhd-report.txt");
     let _one = in_process_libhd(&report);
-    let mut config = launch_config::DeviceConfig::default();
-    config.backend = launch_config::device::DeviceBackend::Touch;
+    let mut config = launch_config::DeviceConfig {
+        backend: launch_config::device::DeviceBackend::Touch,
+        ..Default::default()
+    };
     config.touch.library = fake_libhd().display().to_string();
     // The longest watchdog allowed: on a loaded machine this thread's 1 ms sleeps can last
     // tens of ms, which the watchdog rightly fades out; the contention is what is tested.
@@ -545,8 +549,10 @@ fn touch_servo_clamps_on_its_own_whatever_the_node_loop_commands() {
     let dir = temp_dir("touch-clamp");
     let report = dir.join("libhd-report.txt");
     let _one = in_process_libhd(&report);
-    let mut config = launch_config::DeviceConfig::default();
-    config.backend = launch_config::device::DeviceBackend::Touch;
+    let mut config = launch_config::DeviceConfig {
+        backend: launch_config::device::DeviceBackend::Touch,
+        ..Default::default()
+    };
     config.touch.library = fake_libhd().display().to_string();
     // Even a configuration that was never validated cannot raise the servo's clamp.
     config.peak_force_n = 30.0;

@@ -466,6 +466,9 @@ impl Simulation {
     /// velocities move to the new FE model (O(nodes), no allocation), and the old parts come
     /// back, to be dropped off the real-time loop. Parts built for another mesh are refused
     /// and returned as they are.
+    // The refused parts are handed back by value so the caller drops them off the loop;
+    // boxing them would allocate at every swap.
+    #[allow(clippy::result_large_err)]
     pub fn swap_material(
         &mut self,
         mut parts: MaterialParts,

@@ -39,12 +39,7 @@ fn check(mesh: &str, friction: f64) {
     scene.meniscus.mesh = mesh.into();
     scene.contact.friction = friction;
     let mut sim = Simulation::new(&scene, &launch_config::data_dir()).unwrap();
-    let site = sim
-        .probing_sites()
-        .iter()
-        .find(|s| s.region == 2)
-        .unwrap()
-        .clone();
+    let site = *sim.probing_sites().iter().find(|s| s.region == 2).unwrap();
     let n = site.normal.normalize();
     let q = UnitQuaternion::rotation_between(&Vector3::z(), &n).unwrap();
     let (t1, _) = physics_node::contact::tangents(&n);

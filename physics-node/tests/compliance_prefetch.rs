@@ -60,12 +60,7 @@ fn scene() -> launch_config::SceneConfig {
 
 /// Probe above the mid-body site, then pressed 1.5 mm and slid sideways (as alloc_step).
 fn trajectory(sim: &Simulation, scene: &launch_config::SceneConfig) -> Vec<msgs::Pose> {
-    let site = sim
-        .probing_sites()
-        .iter()
-        .find(|s| s.region == 2)
-        .unwrap()
-        .clone();
+    let site = *sim.probing_sites().iter().find(|s| s.region == 2).unwrap();
     let n = site.normal.normalize();
     let q = UnitQuaternion::rotation_between(&Vector3::z(), &n).unwrap();
     let (t1, _) = physics_node::contact::tangents(&n);

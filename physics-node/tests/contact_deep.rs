@@ -16,12 +16,7 @@ fn run(model: &str) {
         s
     };
     let mut sim = Simulation::new(&scene, &launch_config::data_dir()).unwrap();
-    let site = sim
-        .probing_sites()
-        .iter()
-        .find(|s| s.region == 2)
-        .unwrap()
-        .clone();
+    let site = *sim.probing_sites().iter().find(|s| s.region == 2).unwrap();
     let n = site.normal.normalize();
     let r = scene.probe.tip_radius;
     let q = UnitQuaternion::rotation_between(&Vector3::z(), &n)

@@ -166,7 +166,7 @@ fn deep_replays_on_a_tilted_specimen_stay_bounded_or_are_flagged() {
             let peak = r.steps.iter().map(|s| s.0).fold(0.0, f64::max);
             eprintln!(
                 "region {region} tilt {rot:?}: peak {peak:.2} N, {flagged} steps flagged ({})",
-                r.steps.iter().fold(0u32, |a, s| a | s.1).to_string()
+                r.steps.iter().fold(0u32, |a, s| a | s.1)
             );
             flagged_replays += (flagged > 0) as usize;
         }

@@ -89,7 +89,7 @@ fn grade_flood_does_not_stall_the_step_loop() {
             &MaterialCommand {
                 sequence: k,
                 publish_ns: msgs::clock::monotonic_ns(),
-                degeneration_grade: if k % 2 == 0 { 2.0 } else { 0.0 },
+                degeneration_grade: if k.is_multiple_of(2) { 2.0 } else { 0.0 },
             },
         )
         .unwrap();

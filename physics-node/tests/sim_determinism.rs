@@ -7,12 +7,7 @@ fn run() -> Vec<u64> {
     let mut scene = launch_config::SceneConfig::default();
     scene.contact.friction = 0.3;
     let mut sim = Simulation::new(&scene, &launch_config::data_dir()).unwrap();
-    let site = sim
-        .probing_sites()
-        .iter()
-        .find(|s| s.region == 2)
-        .unwrap()
-        .clone();
+    let site = *sim.probing_sites().iter().find(|s| s.region == 2).unwrap();
     let n = site.normal.normalize();
     let q = UnitQuaternion::rotation_between(&Vector3::z(), &n).unwrap();
     let (t1, t2) = physics_node::contact::tangents(&n);

@@ -13,12 +13,7 @@ fn energy_does_not_grow_without_input() {
     scene.probe.coupling_damping = 0.0;
     scene.contact.friction = 0.2;
     let mut sim = Simulation::new(&scene, &launch_config::data_dir()).unwrap();
-    let site = sim
-        .probing_sites()
-        .iter()
-        .find(|s| s.region == 2)
-        .unwrap()
-        .clone();
+    let site = *sim.probing_sites().iter().find(|s| s.region == 2).unwrap();
     let drop = 3e-3;
     let start = site.point + site.normal.normalize() * (scene.probe.tip_radius + drop);
     sim.teleport_probe(&physics_node::probe::pose(

@@ -25,12 +25,7 @@ fn node_follows_device_into_contact_and_stops_on_sigterm() {
     // Where to press: the default scene's mid-body site.
     let scene = launch_config::SceneConfig::default();
     let sim = physics_node::sim::Simulation::new(&scene, &launch_config::data_dir()).unwrap();
-    let site = sim
-        .probing_sites()
-        .iter()
-        .find(|s| s.region == 2)
-        .unwrap()
-        .clone();
+    let site = *sim.probing_sites().iter().find(|s| s.region == 2).unwrap();
     drop(sim);
     let n = site.normal.normalize();
     let q = UnitQuaternion::rotation_between(&Vector3::z(), &n).unwrap();

@@ -327,7 +327,7 @@ mod tests {
         assert!(s.starts_with("# One physics step"));
         assert!(s.contains(&format!("\n{}\nMSG: std_msgs/Header\n", "=".repeat(80))));
         for dep in ["Header", "Time", "Pose", "Point", "Quaternion", "Vector3"] {
-            assert_eq!(s.matches(&format!("/{dep}\n")).count() >= 1, true, "{dep}");
+            assert!(s.matches(&format!("/{dep}\n")).count() >= 1, "{dep}");
         }
         assert_eq!(ros::type_name::<DeviceTick>(), TYPE_DEVICE_TICK);
         assert_eq!(ros::type_name::<ContactStep>(), TYPE_CONTACT_STEP);

@@ -212,20 +212,16 @@ impl Scanner<'_> {
                     }
                 }
             }
-            Record::Metadata(m) => {
-                if !in_chunk {
-                    (self.visit)(Event::Metadata(&m))?;
-                }
+            Record::Metadata(m) if !in_chunk => {
+                (self.visit)(Event::Metadata(&m))?;
             }
-            Record::Attachment { header, data, .. } => {
-                if !in_chunk {
-                    (self.visit)(Event::Attachment {
-                        name: &header.name,
-                        media_type: &header.media_type,
-                        log_time: header.log_time,
-                        data: &data,
-                    })?;
-                }
+            Record::Attachment { header, data, .. } if !in_chunk => {
+                (self.visit)(Event::Attachment {
+                    name: &header.name,
+                    media_type: &header.media_type,
+                    log_time: header.log_time,
+                    data: &data,
+                })?;
             }
             Record::DataEnd(_) => self.out.data_end = true,
             Record::Footer(_) => self.out.footer = true,

@@ -52,7 +52,7 @@ const SURFACES: u64 = 30;
 struct Written {
     file: PathBuf,
     frames: Vec<Box<ContactFrame>>,
-    ticks: Vec<Box<DeviceState>>,
+    ticks: Vec<DeviceState>,
 }
 
 fn write_session(dir: &std::path::Path) -> Written {
@@ -79,7 +79,7 @@ fn write_session(dir: &std::path::Path) -> Written {
         fill_device(&mut d, seq, 77);
         let log = t0 + seq * 1_000_000;
         w.write_device_state(&d, log).unwrap();
-        ticks.push(d);
+        ticks.push(*d);
         if seq % 10 == 0 {
             let step = seq / 10;
             let mut f = boxed_zeroed::<ContactFrame>();

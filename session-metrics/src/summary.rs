@@ -175,6 +175,10 @@ struct RegionAccumulator {
     probing_max: Vec<f64>,
 }
 
+/// The open probing: (region, probing index or episode marker, first-touch probe position x0,
+/// its contact normal n0, the probing's slot in the region's list).
+type OpenProbing = (u32, u32, [f64; 3], [f64; 3], usize);
+
 /// Aggregates a session's samples into the study's summary. Pure: same record, same summary.
 pub fn summarize(record: &SessionRecord) -> SessionSummary {
     let mut regions: [RegionAccumulator; 4] = Default::default();
@@ -182,8 +186,7 @@ pub fn summarize(record: &SessionRecord) -> SessionSummary {
     // Walk contacts in time order; each takes the annotation of the device tick it used.
     let mut order: Vec<usize> = (0..record.contacts.len()).collect();
     order.sort_by_key(|&i| record.contacts[i].publish_ns);
-    // The open probing: (region, probing index or episode marker, x0, n0, region slot index).
-    let mut open: Option<(u32, u32, [f64; 3], [f64; 3], usize)> = None;
+    let mut open: Option<OpenProbing> = None;
     let mut previous_in_contact = false;
 
     for &i in &order {

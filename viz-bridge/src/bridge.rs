@@ -25,8 +25,9 @@ use msgs::ros_mapping::{ClockOffsetError, Mapping, StampClock};
 
 use crate::dds::{self, DdsError, DdsThread, Envelope, Inbound, Outbound};
 use crate::stats::BridgeStats;
-use msgs::ros_mapping::Topic;
+// `msgs::Topic` is the shared-memory service trait; this is the ROS 2 session topic.
 use crate::target_gate::TargetGate;
+use msgs::ros_mapping::Topic as SessionTopic;
 
 #[derive(Debug, thiserror::Error)]
 pub enum BridgeError {
@@ -59,7 +60,7 @@ struct Running {
     surface: Box<MaybeUninit<SurfaceFrame>>,
     haptic: Box<MaybeUninit<HapticStats>>,
     /// Source time (monotonic ns) of the last publication per stream, for rate limits.
-    last_emit: [Option<u64>; Topic::COUNT],
+    last_emit: [Option<u64>; SessionTopic::COUNT],
     last_buttons: Option<u32>,
     target_sequence: u64,
     material_sequence: u64,
@@ -79,11 +80,11 @@ pub struct Bridge {
 /// What one outbound stream needs to decide whether a sample is published.
 struct Gate<'a> {
     config: &'a BridgeConfig,
-    last_emit: &'a mut [Option<u64>; Topic::COUNT],
+    last_emit: &'a mut [Option<u64>; SessionTopic::COUNT],
 }
 
 impl Gate<'_> {
-    fn open(&mut self, topic: Topic, source_ns: u64) -> bool {
+    fn open(&mut self, topic: SessionTopic, source_ns: u64) -> bool {
         let cfg = self.config.streams.of(topic);
         if !cfg.enabled {
             return false;
@@ -169,7 +170,7 @@ impl Bridge {
             dds: Some(dds),
             surface,
             haptic,
-            last_emit: [None; Topic::COUNT],
+            last_emit: [None; SessionTopic::COUNT],
             last_buttons: None,
             target_sequence: 0,
             material_sequence: 0,
@@ -205,22 +206,22 @@ impl Bridge {
                 .store(frame.step_duration_ns, Ordering::Relaxed);
             let src = frame.publish_ns;
             let stamp = clock.stamp(src);
-            if gate.open(Topic::ProbePose, src) {
+            if gate.open(SessionTopic::ProbePose, src) {
                 let mut m = PoseStamped::default();
                 map.probe_pose_into(&mut m, frame, stamp);
                 enqueue(tx, stats, src, Outbound::ProbePose(m));
             }
-            if gate.open(Topic::ProbeWrench, src) {
+            if gate.open(SessionTopic::ProbeWrench, src) {
                 let mut m = WrenchStamped::default();
                 map.probe_wrench_into(&mut m, frame, stamp);
                 enqueue(tx, stats, src, Outbound::ProbeWrench(m));
             }
-            if gate.open(Topic::Contacts, src) {
+            if gate.open(SessionTopic::Contacts, src) {
                 let mut m = MarkerArray::default();
                 map.contact_markers_into(&mut m, frame, stamp);
                 enqueue(tx, stats, src, Outbound::Contacts(m));
             }
-            if gate.open(Topic::Tf, src) {
+            if gate.open(SessionTopic::Tf, src) {
                 let mut m = TFMessage::default();
                 map.transforms_into(&mut m, frame, stamp);
                 enqueue(tx, stats, src, Outbound::Tf(m));
@@ -234,19 +235,19 @@ impl Bridge {
             stats.record_ipc_latency(now.saturating_sub(state.publish_ns));
             let src = state.publish_ns;
             let stamp = clock.stamp(src);
-            if gate.open(Topic::DeviceWrench, src) {
+            if gate.open(SessionTopic::DeviceWrench, src) {
                 let mut m = WrenchStamped::default();
                 map.device_wrench_into(&mut m, state, stamp);
                 enqueue(tx, stats, src, Outbound::DeviceWrench(m));
             }
-            if gate.open(Topic::JointStates, src) {
+            if gate.open(SessionTopic::JointStates, src) {
                 let mut m = JointState::default();
                 map.joint_states_into(&mut m, state, stamp);
                 enqueue(tx, stats, src, Outbound::JointStates(m));
             }
             // Buttons: at their rate, and always at once when they change.
             let changed = *last_buttons != Some(state.buttons);
-            let due = gate.open(Topic::Buttons, src);
+            let due = gate.open(SessionTopic::Buttons, src);
             if (due || changed) && self.config.streams.buttons.enabled {
                 *last_buttons = Some(state.buttons);
                 let mut m = Joy::default();
@@ -272,7 +273,7 @@ impl Bridge {
                 );
             }
             let src = surface.publish_ns;
-            if gate.open(Topic::Mesh, src) {
+            if gate.open(SessionTopic::Mesh, src) {
                 let mut mesh = Box::<Marker>::default();
                 let skipped = map.mesh_marker_into(&mut mesh, surface, clock.stamp(src));
                 BridgeStats::add(&stats.skipped_triangles, skipped as u64);

@@ -252,14 +252,24 @@ impl DdsSide {
         let s = &config.streams;
         let publishers = Publishers {
             probe_pose: publisher(&mut node, &ns, Topic::ProbePose.relative(), &s.probe_pose)?,
-            probe_wrench: publisher(&mut node, &ns, Topic::ProbeWrench.relative(), &s.probe_wrench)?,
+            probe_wrench: publisher(
+                &mut node,
+                &ns,
+                Topic::ProbeWrench.relative(),
+                &s.probe_wrench,
+            )?,
             device_wrench: publisher(
                 &mut node,
                 &ns,
                 Topic::DeviceWrench.relative(),
                 &s.device_wrench,
             )?,
-            joint_states: publisher(&mut node, &ns, Topic::JointStates.relative(), &s.joint_states)?,
+            joint_states: publisher(
+                &mut node,
+                &ns,
+                Topic::JointStates.relative(),
+                &s.joint_states,
+            )?,
             buttons: publisher(&mut node, &ns, Topic::Buttons.relative(), &s.buttons)?,
             mesh: publisher(&mut node, &ns, Topic::Mesh.relative(), &s.mesh)?,
             contacts: publisher(&mut node, &ns, Topic::Contacts.relative(), &s.contacts)?,

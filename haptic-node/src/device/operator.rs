@@ -158,7 +158,7 @@ impl Protocol {
             let (k, r) = (i as u32 + 1, s.region);
             let n = s.normal;
             let norm = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-            if !(norm.is_finite() && norm > 0.0) || !s.point.iter().all(|v| v.is_finite()) {
+            if !(norm.is_finite() && norm > 0.0 && s.point.iter().all(|v| v.is_finite())) {
                 return Err(bad(&format!(
                     "probing site {k} has a non-finite point or zero normal"
                 )));

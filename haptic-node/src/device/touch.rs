@@ -113,8 +113,11 @@ impl HdApi {
                         symbol: $name,
                     });
                 }
+                // The target type is the field's: one macro for every HD function.
+                #[allow(clippy::missing_transmute_annotations)]
                 // SAFETY: the symbol has the HD API signature of the field it is stored in.
-                unsafe { std::mem::transmute::<*mut c_void, _>(p) }
+                let f = unsafe { std::mem::transmute::<*mut c_void, _>(p) };
+                f
             }};
         }
         Ok(HdApi {
@@ -666,8 +669,10 @@ mod tests {
 
     #[test]
     fn missing_library_is_a_clear_error() {
-        let mut c = DeviceConfig::default();
-        c.backend = launch_config::device::DeviceBackend::Touch;
+        let mut c = DeviceConfig {
+            backend: launch_config::device::DeviceBackend::Touch,
+            ..Default::default()
+        };
         c.touch.library = "libHD-not-installed-here.so".into();
         let e = match Touch::open(&c) {
             Err(e) => e.to_string(),

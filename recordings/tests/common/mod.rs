@@ -76,7 +76,7 @@ pub fn fill_frame(f: &mut ContactFrame, seq: u64, instance: u64, device_seq: u64
     f.publish_ns = msgs::clock::monotonic_ns();
     f.sim_time_s = t;
     f.dt_s = 0.01;
-    let contacts = if seq % 3 == 0 { 2 } else { 0 };
+    let contacts = if seq.is_multiple_of(3) { 2 } else { 0 };
     f.contact_count = contacts;
     f.row_count = contacts * 3;
     f.device_sequence_used = device_seq;

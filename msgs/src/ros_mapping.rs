@@ -109,17 +109,8 @@ impl Topic {
     ];
 
     /// The topics the bridge streams from shared memory, in [`Topic::ALL`] order: all but
-    /// `/diagnostics`, which it writes itself from its counters.
-    pub const STREAMED: [Topic; 8] = [
-        Topic::ProbePose,
-        Topic::ProbeWrench,
-        Topic::DeviceWrench,
-        Topic::JointStates,
-        Topic::Buttons,
-        Topic::Mesh,
-        Topic::Contacts,
-        Topic::Tf,
-    ];
+    /// `/diagnostics` (last in `ALL`), which it writes itself from its counters.
+    pub const STREAMED: &'static [Topic] = Topic::ALL.split_at(Topic::COUNT - 1).0;
 
     /// Name relative to the namespace; `/tf` and `/diagnostics` are absolute.
     pub fn relative(self) -> &'static str {
@@ -496,6 +487,13 @@ mod tests {
         let mut slot = Box::new(MaybeUninit::<T>::uninit());
         T::zeroed_in(&mut slot);
         slot
+    }
+
+    #[test]
+    fn the_bridge_streams_every_topic_but_diagnostics() {
+        assert_eq!(Topic::ALL.len(), Topic::COUNT);
+        assert_eq!(Topic::STREAMED.len(), Topic::COUNT - 1);
+        assert!(!Topic::STREAMED.contains(&Topic::Diagnostics));
     }
 
     #[test]

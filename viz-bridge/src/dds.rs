@@ -419,7 +419,7 @@ impl DdsSide {
             values: Vec::new(),
         };
         let mut dropped_now = 0;
-        for stream in Topic::STREAMED {
+        for &stream in Topic::STREAMED {
             let i = stream as usize;
             let c = stats.stream(stream);
             let published = BridgeStats::get(&c.published);

@@ -386,6 +386,10 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
         servo::sleep_until(next);
         let now = msgs::clock::monotonic_ns();
         let _ = device.sample(now, &mut sample);
+        // The session is stopping, not the protocol's hold or press: the ramp's ticks say
+        // Idle, so a reader of the recording does not take the fade-out for the hand's
+        // (a hold's force then ramped 0.45 → 0 N in its last 10 ticks).
+        sample.phase = msgs::protocol::Phase::Idle as u32;
         let f = renderer.shutdown_tick(now);
         let _ = device.command_force(now, f);
         sequence += 1;

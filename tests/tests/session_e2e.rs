@@ -113,6 +113,7 @@ fn bounded_default_session_covers_three_regions_and_leaves_nothing_running() {
     assert!(recording.is_file(), "no session.mcap in {}", out.display());
 
     one_definition_of_the_study_metrics(&bin, &recording, &out.join("export"));
+    every_hold_is_steady(&recording);
 
     // The recording drives a new session: replay device fed from the MCAP itself.
     let replay_out = out.with_extension("replay");
@@ -165,6 +166,34 @@ fn bounded_default_session_covers_three_regions_and_leaves_nothing_running() {
     );
     let _ = std::fs::remove_dir_all(&replay_out);
     let _ = std::fs::remove_dir_all(&out);
+}
+
+/// Issue 13, point 4, read from the recording as an outside reader would: over every hold
+/// (device ticks in the Hold phase, per probing) the rendered force's standard deviation is at
+/// most 0.02 N. Regression: the session's stop ramp (force to zero in 10 ticks) was labelled
+/// with the last probing's Hold phase, so a session that ended in a hold showed 0.07–0.09 N.
+fn every_hold_is_steady(recording: &Path) {
+    const HOLD: u32 = msgs::protocol::Phase::Hold as u32;
+    let (_, ticks) = recordings::export::read_lossless(recording)
+        .unwrap_or_else(|e| panic!("reading {}: {e}", recording.display()));
+    let mut holds: std::collections::BTreeMap<u32, Vec<f64>> = Default::default();
+    for t in ticks.iter().filter(|t| t.phase == HOLD) {
+        let f = &t.rendered_force;
+        holds
+            .entry(t.probing_index)
+            .or_default()
+            .push((f.x * f.x + f.y * f.y + f.z * f.z).sqrt());
+    }
+    assert!(holds.len() >= 3, "only {} holds recorded", holds.len());
+    for (probing, forces) in &holds {
+        let n = forces.len() as f64;
+        let mean = forces.iter().sum::<f64>() / n;
+        let sd = (forces.iter().map(|f| (f - mean).powi(2)).sum::<f64>() / n).sqrt();
+        assert!(
+            sd <= 0.02,
+            "probing {probing}: rendered force over the hold {mean:.3} ± {sd:.4} N (≤ 0.02 N)"
+        );
+    }
 }
 
 /// `arthrosim` with `args`, its stdout; panics with its output when it fails.

@@ -97,8 +97,6 @@ pub struct Simulation {
     device_sequence: u64,
     fem: FemModel,
     cache: ComplianceCache,
-    filling: Filling,
-    budget_bytes: usize,
     /// Rest positions of every mesh node (the prefetcher's map).
     rest_positions: Vec<Point3<f64>>,
     correction: ConstraintCorrection,
@@ -133,8 +131,6 @@ pub struct Simulation {
     /// Per-step checks and the last good state.
     monitor: crate::faults::FaultMonitor,
     report: crate::faults::StepReport,
-    /// Reduced dimension of the rest system (3 × free nodes).
-    dim: usize,
     times: PhaseTimes,
     /// Node rotations divided by √(patch modulus factor): the stiffness-warped compliance
     /// R A0⁻¹ Rᵀ / s of a strain-stiffened tissue (only used when it stiffens).
@@ -315,8 +311,6 @@ impl Simulation {
             device_sequence: 0,
             fem,
             cache,
-            filling,
-            budget_bytes,
             rest_positions: mesh.nodes.clone(),
             correction: ConstraintCorrection::new(dim, MAX_CONTACTS),
             surface,
@@ -348,7 +342,6 @@ impl Simulation {
             drive: 0,
             monitor,
             report: crate::faults::StepReport::default(),
-            dim,
             times: PhaseTimes::default(),
             warp: vec![nalgebra::Matrix3::identity(); n_nodes],
             patch_stiffening: 1.0,
@@ -383,59 +376,6 @@ impl Simulation {
             self.detector.reset_tracking();
             self.warm.iter_mut().for_each(|w| *w = [0.0; 3]);
         }
-    }
-
-    /// Changes the degeneration grade (0..=2) between probings: new material, new rest
-    /// factorization and compliance cache (allocates; not for the real-time loop's steps).
-    pub fn set_degeneration_grade(&mut self, grade: f64) -> Result<(), PhysicsError> {
-        if !(grade.is_finite() && (0.0..=2.0).contains(&grade)) {
-            return Err(PhysicsError::Config(format!(
-                "degeneration grade must be in 0..=2, got {grade}"
-            )));
-        }
-        if grade == self.degeneration_grade {
-            return Ok(());
-        }
-        let mut cfg = self.scene.material.clone();
-        cfg.degeneration_grade = grade;
-        let material = Material::from_config(&cfg).map_err(|e| PhysicsError::Fem(e.to_string()))?;
-        self.fem
-            .set_material(material)
-            .map_err(|e| PhysicsError::Fem(e.to_string()))?;
-        if self.scene.meniscus.support_stiffness > 0.0 {
-            // As `FemSettings::from_scene` does for a scene built at this grade.
-            let k = self.scene.meniscus.support_stiffness
-                * Material::degeneration_factor(grade)
-                    .map_err(|e| PhysicsError::Fem(e.to_string()))?;
-            self.fem
-                .set_support_stiffness(k)
-                .map_err(|e| PhysicsError::Fem(e.to_string()))?;
-        }
-        let rest = self
-            .fem
-            .rest_compliance(self.dt, BLOCK_COLUMNS)
-            .map_err(|e| PhysicsError::Fem(e.to_string()))?;
-        let free_index: Vec<u32> = (0..self.fem.node_count())
-            .map(|n| {
-                rest.free_index(n)
-                    .map_or(crate::compliance::NONE, |i| i as u32)
-            })
-            .collect();
-        self.cache = ComplianceCache::new(
-            free_index,
-            &self.surface.nodes,
-            &self.surface.triangles,
-            &self.rest_positions,
-            Box::new(RestFactor {
-                rest,
-                dim: self.dim,
-            }),
-            self.budget_bytes,
-            self.filling,
-        );
-        self.scene.material.degeneration_grade = grade;
-        self.degeneration_grade = grade;
-        Ok(())
     }
 
     /// Builds the material-dependent parts of `scene` at degeneration grade `grade` (FE

@@ -436,6 +436,13 @@ fn gap_command(args: GapArgs) -> Result<i32> {
                     "calibrated launch file: {} (verdict none: its scene is the input scene, unchanged)",
                     path.display()
                 );
+            } else if let Some(t) = cal.table_fit {
+                println!(
+                    "calibrated launch file: {} (table fit: largest error {:.3} N = {:.1}% of the table's peak)",
+                    path.display(),
+                    t.max_error_n,
+                    t.max_error_percent_of_peak
+                );
             } else {
                 println!(
                     "calibrated launch file: {} (promised held-out RMSE {:.4} N)",

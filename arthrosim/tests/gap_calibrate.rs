@@ -202,6 +202,13 @@ fn the_default_scene_tissue_keys_come_from_the_cadaver_table() {
         msg.contains("scene.meniscus.support_stiffness") && msg.contains("% of the table's peak"),
         "the command says what it set and how well the scene meets the table: {msg}"
     );
+    // What the written scene renders is the table fit's error, not the diagnosis' held-out
+    // RMSE of its replay (the header promised 0.56 N before).
+    let header = std::fs::read_to_string(&out).unwrap();
+    assert!(
+        msg.contains("table fit: largest error") && header.contains("fitted to the table"),
+        "{msg}\n{header}"
+    );
     // everything but the tissue keys is the default launch file's
     let mut same = written.clone();
     same.scene.material.modulus_scale = d.material.modulus_scale;

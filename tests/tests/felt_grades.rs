@@ -11,9 +11,9 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Duration;
 
-/// `operator::Phase` codes of the press and the hold.
-const PRESS: u32 = 2;
-const HOLD: u32 = 3;
+/// The wire codes of the press and the hold.
+const PRESS: u32 = msgs::protocol::Phase::Press as u32;
+const HOLD: u32 = msgs::protocol::Phase::Hold as u32;
 /// Stylus depth every probing presses to, m.
 const DEPTH_M: f64 = 0.004;
 /// The Touch's continuous force, N.

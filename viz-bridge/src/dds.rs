@@ -102,17 +102,20 @@ pub fn topic_name(namespace: &str, topic: &str) -> Result<Name, DdsError> {
     })
 }
 
+/// The writer of one session topic, with the name and settings the topic has (none when the
+/// launch file disables it).
 fn publisher<M: RosMessage + ros2_client::Message>(
     node: &mut Node,
-    namespace: &str,
-    topic: &str,
-    stream: &StreamConfig,
+    config: &BridgeConfig,
+    session_topic: Topic,
 ) -> Result<Option<Publisher<M>>, DdsError> {
+    let stream = config.streams.of(session_topic);
     if !stream.enabled {
         return Ok(None);
     }
+    let topic = session_topic.relative();
     let qos = qos(stream);
-    let name = topic_name(namespace, topic)?;
+    let name = topic_name(&config.namespace, topic)?;
     let topic_handle = node
         .create_topic(&name, message_type_name::<M>(), &qos)
         .map_err(setup(format!("topic {topic}")))?;
@@ -248,48 +251,28 @@ impl DdsSide {
                 }
             })
             .map_err(setup("spawn spinner"))?;
-        let ns = config.namespace.clone();
-        let s = &config.streams;
         let publishers = Publishers {
-            probe_pose: publisher(&mut node, &ns, Topic::ProbePose.relative(), &s.probe_pose)?,
-            probe_wrench: publisher(
-                &mut node,
-                &ns,
-                Topic::ProbeWrench.relative(),
-                &s.probe_wrench,
-            )?,
-            device_wrench: publisher(
-                &mut node,
-                &ns,
-                Topic::DeviceWrench.relative(),
-                &s.device_wrench,
-            )?,
-            joint_states: publisher(
-                &mut node,
-                &ns,
-                Topic::JointStates.relative(),
-                &s.joint_states,
-            )?,
-            buttons: publisher(&mut node, &ns, Topic::Buttons.relative(), &s.buttons)?,
-            mesh: publisher(&mut node, &ns, Topic::Mesh.relative(), &s.mesh)?,
-            contacts: publisher(&mut node, &ns, Topic::Contacts.relative(), &s.contacts)?,
-            tf: publisher(&mut node, &ns, Topic::Tf.relative(), &s.tf)?,
-            diagnostics: publisher(
-                &mut node,
-                &ns,
-                Topic::Diagnostics.relative(),
-                &s.diagnostics,
-            )?,
+            probe_pose: publisher(&mut node, &config, Topic::ProbePose)?,
+            probe_wrench: publisher(&mut node, &config, Topic::ProbeWrench)?,
+            device_wrench: publisher(&mut node, &config, Topic::DeviceWrench)?,
+            joint_states: publisher(&mut node, &config, Topic::JointStates)?,
+            buttons: publisher(&mut node, &config, Topic::Buttons)?,
+            mesh: publisher(&mut node, &config, Topic::Mesh)?,
+            contacts: publisher(&mut node, &config, Topic::Contacts)?,
+            tf: publisher(&mut node, &config, Topic::Tf)?,
+            diagnostics: publisher(&mut node, &config, Topic::Diagnostics)?,
         };
+        let ns = &config.namespace;
+        let s = &config.streams;
         let target_pose = subscription(
             &mut node,
-            &ns,
+            ns,
             ros_mapping::TOPIC_TARGET_POSE,
             &s.target_pose,
         )?;
         let degeneration_grade = subscription(
             &mut node,
-            &ns,
+            ns,
             ros_mapping::TOPIC_DEGENERATION_GRADE,
             &s.degeneration_grade,
         )?;

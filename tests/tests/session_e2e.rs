@@ -172,26 +172,39 @@ fn bounded_default_session_covers_three_regions_and_leaves_nothing_running() {
 /// (device ticks in the Hold phase, per probing) the rendered force's standard deviation is at
 /// most 0.02 N. Regression: the session's stop ramp (force to zero in 10 ticks) was labelled
 /// with the last probing's Hold phase, so a session that ended in a hold showed 0.07–0.09 N.
+///
+/// Ticks with a fault flag are left out of the deviation: when physics is late (a frame older
+/// than 20 ms on a loaded machine) the haptic node fades the force by design and flags the
+/// tick; one such fade in a hold gave 0.04–0.08 N. They must stay rare (≤ 10% of a hold).
 fn every_hold_is_steady(recording: &Path) {
     const HOLD: u32 = msgs::protocol::Phase::Hold as u32;
     let (_, ticks) = recordings::export::read_lossless(recording)
         .unwrap_or_else(|e| panic!("reading {}: {e}", recording.display()));
-    let mut holds: std::collections::BTreeMap<u32, Vec<f64>> = Default::default();
+    // Per probing: the unflagged hold forces and the number of flagged hold ticks.
+    let mut holds: std::collections::BTreeMap<u32, (Vec<f64>, usize)> = Default::default();
     for t in ticks.iter().filter(|t| t.phase == HOLD) {
+        let hold = holds.entry(t.probing_index).or_default();
+        if t.faults != 0 {
+            hold.1 += 1;
+            continue;
+        }
         let f = &t.rendered_force;
-        holds
-            .entry(t.probing_index)
-            .or_default()
-            .push((f.x * f.x + f.y * f.y + f.z * f.z).sqrt());
+        hold.0.push((f.x * f.x + f.y * f.y + f.z * f.z).sqrt());
     }
     assert!(holds.len() >= 3, "only {} holds recorded", holds.len());
-    for (probing, forces) in &holds {
+    for (probing, (forces, flagged)) in &holds {
+        assert!(
+            *flagged * 10 <= forces.len() + flagged,
+            "probing {probing}: {flagged} of {} hold ticks flagged a fault",
+            forces.len() + flagged
+        );
         let n = forces.len() as f64;
         let mean = forces.iter().sum::<f64>() / n;
         let sd = (forces.iter().map(|f| (f - mean).powi(2)).sum::<f64>() / n).sqrt();
         assert!(
             sd <= 0.02,
-            "probing {probing}: rendered force over the hold {mean:.3} ± {sd:.4} N (≤ 0.02 N)"
+            "probing {probing}: rendered force over the hold {mean:.3} ± {sd:.4} N (≤ 0.02 N; \
+             {flagged} flagged ticks left out)"
         );
     }
 }

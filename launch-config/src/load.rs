@@ -415,7 +415,7 @@ pub fn resolve_paths(file: &mut LaunchFile, base: &Path) {
     if !matches!(meniscus.fixed.as_str(), "inferior" | "none") {
         resolve(&mut meniscus.fixed);
     }
-    if file.scene.probe.model != "default" {
+    if !crate::scene::BUILTIN_PROBE_MODELS.contains(&file.scene.probe.model.as_str()) {
         resolve(&mut file.scene.probe.model);
     }
     resolve(&mut file.device.replay.path);

@@ -246,11 +246,14 @@ impl Default for ContactConfig {
     }
 }
 
+/// `[scene.probe] model` values that name a built-in collision model rather than an OBJ file.
+pub const BUILTIN_PROBE_MODELS: [&str; 3] = ["default", "hook", "sphere"];
+
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ProbeConfig {
-    /// `default` (built-in hook probe: tip ball, 3 mm hook, 40 mm shaft, as chains of balls of
-    /// `tip_radius`), `sphere` (the tip ball alone, for indentation tests) or a path to an OBJ
+    /// `default` or `hook` (built-in hook probe: tip ball, 3 mm hook, 40 mm shaft, as chains of
+    /// balls of `tip_radius`), `sphere` (the tip ball alone, for indentation tests) or a path to an OBJ
     /// collision model (its vertices and sampled edges become contact points; radius 0, so
     /// `contact.contact_distance` acts as their thickness).
     pub model: String,

@@ -250,12 +250,13 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
     }
 
     let p = &s.probe;
-    if p.model != "default" {
+    if !crate::scene::BUILTIN_PROBE_MODELS.contains(&p.model.as_str()) {
         v.existing_file(
             "scene.probe.model",
             &p.model,
             &["obj"],
-            "`default` or a path to an OBJ collision model",
+            "`default` (the hook), `hook`, `sphere` (the tip ball alone) or a path to an OBJ \
+             collision model",
         );
     }
     v.transform("scene.probe.transform", &p.transform);

@@ -101,6 +101,31 @@ fn negative_dt_is_a_named_semantic_error() {
     assert_eq!(err.issues()[0].key, "scene.dt");
 }
 
+/// The built-in probe models load as themselves; `sphere` (an indentation test's ball) used
+/// to be read as a relative OBJ path and refused.
+#[test]
+fn builtin_probe_models_are_not_paths() {
+    let dir = scratch("probe-model");
+    for model in ["default", "hook", "sphere"] {
+        let text = format!("[scene.probe]\nmodel = \"{model}\"\n");
+        let file = load(write(&dir, "probe.toml", &text)).unwrap();
+        assert_eq!(file.scene.probe.model, model);
+    }
+    let (issue, text) = only_issue(
+        load(write(
+            &dir,
+            "ball.toml",
+            "[scene.probe]\nmodel = \"ball\"\n",
+        ))
+        .unwrap_err(),
+    );
+    assert_eq!(issue.key, "scene.probe.model");
+    assert!(
+        text.contains("`sphere`"),
+        "names the built-in models: {text}"
+    );
+}
+
 #[test]
 fn missing_mesh_is_resolved_against_the_launch_file_folder() {
     let dir = scratch("mesh");

@@ -443,6 +443,7 @@ impl ContactDetector {
                 let weights = loc.barycentric_coordinates().unwrap_or([1.0 / 3.0; 3]);
                 self.push(
                     i,
+                    first,
                     t,
                     weights,
                     normal,
@@ -473,6 +474,7 @@ impl ContactDetector {
                 let weights = location.barycentric_coordinates().unwrap_or([1.0 / 3.0; 3]);
                 self.push(
                     i,
+                    first,
                     tri,
                     weights,
                     normal,
@@ -552,6 +554,7 @@ impl ContactDetector {
                 let weights = loc.barycentric_coordinates().unwrap_or([1.0 / 3.0; 3]);
                 self.push(
                     i,
+                    first,
                     t,
                     weights,
                     normal,
@@ -612,10 +615,12 @@ impl ContactDetector {
             }
         }
         let t = best.0;
+        let first = self.candidates.len();
         let (c, w) = surface.project_on_triangle(t, p0);
         let n = surface.face_normal(t);
         self.push(
             i,
+            first,
             t,
             w,
             n,
@@ -642,6 +647,7 @@ impl ContactDetector {
     fn push(
         &mut self,
         i: usize,
+        first: usize,
         tri: u32,
         weights: [f64; 3],
         normal: Vector3<f64>,
@@ -672,14 +678,9 @@ impl ContactDetector {
         if !support {
             self.tracked[i] = tri;
         }
-        if self.candidates.len() == self.candidates.capacity() {
-            // Fixed capacity (no allocation in the step); the remaining features of a sphere
-            // this crowded are redundant.
-            return;
-        }
         let (t1, t2) = tangents(&normal);
         let slip = (pf - p0) - (c_free - c);
-        self.candidates.push(Contact {
+        let contact = Contact {
             sphere: i,
             triangle: tri,
             nodes,
@@ -692,7 +693,30 @@ impl ContactDetector {
             probe_point: *p0,
             gap_start,
             free_violation: [gap_free, t1.dot(&slip), t2.dot(&slip)],
+        };
+        if self.candidates.len() < self.candidates.capacity() {
+            self.candidates.push(contact);
+            return;
+        }
+        // Fixed capacity (no allocation in the step). A full list must not drop the features
+        // that matter: the bounding-volume query returns them in no particular order, and a
+        // sphere on a fine surface has more features within reach than slots, so the ones
+        // under it could be the ones left out (a ball pressed into a finely meshed block
+        // found no contact at all). The new feature replaces the least violated of this
+        // sphere's own (or, when it has none yet, of all) if it is more violated.
+        let from = if first < self.candidates.len() {
+            first
+        } else {
+            0
+        };
+        let weakest = (from..self.candidates.len()).max_by(|&a, &b| {
+            self.candidates[a].free_violation[0].total_cmp(&self.candidates[b].free_violation[0])
         });
+        if let Some(w) = weakest {
+            if gap_free < self.candidates[w].free_violation[0] {
+                self.candidates[w] = contact;
+            }
+        }
     }
 }
 
@@ -724,6 +748,55 @@ mod tests {
         for e in edges.chunks(2) {
             assert_eq!(e[0], e[1], "open edge");
         }
+    }
+
+    /// Regression: the candidate list has a fixed capacity (16 per sphere) and used to drop
+    /// every feature found after it was full. A ball on a finely meshed block has hundreds
+    /// of features within reach, returned by the bounding-volume query in no useful order,
+    /// so the triangles under the ball were dropped and a ball pressed into the block felt
+    /// no contact at all.
+    #[test]
+    fn a_full_candidate_list_keeps_the_features_under_the_sphere() {
+        // 24 mm × 24 mm top face of 0.5 mm quads, at z = 5 mm.
+        let mesh = box_mesh(0.024, 0.024, 0.005, 48, 48, 1);
+        let surface = TissueSurface::new(boundary_triangles(&mesh.tets), &mesh.nodes).unwrap();
+        // The ball's centre above the middle of the face, the ball 0.1 mm into the tissue.
+        let cfg = launch_config::scene::ProbeConfig {
+            model: "sphere".into(),
+            tip_radius: 3.0e-3,
+            initial_position: [0.012, 0.012, 0.005 + 3.0e-3 - 0.1e-3],
+            ..Default::default()
+        };
+        let probe = Probe::new(&cfg, 1.136e-3, std::path::Path::new(".")).unwrap();
+        let params = ContactParams {
+            alarm_distance: 3.408e-3,
+            contact_distance: 1.136e-3,
+            max_contacts: 32,
+        };
+        let mut detector = ContactDetector::new(params, probe.spheres.len());
+        detector.detect(&probe, &surface, None, &mesh.nodes, &mesh.nodes, 0.0);
+        let deepest = detector
+            .contacts
+            .iter()
+            .map(|c| c.free_violation[0])
+            .fold(f64::INFINITY, f64::min);
+        assert!(
+            (deepest + 0.1e-3).abs() < 1e-6,
+            "the ball is 0.1 mm in, the deepest contact found: {deepest} m"
+        );
+        // The kept ones are the features under the ball, not far ones at the rim of reach.
+        assert!(
+            detector
+                .contacts
+                .iter()
+                .all(|c| c.free_violation[0] < 0.05e-3),
+            "{:?}",
+            detector
+                .contacts
+                .iter()
+                .map(|c| c.free_violation[0])
+                .collect::<Vec<_>>()
+        );
     }
 
     #[test]

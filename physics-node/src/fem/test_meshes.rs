@@ -7,17 +7,23 @@ use crate::mesh::TetMesh;
 /// A box [0, lx] × [0, ly] × [0, lz] of nx × ny × nz hexahedra, each split into 6 tets along
 /// its main diagonal (Kuhn split: conforming across hexes). All tets positively oriented.
 pub fn box_mesh(lx: f64, ly: f64, lz: f64, nx: usize, ny: usize, nz: usize) -> TetMesh {
-    let (nx, ny, nz) = (nx.max(1), ny.max(1), nz.max(1));
+    let ticks = |l: f64, n: usize| -> Vec<f64> {
+        let n = n.max(1);
+        (0..=n).map(|i| l * i as f64 / n as f64).collect()
+    };
+    graded_box_mesh(&ticks(lx, nx), &ticks(ly, ny), &ticks(lz, nz))
+}
+
+/// A structured box whose hexahedra lie between the given increasing grid coordinates on each
+/// axis (graded meshes: fine where a test presses, coarse far away), split as [`box_mesh`].
+pub fn graded_box_mesh(xs: &[f64], ys: &[f64], zs: &[f64]) -> TetMesh {
+    let (nx, ny, nz) = (xs.len() - 1, ys.len() - 1, zs.len() - 1);
     let id = |i: usize, j: usize, k: usize| (k * (ny + 1) + j) * (nx + 1) + i;
-    let mut nodes = Vec::with_capacity((nx + 1) * (ny + 1) * (nz + 1));
-    for k in 0..=nz {
-        for j in 0..=ny {
-            for i in 0..=nx {
-                nodes.push(Point3::new(
-                    lx * i as f64 / nx as f64,
-                    ly * j as f64 / ny as f64,
-                    lz * k as f64 / nz as f64,
-                ));
+    let mut nodes = Vec::with_capacity(xs.len() * ys.len() * zs.len());
+    for &z in zs {
+        for &y in ys {
+            for &x in xs {
+                nodes.push(Point3::new(x, y, z));
             }
         }
     }

@@ -8,8 +8,8 @@
 //! cell towards the block's sides, 18 mm wide and 9 mm deep with its base fixed, so the
 //! contact radius (a = √(R·d) ≤ 0.95 mm) spans several elements and the block is ≥ 9
 //! contact radii across — a half-space to within a few percent. What differs from Hertz is
-//! then the model itself: linear tets under a curved load and a contact that constrains at
-//! most `FEATURES_PER_SPHERE` features of the ball.
+//! then the model itself: linear tets under a curved load, and a contact that holds the ball
+//! at up to `FEATURES_PER_SPHERE` surface features.
 //!
 //! Run with `--nocapture` to see the table; the README quotes it.
 
@@ -162,15 +162,10 @@ fn ball_on_thick_block_follows_hertz() {
     }
     let _ = std::fs::remove_dir_all(&dir);
     println!("largest deviation from Hertz: {:.1}%", worst * 100.0);
-    // Reached (README): −22%, −36%, −42% at 0.1, 0.2, 0.3 mm. The model is softer than
-    // Hertz, more so as the contact radius grows: the ball constrains at most
-    // FEATURES_PER_SPHERE surface features, and the surface between them sinks into it.
-    // The bound is what is reached with margin, so a contact or FE change that moves the
-    // model further from the reference (or loses the contact, as a full candidate list once
-    // did: 0 N) fails here.
-    assert!(
-        worst < 0.5,
-        "ball on block deviates {:.0}% from Hertz",
-        worst * 100.0
-    );
+    // Reached (README): +19%, +11%, +6% at 0.1, 0.2, 0.3 mm — stiffer than Hertz where the
+    // contact radius spans only ~4 cells, converging as it spans more. With eight features
+    // per sphere the model was 22–42% softer (the surface between the held points sank into
+    // the ball); with a full candidate list that dropped new features it found no contact at
+    // all (0 N). The bound is what is reached, with margin.
+    assert!(worst < 0.3, "ball on block deviates {:.0}% from Hertz", worst * 100.0);
 }

@@ -167,5 +167,9 @@ fn ball_on_thick_block_follows_hertz() {
     // per sphere the model was 22–42% softer (the surface between the held points sank into
     // the ball); with a full candidate list that dropped new features it found no contact at
     // all (0 N). The bound is what is reached, with margin.
-    assert!(worst < 0.3, "ball on block deviates {:.0}% from Hertz", worst * 100.0);
+    assert!(
+        worst < 0.3,
+        "ball on block deviates {:.0}% from Hertz",
+        worst * 100.0
+    );
 }

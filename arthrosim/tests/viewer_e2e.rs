@@ -14,7 +14,7 @@ mod common;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 fn workspace() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -63,31 +63,6 @@ pub fn default_launch_on_free_ports(dir: &Path) -> PathBuf {
     path
 }
 
-/// Waits for the viewer's `VIEWER http=… ws=…` line in the session's log.
-fn viewer_urls(out: &Path, timeout: Duration) -> (String, String) {
-    let log = out.join("logs/viewer.log");
-    let start = Instant::now();
-    while start.elapsed() < timeout {
-        if let Ok(text) = std::fs::read_to_string(&log) {
-            if let Some(line) = text.lines().find(|l| l.starts_with("VIEWER ")) {
-                let mut http = None;
-                let mut ws = None;
-                for part in line.split_whitespace() {
-                    if let Some(v) = part.strip_prefix("http=") {
-                        http = Some(v.to_string());
-                    }
-                    if let Some(v) = part.strip_prefix("ws=") {
-                        ws = Some(v.to_string());
-                    }
-                }
-                return (http.unwrap(), ws.unwrap());
-            }
-        }
-        std::thread::sleep(Duration::from_millis(200));
-    }
-    panic!("no VIEWER line in {} within {timeout:?}", log.display());
-}
-
 fn json_of(out: &std::process::Output) -> serde_json::Value {
     let stdout = String::from_utf8_lossy(&out.stdout);
     let line = stdout
@@ -132,7 +107,7 @@ fn foxglove_client_and_chromium_watch_a_default_session() {
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    let (http, ws) = viewer_urls(&out, Duration::from_secs(180));
+    let (http, ws) = common::viewer_urls(&out, Duration::from_secs(180));
     assert!(
         http.starts_with("http://127.0.0.1:"),
         "loopback by default: {http}"
@@ -214,8 +189,41 @@ fn foxglove_client_and_chromium_watch_a_default_session() {
     );
     assert!(shot.is_file());
 
-    // The 1 kHz loop kept its rate with both watchers connected.
+    // The 1 kHz loop kept its rate with both watchers connected, and the recorder and the
+    // bridge read every device tick (the 1 kHz stream) and the bridge dropped none of them on
+    // the way to DDS: the viewer reads beside them without slowing anything.
     let summary: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
-    eprintln!("haptic: {}", summary["summary"]["haptic"]);
+    let haptic_hz = summary["summary"]["haptic_hz"].as_f64().unwrap();
+    let ticks = summary["summary"]["haptic_ticks"].as_u64().unwrap();
+    let recorded = tagged_json(&out.join("logs/recorder.log"), "RECORDED");
+    let bridged = tagged_json(&out.join("logs/bridge.log"), "BRIDGED");
+    let viewed = tagged_json(&out.join("logs/viewer.log"), "VIEWED");
+    eprintln!(
+        "haptic: {haptic_hz:.1} Hz, {ticks} ticks\nrecorder: {recorded}\nbridge: {bridged}\nviewer: {viewed}"
+    );
+    assert!(haptic_hz > 950.0, "haptic rate {haptic_hz} Hz");
+    assert_eq!(recorded["device_states_dropped"], 0, "{recorded}");
+    let read = bridged["device_states"].as_u64().unwrap();
+    // The bridge may subscribe a few ticks after the haptic node's first.
+    assert!(
+        read as f64 >= 0.995 * ticks as f64,
+        "the bridge read {read} of {ticks} device ticks"
+    );
+    let wrench = &bridged["topics"]["device/wrench"];
+    assert_eq!(wrench["dropped_queue"], 0, "{bridged}");
+    assert_eq!(wrench["dropped_dds"], 0, "{bridged}");
+    assert_eq!(wrench["published"].as_u64(), Some(read), "{bridged}");
+    assert_eq!(viewed["ipc_errors"], 0, "{viewed}");
+}
+
+/// The JSON of the last `TAG {json}` line of a node's log (the nodes' end-of-run totals).
+fn tagged_json(log: &Path, tag: &str) -> serde_json::Value {
+    let text = std::fs::read_to_string(log).unwrap_or_default();
+    let line = text
+        .lines()
+        .rev()
+        .find_map(|l| l.strip_prefix(tag)?.strip_prefix(' '))
+        .unwrap_or_else(|| panic!("no {tag} line in {}:\n{text}", log.display()));
+    serde_json::from_str(line).unwrap()
 }

@@ -227,3 +227,81 @@ fn tagged_json(log: &Path, tag: &str) -> serde_json::Value {
         .unwrap_or_else(|| panic!("no {tag} line in {}:\n{text}", log.display()));
     serde_json::from_str(line).unwrap()
 }
+
+/// `[viewer] bind = "0.0.0.0"` is the explicit way to serve other machines: the viewer then
+/// listens on every interface (reached here through loopback, as the only address a test may
+/// use), says in its log what that exposes, and serves the page with relative URLs only, so
+/// a browser on another machine loads its script and stream from the same host.
+#[test]
+fn a_lan_bind_serves_every_interface_and_says_what_it_exposes() {
+    let dir = common::scratch("viewer", "lan");
+    let launch = default_launch_on_free_ports(&dir);
+    let text = std::fs::read_to_string(&launch)
+        .unwrap()
+        .replace("bind = \"127.0.0.1\"", "bind = \"0.0.0.0\"");
+    assert!(text.contains("bind = \"0.0.0.0\""));
+    std::fs::write(&launch, text).unwrap();
+    let mut node = Command::new(env!("CARGO_BIN_EXE_arthrosim"))
+        .args(["node", "viewer", "--launch", launch.to_str().unwrap()])
+        .args(["--session", &format!("viewer-lan-{}", std::process::id())])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // The VIEWER line comes once the servers listen.
+    let mut stdout = std::io::BufReader::new(node.stdout.take().unwrap());
+    let mut line = String::new();
+    use std::io::{BufRead, Read, Write};
+    while !line.starts_with("VIEWER ") {
+        line.clear();
+        if stdout.read_line(&mut line).unwrap() == 0 {
+            break;
+        }
+    }
+    let http = line
+        .split_whitespace()
+        .find_map(|p| p.strip_prefix("http="))
+        .unwrap_or_else(|| panic!("no VIEWER line: {line:?}"))
+        .to_string();
+    assert!(http.starts_with("http://0.0.0.0:"), "{http}");
+    let port: u16 = http
+        .trim_end_matches('/')
+        .rsplit(':')
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap();
+    let get = |path: &str| {
+        let mut s = std::net::TcpStream::connect(("127.0.0.1", port)).unwrap();
+        write!(s, "GET {path} HTTP/1.1\r\nHost: lab-pc:{port}\r\n\r\n").unwrap();
+        let mut body = String::new();
+        s.read_to_string(&mut body).unwrap();
+        body
+    };
+    let page = get("/");
+    let script = get("/viewer.js");
+    let _ = Command::new("kill")
+        .args(["-TERM", &node.id().to_string()])
+        .status();
+    let status = node.wait().unwrap();
+    let mut stderr = String::new();
+    node.stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut stderr)
+        .unwrap();
+    assert!(status.success(), "viewer exit {status}: {stderr}");
+    assert!(
+        stderr.contains("bound to 0.0.0.0") && stderr.contains("visible to every machine"),
+        "the exposure is said: {stderr}"
+    );
+    assert!(page.starts_with("HTTP/1.1 200"), "{page}");
+    assert!(page.contains("id=\"viewer-status\""), "{page}");
+    assert!(page.contains("<script src=\"/viewer.js\">"), "{page}");
+    assert!(
+        !page.contains("127.0.0.1") && !page.contains("localhost"),
+        "no address of this machine in the page: {page}"
+    );
+    assert!(script.starts_with("HTTP/1.1 200"));
+    assert!(script.contains("/events") && !script.contains("127.0.0.1:"));
+}

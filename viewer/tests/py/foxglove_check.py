@@ -31,6 +31,7 @@ WANT = {
     f"{NS}/probe/pose": "geometry_msgs/msg/PoseStamped",
     f"{NS}/probe/wrench": "geometry_msgs/msg/WrenchStamped",
     f"{NS}/device/wrench": "geometry_msgs/msg/WrenchStamped",
+    f"{NS}/device/joint_states": "sensor_msgs/msg/JointState",
     f"{NS}/meniscus/mesh": "visualization_msgs/msg/Marker",
     f"{NS}/contacts": "visualization_msgs/msg/MarkerArray",
     "/tf": "tf2_msgs/msg/TFMessage",
@@ -97,12 +98,14 @@ def main():
         if advertised.get(topic) != schema:
             failures.append(f"channel {topic} advertised as {advertised.get(topic)}, expected {schema}")
     counts = {t: len(v) for t, v in got.items()}
-    for topic in [f"{NS}/probe/pose", f"{NS}/probe/wrench", f"{NS}/meniscus/mesh", "/tf"]:
+    for topic in [f"{NS}/probe/pose", f"{NS}/probe/wrench", f"{NS}/meniscus/mesh", "/tf",
+                  f"{NS}/device/wrench", f"{NS}/device/joint_states"]:
         if counts.get(topic, 0) == 0:
             failures.append(f"no message on {topic}")
 
     tf_children = sorted({t.child_frame_id for _, m, _ in got.get("/tf", []) for t in m.transforms})
-    if not {"meniscus", "probe", "touch_base"} <= set(tf_children):
+    # The stylus is the proxy frame (under touch_base), the probe the physics' tool.
+    if not {"meniscus", "probe", "proxy", "touch_base"} <= set(tf_children):
         failures.append(f"tf children {tf_children}")
     diag_keys = sorted({kv.key for _, m, _ in got.get("/diagnostics", []) for s in m.status for kv in s.values})
     # Session status on /diagnostics: region, probing, rates and faults.

@@ -2,6 +2,8 @@
 //! - `arthrosim train --cases 6` with the emulated operator writes six answered cases to
 //!   SQLite (read back with Python's sqlite3, as outside checks do), and the trainees report
 //!   renders in headless Chromium;
+//! - a trainee answering on the page in headless Chromium (the grade buttons) is what the
+//!   database stores, as `page` answers;
 //! - bad trainee names, a corrupt database and a newer schema are refused with clear
 //!   messages, and the files are left untouched.
 
@@ -117,20 +119,7 @@ fn train_six_cases_with_the_emulated_operator_then_report() {
     let page = report_dir.join("index.html");
     assert!(page.is_file());
 
-    let has_chromium = ["chromium-headless-shell", "chromium"].iter().any(|c| {
-        Command::new("which")
-            .arg(c)
-            .output()
-            .is_ok_and(|o| o.status.success())
-    });
-    let has_ws = Command::new("python3")
-        .args(["-c", "import websockets"])
-        .stderr(Stdio::null())
-        .status()
-        .is_ok_and(|s| s.success());
-    if !(has_chromium && has_ws) {
-        assert!(!in_ci(), "chromium or websockets missing in CI");
-        eprintln!("skipping the report rendering: no chromium/websockets");
+    if !browser_present() {
         return;
     }
     let shot = dir.join("report.png");
@@ -159,6 +148,105 @@ fn train_six_cases_with_the_emulated_operator_then_report() {
         .sum();
     assert_eq!(total, 6, "{v}");
     assert!(r["curve"]["width"].as_f64().unwrap() > 100.0, "{v}");
+}
+
+/// Whether headless Chromium and the DevTools client (PyPI `websockets`) are there; outside
+/// CI their absence skips a browser check.
+fn browser_present() -> bool {
+    let has_chromium = ["chromium-headless-shell", "chromium"].iter().any(|c| {
+        Command::new("which")
+            .arg(c)
+            .output()
+            .is_ok_and(|o| o.status.success())
+    });
+    let has_ws = Command::new("python3")
+        .args(["-c", "import websockets"])
+        .stderr(Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success());
+    if !(has_chromium && has_ws) {
+        assert!(!in_ci(), "chromium or websockets missing in CI");
+        eprintln!("skipping the browser check: no chromium/websockets");
+    }
+    has_chromium && has_ws
+}
+
+/// The answers an outside check gives on the page (clicking a grade button in a browser) go
+/// through the viewer and the driver into the database. The emulated operator is held back
+/// (it would answer only after 1000 probings or 10 minutes), so every case is answered on
+/// the page.
+#[test]
+fn answers_given_on_the_page_in_chromium_are_stored() {
+    if !browser_present() {
+        return;
+    }
+    let dir = common::scratch("train", "page");
+    let launch = launch_on_free_ports(&dir);
+    let mut text = std::fs::read_to_string(&launch).unwrap();
+    assert!(
+        !text.contains("[training]"),
+        "the default file sets no [training]"
+    );
+    text.push_str(
+        "\n[training]\nreference_case = false\noperator_probings = 1000\ncase_timeout_s = 600\n",
+    );
+    std::fs::write(&launch, text).unwrap();
+    let db = dir.join("trainees.sqlite");
+    let out_dir = dir.join("session");
+    let session = format!("train-page-{}", std::process::id());
+    let train = Command::new(env!("CARGO_BIN_EXE_arthrosim"))
+        .args(["train", "--trainee", "Page trainee", "--cases", "2"])
+        .args(["--db", db.to_str().unwrap(), "--session", &session])
+        .args(["--out", out_dir.to_str().unwrap()])
+        .arg(&launch)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let (http, _) = common::viewer_urls(&out_dir, std::time::Duration::from_secs(180));
+    let page = Command::new("python3")
+        .arg(workspace().join("viewer/tests/py/page_check.py"))
+        .args(["--mode", "answer", "--grade", "1", "--seconds", "120"])
+        .args(["--url", &http])
+        .args(["--screenshot", dir.join("answer.png").to_str().unwrap()])
+        .output()
+        .unwrap();
+    let page_text = common::text(&page);
+    if !page.status.success() {
+        // The page could not answer: the training would wait for ever.
+        let mut train = train;
+        let _ = train.kill();
+        let _ = train.wait();
+        panic!("page check failed:\n{page_text}");
+    }
+    let out = train.wait_with_output().unwrap();
+    let text = common::text(&out);
+    assert!(
+        out.status.success(),
+        "train failed:\n{text}\npage: {page_text}"
+    );
+    let v: serde_json::Value = serde_json::from_str(
+        String::from_utf8_lossy(&page.stdout)
+            .lines()
+            .last()
+            .unwrap(),
+    )
+    .unwrap();
+    assert_eq!(v["training"], "finished", "{v}");
+    assert_eq!(v["answered"], serde_json::json!([1, 2]), "{v}");
+
+    let rows = python(
+        "import sqlite3,sys,json; c=sqlite3.connect(sys.argv[1]); \
+         print(json.dumps(c.execute('SELECT case_index,answered_grade,answer_source FROM cases \
+         ORDER BY case_index').fetchall()))",
+        &db,
+    );
+    let rows: Vec<(u32, u32, String)> = serde_json::from_str(&rows).unwrap();
+    assert_eq!(
+        rows,
+        vec![(1, 1, "page".to_string()), (2, 1, "page".to_string())],
+        "{text}"
+    );
 }
 
 #[test]

@@ -548,6 +548,17 @@ mod tests {
         }
     }
 
+    /// Cases stored for trainee `who` (0 before the trainee exists).
+    fn cases_of(conn: &Connection, who: &str) -> i64 {
+        conn.query_row(
+            "SELECT count(*) FROM cases JOIN sessions ON cases.session_id = sessions.id \
+             JOIN trainees ON sessions.trainee_id = trainees.id WHERE trainees.name = ?1",
+            [who],
+            |r| r.get(0),
+        )
+        .unwrap()
+    }
+
     #[test]
     fn schema_has_the_documented_tables_and_nothing_is_overwritten() {
         let dir = scratch("schema");
@@ -676,12 +687,16 @@ mod tests {
 
     /// Two processes append to one database at once: with WAL and the busy timeout neither
     /// fails, no row is lost, and the file passes SQLite's integrity check. The test runs
-    /// itself twice as a child process (`TRAINING_DB_WRITER`).
+    /// itself twice as a child process (`TRAINING_DB_WRITER`). Each writer stops halfway
+    /// until it sees the other's rows, so the two really write at the same time (alone, one
+    /// child could finish its 150 rows before the other had started: the rows would not
+    /// interleave, and the test would prove nothing about concurrency).
     #[test]
     fn two_writers_share_one_database() {
         const CASES: u32 = 150;
         if let Ok(spec) = std::env::var("TRAINING_DB_WRITER") {
             let (path, who) = spec.split_once('|').unwrap();
+            let other = if who == "alice" { "bob" } else { "alice" };
             let mut db = Db::open(Path::new(path)).unwrap();
             let t = db.trainee(who, "now").unwrap();
             let s = db
@@ -700,6 +715,16 @@ mod tests {
                 .unwrap();
             for i in 1..=CASES {
                 db.add_case(s, &case(i, i % 2, 0)).unwrap();
+                if i == CASES / 2 {
+                    let deadline = std::time::Instant::now() + Duration::from_secs(60);
+                    while cases_of(&db.conn, other) == 0 {
+                        assert!(
+                            std::time::Instant::now() < deadline,
+                            "{other} wrote nothing in 60 s"
+                        );
+                        std::thread::sleep(Duration::from_millis(2));
+                    }
+                }
             }
             db.finish_session(s, "end").unwrap();
             return;
@@ -730,6 +755,20 @@ mod tests {
             assert_eq!(s.len(), 1);
             assert_eq!(s[0].cases.len(), CASES as usize);
         }
+        // The rows interleave: each writer added rows after the other's first ones.
+        let span = |who: &str| -> (i64, i64) {
+            db.conn
+                .query_row(
+                    "SELECT min(cases.id), max(cases.id) FROM cases \
+                     JOIN sessions ON cases.session_id = sessions.id \
+                     JOIN trainees ON sessions.trainee_id = trainees.id WHERE trainees.name = ?1",
+                    [who],
+                    |r| Ok((r.get(0)?, r.get(1)?)),
+                )
+                .unwrap()
+        };
+        let (a, b) = (span("alice"), span("bob"));
+        assert!(a.0 < b.1 && b.0 < a.1, "alice {a:?}, bob {b:?}");
         let ok: String = db
             .conn
             .query_row("PRAGMA integrity_check", [], |r| r.get(0))

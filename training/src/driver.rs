@@ -239,6 +239,18 @@ pub fn stiffness_ratio(case: &CaseMeasure, reference: &CaseMeasure) -> Option<f6
     (!logs.is_empty()).then(|| (logs.iter().sum::<f64>() / logs.len() as f64).exp())
 }
 
+/// The Touch's buttons between two device states (`before`, `now`: bit 0 the dark grey
+/// button, bit 1 the light grey one). A press of the dark grey button cycles `selected`
+/// through the grades; a press of the light grey one confirms (returns true). Only presses
+/// count, not a button held down: the device state repeats it at 1 kHz.
+pub fn button_presses(before: u32, now: u32, selected: &mut u32, grades: u32) -> bool {
+    let pressed = now & !before;
+    if pressed & 1 != 0 {
+        *selected = (*selected + 1) % grades;
+    }
+    pressed & 2 != 0
+}
+
 /// Ports of the driver (not `Send`: created on the driving thread).
 struct Ports {
     _node: ipc::IpcNode,
@@ -324,13 +336,7 @@ impl Live {
         let mut confirm = false;
         if ipc::take_newest(&self.ports.devices, device)? > 0 {
             self.region = device.region;
-            let pressed = device.buttons & !self.buttons;
-            if pressed & 1 != 0 {
-                *selected = (*selected + 1) % grades;
-            }
-            if pressed & 2 != 0 {
-                confirm = true;
-            }
+            confirm = button_presses(self.buttons, device.buttons, selected, grades);
             self.buttons = device.buttons;
         }
         let region = self.region;
@@ -607,6 +613,29 @@ impl Driver<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn touch_buttons_cycle_the_grade_and_confirm_on_presses_only() {
+        let mut selected = 0;
+        // Dark grey pressed, held, released, pressed again: two steps.
+        let states = [0, 1, 1, 1, 0, 1, 0];
+        let mut confirms = 0;
+        for w in states.windows(2) {
+            confirms += button_presses(w[0], w[1], &mut selected, 3) as u32;
+        }
+        assert_eq!((selected, confirms), (2, 0));
+        // A third press wraps to grade 0; then light grey held for three ticks confirms once.
+        assert!(!button_presses(0, 1, &mut selected, 3));
+        assert_eq!(selected, 0);
+        let states = [1, 0, 2, 2, 2, 0];
+        for w in states.windows(2) {
+            confirms += button_presses(w[0], w[1], &mut selected, 3) as u32;
+        }
+        assert_eq!((selected, confirms), (0, 1));
+        // Both at once: a step and a confirm.
+        assert!(button_presses(0, 3, &mut selected, 3));
+        assert_eq!(selected, 1);
+    }
 
     #[test]
     fn hidden_grades_are_balanced_and_seeded() {

@@ -246,7 +246,9 @@ pub fn run(
         }
     }
     stop.store(true, Ordering::Relaxed);
-    match source.join() {
+    let joined = source.join();
+    println!("VIEWED {}", counters.totals_json());
+    match joined {
         Ok(r) => r.context("shared-memory thread")?,
         Err(_) => anyhow::bail!("the shared-memory thread panicked"),
     }

@@ -44,6 +44,24 @@ pub struct Counters {
     pub ipc_errors: AtomicU64,
 }
 
+impl Counters {
+    /// The run's totals as one JSON object (printed as `VIEWED {json}` when the viewer stops,
+    /// so a session's log shows what the viewer read and what it dropped).
+    pub fn totals_json(&self) -> serde_json::Value {
+        let get = |c: &AtomicU64| c.load(Ordering::Relaxed);
+        serde_json::json!({
+            "contact_frames": get(&self.contact_frames),
+            "device_states": get(&self.device_states),
+            "surfaces": get(&self.surfaces),
+            "enqueued": get(&self.enqueued),
+            "dropped": get(&self.dropped),
+            "dropped_page": get(&self.dropped_page),
+            "answers_forwarded": get(&self.answers_forwarded),
+            "ipc_errors": get(&self.ipc_errors),
+        })
+    }
+}
+
 /// Rates of the outputs.
 #[derive(Debug, Clone, Copy)]
 pub struct Rates {

@@ -66,7 +66,12 @@ pub fn run_node(args: NodeArgs) -> anyhow::Result<()> {
     let mut bridge = Bridge::new(config, &session)?;
     bridge.start().context("starting the bridge")?;
     msgs::lifecycle::announce_ready("bridge");
-    bridge.run(stop)?;
+    let started = std::time::Instant::now();
+    let result = bridge.run(stop);
+    // After `run` the DDS thread is joined, so the counts are final.
+    let totals = bridge.stats().totals_json(started.elapsed().as_secs_f64());
+    println!("BRIDGED {totals}");
+    result?;
     Ok(())
 }
 

@@ -63,6 +63,41 @@ impl BridgeStats {
             w.record(ns);
         }
     }
+
+    /// The run's totals as one JSON object (the bridge prints it as `BRIDGED {json}` when it
+    /// stops, as the recorder prints `RECORDED`): the samples read from shared memory and, per
+    /// streamed topic, what was handed to DDS, published and dropped. `/diagnostics` shows the
+    /// same counters live, but only to a DDS reader; the line lets a session's log alone show
+    /// whether the bridge kept up with the 1 kHz device stream.
+    pub fn totals_json(&self, seconds: f64) -> serde_json::Value {
+        let mut topics = serde_json::Map::new();
+        let mut dropped = 0;
+        for &topic in Topic::STREAMED {
+            let c = self.stream(topic);
+            let published = Self::get(&c.published);
+            let (queue, dds) = (Self::get(&c.dropped_queue), Self::get(&c.dropped_dds));
+            dropped += queue + dds;
+            topics.insert(
+                topic.relative().trim_start_matches('/').to_string(),
+                serde_json::json!({
+                    "enqueued": Self::get(&c.enqueued),
+                    "published": published,
+                    "dropped_queue": queue,
+                    "dropped_dds": dds,
+                    "published_hz": if seconds > 0.0 { published as f64 / seconds } else { 0.0 },
+                }),
+            );
+        }
+        serde_json::json!({
+            "seconds": seconds,
+            "contact_frames": Self::get(&self.contact_frames),
+            "device_states": Self::get(&self.device_states),
+            "surfaces": Self::get(&self.surfaces),
+            "ipc_errors": Self::get(&self.ipc_errors),
+            "dropped": dropped,
+            "topics": topics,
+        })
+    }
 }
 
 /// Longest latency a diagnostics window resolves, ns (1 s; longer ones count as 1 s).
@@ -95,6 +130,26 @@ impl LatencyWindow {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn totals_count_reads_publications_and_drops_per_topic() {
+        let s = BridgeStats::default();
+        BridgeStats::add(&s.device_states, 2000);
+        let c = s.stream(Topic::DeviceWrench);
+        BridgeStats::add(&c.enqueued, 2000);
+        BridgeStats::add(&c.published, 1990);
+        BridgeStats::add(&c.dropped_queue, 7);
+        BridgeStats::add(&s.stream(Topic::Tf).dropped_dds, 3);
+        let t = s.totals_json(2.0);
+        assert_eq!(t["device_states"], 2000);
+        assert_eq!(t["dropped"], 10);
+        let w = &t["topics"]["device/wrench"];
+        assert_eq!(w["published"], 1990);
+        assert_eq!(w["dropped_queue"], 7);
+        assert_eq!(w["published_hz"], 995.0);
+        assert_eq!(t["topics"]["tf"]["dropped_dds"], 3);
+        assert!(t["topics"].get("diagnostics").is_none(), "{t}");
+    }
 
     #[test]
     fn a_window_reports_its_percentiles_and_restarts() {

@@ -1,8 +1,9 @@
 //! Helpers shared by the command-line tests: run the built `arthrosim`, a scratch folder per
 //! test, and the text a user sees.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
+use std::time::{Duration, Instant};
 
 pub fn arthrosim(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_arthrosim"))
@@ -45,4 +46,31 @@ pub fn text(out: &Output) -> String {
         String::from_utf8_lossy(&out.stdout),
         String::from_utf8_lossy(&out.stderr)
     )
+}
+
+/// Waits for the viewer's `VIEWER http=… ws=…` line in the session's log.
+// Only the tests that start a viewer use it.
+#[allow(dead_code)]
+pub fn viewer_urls(out: &Path, timeout: Duration) -> (String, String) {
+    let log = out.join("logs/viewer.log");
+    let start = Instant::now();
+    while start.elapsed() < timeout {
+        if let Ok(text) = std::fs::read_to_string(&log) {
+            if let Some(line) = text.lines().find(|l| l.starts_with("VIEWER ")) {
+                let mut http = None;
+                let mut ws = None;
+                for part in line.split_whitespace() {
+                    if let Some(v) = part.strip_prefix("http=") {
+                        http = Some(v.to_string());
+                    }
+                    if let Some(v) = part.strip_prefix("ws=") {
+                        ws = Some(v.to_string());
+                    }
+                }
+                return (http.unwrap(), ws.unwrap());
+            }
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    panic!("no VIEWER line in {} within {timeout:?}", log.display());
 }

@@ -10,6 +10,8 @@ what arrives against the session's own MCAP recording.
 2. Waits for the session to end (DIR/summary.json), opens DIR/session.mcap and matches each
    received probe wrench and pose to the recorded message with the nearest stamp: values must
    be equal (same physics step). The mesh's triangle-list length must equal the recorded one.
+   /diagnostics must carry region, probing, the rates (haptic near 1 kHz) and faults.
+Also reports, per topic, the rate received and the latency (receipt − log time, ms).
 Prints one JSON line with the counts and findings; exits 1 on any failed check.
 """
 import argparse
@@ -29,6 +31,7 @@ WANT = {
     f"{NS}/probe/pose": "geometry_msgs/msg/PoseStamped",
     f"{NS}/probe/wrench": "geometry_msgs/msg/WrenchStamped",
     f"{NS}/device/wrench": "geometry_msgs/msg/WrenchStamped",
+    f"{NS}/device/joint_states": "sensor_msgs/msg/JointState",
     f"{NS}/meniscus/mesh": "visualization_msgs/msg/Marker",
     f"{NS}/contacts": "visualization_msgs/msg/MarkerArray",
     "/tf": "tf2_msgs/msg/TFMessage",
@@ -44,6 +47,7 @@ async def collect(url, seconds):
     got = {}
     channels = {}
     decoders = {}
+    latency_ms = {}
     async with websockets.connect(url, subprotocols=["foxglove.sdk.v1", "foxglove.websocket.v1"],
                                   max_size=None, open_timeout=10) as ws:
         subscribed = False
@@ -69,11 +73,14 @@ async def collect(url, seconds):
                 continue
             if raw[0] != 0x01 or not subscribed:
                 continue
+            received_ns = time.time_ns()
             sub_id, log_time = struct.unpack_from("<IQ", raw, 1)
             payload = raw[13:]
             ch = channels[sub_id]
+            # Latency: receipt − the message's log time (the sample's session stamp, Unix ns).
+            latency_ms.setdefault(ch["topic"], []).append((received_ns - log_time) / 1e6)
             got.setdefault(ch["topic"], []).append((log_time, decoders[sub_id](payload), ch["schemaName"]))
-    return channels, got
+    return channels, got, latency_ms
 
 
 def main():
@@ -84,21 +91,31 @@ def main():
     ap.add_argument("--wait-end", type=float, default=120.0)
     args = ap.parse_args()
 
-    channels, got = asyncio.run(collect(args.ws, args.seconds))
+    channels, got, latency_ms = asyncio.run(collect(args.ws, args.seconds))
     failures = []
     advertised = {c["topic"]: c["schemaName"] for c in channels.values()}
     for topic, schema in WANT.items():
         if advertised.get(topic) != schema:
             failures.append(f"channel {topic} advertised as {advertised.get(topic)}, expected {schema}")
     counts = {t: len(v) for t, v in got.items()}
-    for topic in [f"{NS}/probe/pose", f"{NS}/probe/wrench", f"{NS}/meniscus/mesh", "/tf"]:
+    for topic in [f"{NS}/probe/pose", f"{NS}/probe/wrench", f"{NS}/meniscus/mesh", "/tf",
+                  f"{NS}/device/wrench", f"{NS}/device/joint_states"]:
         if counts.get(topic, 0) == 0:
             failures.append(f"no message on {topic}")
 
     tf_children = sorted({t.child_frame_id for _, m, _ in got.get("/tf", []) for t in m.transforms})
-    if not {"meniscus", "probe", "touch_base"} <= set(tf_children):
+    # The stylus is the proxy frame (under touch_base), the probe the physics' tool.
+    if not {"meniscus", "probe", "proxy", "touch_base"} <= set(tf_children):
         failures.append(f"tf children {tf_children}")
     diag_keys = sorted({kv.key for _, m, _ in got.get("/diagnostics", []) for s in m.status for kv in s.values})
+    # Session status on /diagnostics: region, probing, rates and faults.
+    status_keys = {"region", "probing", "physics rate_hz", "haptic rate_hz", "faults"}
+    if not status_keys <= set(diag_keys):
+        failures.append(f"/diagnostics lacks {sorted(status_keys - set(diag_keys))}")
+    haptic_rates = [float(kv.value) for _, m, _ in got.get("/diagnostics", []) for s in m.status
+                    for kv in s.values if kv.key == "haptic rate_hz"]
+    if haptic_rates and not 900.0 < max(haptic_rates) < 1100.0:
+        failures.append(f"/diagnostics haptic rate_hz {haptic_rates}: not the 1 kHz loop")
     forces = [m.wrench.force for _, m, _ in got.get(f"{NS}/probe/wrench", [])]
     peak = max((math.sqrt(f.x ** 2 + f.y ** 2 + f.z ** 2) for f in forces), default=0.0)
 
@@ -154,6 +171,9 @@ def main():
         "counts": counts, "tf_children": tf_children, "diagnostics_keys": diag_keys,
         "peak_force_n": peak, "matched": matched, "mesh_points": mesh_points,
         "rates_hz": {t: round(n / args.seconds, 1) for t, n in counts.items()},
+        "latency_ms": {t: {"median": round(sorted(v)[len(v) // 2], 2),
+                           "p90": round(sorted(v)[min(len(v) - 1, int(0.9 * len(v)))], 2)}
+                       for t, v in latency_ms.items() if v},
         "failures": failures,
     }))
     sys.exit(1 if failures else 0)

@@ -3,13 +3,15 @@
 the DevTools protocol (PyPI `websockets`), waits, reads state from the DOM, and saves a
 screenshot that is checked loosely against the expected layout.
 
-  page_check.py --url http://127.0.0.1:8080/ --seconds 5 --screenshot shot.png [--mode viewer|report]
+  page_check.py --url http://127.0.0.1:8080/ --seconds 5 --screenshot shot.png [--mode viewer|report|answer]
 
 viewer mode: reads #viewer-status's data attributes (frames, vertices, force-n, fps, latency,
 painted pixels) twice, a second apart; the layout check finds, in the screenshot, the 3D
 view (meniscus-coloured pixels inside the scene box), the force plot (its orange trace or
 background inside the plot box) and the side panel (its background colour).
 report mode: reads the report's tables and the learning curve's size.
+answer mode (--grade G): clicks grade G's button once for each specimen the training offers,
+until the page says the training is finished or --seconds pass.
 Prints one JSON line; exit 1 when Chromium cannot load the page.
 """
 import argparse
@@ -133,6 +135,50 @@ REPORT_JS = """(() => ({
 }))()"""
 
 
+def sample(t, status):
+    """One reading of #viewer-status: seconds since navigation, frames, fps, latency ms."""
+    lat = status.get("latencyMs")
+    return {"t": round(t, 3), "frames": int(status.get("frames", 0)),
+            "mesh_frames": int(status.get("meshFrames", 0)),
+            "fps": float(status.get("fps") or 0),
+            "latency_ms": float(lat) if lat else None}
+
+
+def quantile(values, q):
+    v = sorted(values)
+    return v[min(len(v) - 1, int(q * len(v)))] if v else None
+
+
+def watch_summary(series):
+    """Rates over the watch from the first reading with frames on: data frames/s (all
+    events, and mesh events), the page's render frames/s and its latency (median and p90
+    of the readings)."""
+    on = [s for s in series if s["frames"] > 0]
+    if len(on) < 2 or on[-1]["t"] <= on[0]["t"]:
+        return None
+    span = on[-1]["t"] - on[0]["t"]
+    lat = [s["latency_ms"] for s in on if s["latency_ms"] is not None]
+    fps = [s["fps"] for s in on if s["fps"] > 0]
+    return {
+        "seconds": round(span, 2),
+        "frames_per_s": round((on[-1]["frames"] - on[0]["frames"]) / span, 1),
+        "mesh_frames_per_s": round((on[-1]["mesh_frames"] - on[0]["mesh_frames"]) / span, 1),
+        "render_fps_median": quantile(fps, 0.5),
+        "render_fps_min": min(fps) if fps else None,
+        "latency_ms_median": quantile(lat, 0.5),
+        "latency_ms_p90": quantile(lat, 0.9),
+        "readings": len(on),
+    }
+
+ANSWER_JS = """(() => { const t = window.arthrosimViewer && window.arthrosimViewer.training;
+  if (!t) return null;
+  if (t.state === 'probing' && !%(answered)s.includes(t.case)) {
+    const b = document.getElementById('answer-%(grade)d');
+    if (b && !b.disabled) { b.click(); return {state: t.state, clicked: t.case}; }
+  }
+  return {state: t.state, case: t.case}; })()"""
+
+
 async def run(args):
     chromium = find_chromium()
     profile = tempfile.mkdtemp(prefix="arthrosim-chromium-")
@@ -174,17 +220,39 @@ async def run(args):
             result = {"url": args.url}
             if args.mode == "viewer":
                 first = None
+                # Every half second: frames received, the page's render rate and its latency
+                # (median over its last 120 state events of receive time − the sample's
+                # session stamp), for the watch's rates below.
+                series = []
                 while time.monotonic() - t0 < args.seconds:
                     await asyncio.sleep(0.5)
                     s = await cdp.eval(STATUS_JS)
                     if s and first is None and int(s.get("frames", 0)) > 0:
                         first = time.monotonic() - t0
+                    if s:
+                        series.append(sample(time.monotonic() - t0, s))
                 a = await cdp.eval(STATUS_JS)
                 await asyncio.sleep(1.0)
                 b = await cdp.eval(STATUS_JS)
+                series.append(sample(time.monotonic() - t0, b))
                 result.update(status=b, first_frame_s=first,
-                              frames_per_s=(int(b["frames"]) - int(a["frames"])) / 1.0 if a and b else 0)
+                              frames_per_s=(int(b["frames"]) - int(a["frames"])) / 1.0 if a and b else 0,
+                              watch=watch_summary(series))
                 result["rects"] = await cdp.eval(RECTS_JS)
+            elif args.mode == "answer":
+                # A trainee on the page: each specimen offered for probing is answered once,
+                # with the grade button --grade, until the training is finished.
+                answered, state = [], None
+                while time.monotonic() - t0 < args.seconds and state != "finished":
+                    await asyncio.sleep(0.3)
+                    t = await cdp.eval(ANSWER_JS % {"grade": args.grade,
+                                                    "answered": json.dumps(answered)})
+                    if not t:
+                        continue
+                    state = t.get("state")
+                    if t.get("clicked") is not None:
+                        answered.append(t["clicked"])
+                result.update(answered=answered, training=state)
             else:
                 await asyncio.sleep(args.seconds)
                 result["report"] = await cdp.eval(REPORT_JS)
@@ -227,7 +295,8 @@ def main():
     ap.add_argument("--url", required=True)
     ap.add_argument("--seconds", type=float, default=5.0)
     ap.add_argument("--screenshot", required=True)
-    ap.add_argument("--mode", choices=["viewer", "report"], default="viewer")
+    ap.add_argument("--mode", choices=["viewer", "report", "answer"], default="viewer")
+    ap.add_argument("--grade", type=int, default=0, help="answer mode: the grade clicked")
     ap.add_argument("--width", type=int, default=1280)
     ap.add_argument("--height", type=int, default=800)
     args = ap.parse_args()

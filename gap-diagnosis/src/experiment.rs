@@ -12,6 +12,7 @@
 //! poisson_ratio = 0.29                 # optional override
 //!
 //! [probe]
+//! model = "hook"                       # hook (the default) | sphere (a ball-tipped indenter) | an OBJ collision model (relative to the folder)
 //! tip_radius = 1.5e-3                  # m
 //! mass = 0.035                         # kg
 //!
@@ -98,10 +99,18 @@ impl Default for MaterialSpec {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ProbeSpec {
+    /// The indenter's collision geometry, so a replay presses with what the experiment
+    /// pressed with: `hook` (the study's probe), `sphere` (a ball-tipped indenter of
+    /// `tip_radius`) or the path of an OBJ collision model, relative to the folder.
+    #[serde(default = "default_probe_model")]
+    pub model: String,
     #[serde(default = "default_tip")]
     pub tip_radius: f64,
     #[serde(default = "default_probe_mass")]
     pub mass: f64,
+}
+fn default_probe_model() -> String {
+    "hook".into()
 }
 fn default_tip() -> f64 {
     1.5e-3
@@ -112,6 +121,7 @@ fn default_probe_mass() -> f64 {
 impl Default for ProbeSpec {
     fn default() -> Self {
         ProbeSpec {
+            model: default_probe_model(),
             tip_radius: default_tip(),
             mass: default_probe_mass(),
         }
@@ -279,10 +289,12 @@ pub fn load_experiment(dir: &Path, data_dir: &Path) -> Result<Experiment, GapErr
         probe: raw.probe,
         trials: specs,
     };
-    check_material(&spec).map_err(|msg| GapError::Input {
-        file: toml_path.clone(),
-        msg,
-    })?;
+    check_material(&spec)
+        .and_then(|()| check_probe_model(&spec.probe, dir))
+        .map_err(|msg| GapError::Input {
+            file: toml_path.clone(),
+            msg,
+        })?;
     Ok(Experiment {
         dir: dir.to_path_buf(),
         spec,
@@ -304,6 +316,39 @@ fn check_material(spec: &ExperimentSpec) -> Result<(), String> {
     }
     if !(spec.probe.tip_radius > 0.0 && spec.probe.mass > 0.0) {
         return Err("probe tip_radius and mass must be > 0".into());
+    }
+    Ok(())
+}
+
+/// The probe model's collision geometry as the physics takes it: a built-in name, or the OBJ
+/// path resolved against the experiment folder.
+pub fn probe_model_path(probe: &ProbeSpec, dir: &Path) -> String {
+    if launch_config::scene::BUILTIN_PROBE_MODELS.contains(&probe.model.as_str()) {
+        probe.model.clone()
+    } else {
+        dir.join(&probe.model).display().to_string()
+    }
+}
+
+fn check_probe_model(probe: &ProbeSpec, dir: &Path) -> Result<(), String> {
+    if launch_config::scene::BUILTIN_PROBE_MODELS.contains(&probe.model.as_str()) {
+        return Ok(());
+    }
+    let path = dir.join(&probe.model);
+    let is_obj = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("obj"));
+    if !is_obj {
+        return Err(format!(
+            "[probe] model {:?}: `hook`, `sphere` or the path of an OBJ collision model",
+            probe.model
+        ));
+    }
+    if !path.is_file() {
+        return Err(format!(
+            "[probe] model: OBJ collision model {} not found",
+            path.display()
+        ));
     }
     Ok(())
 }

@@ -457,6 +457,7 @@ fn trials_from_session(
             poisson_ratio: sc.material.poisson_ratio,
         },
         probe: ProbeSpec {
+            model: sc.probe.model.clone(),
             tip_radius: sc.probe.tip_radius,
             mass: sc.probe.mass,
         },

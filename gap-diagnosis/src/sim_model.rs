@@ -63,6 +63,7 @@ impl SimForceModel {
         scene.material.preset = s.material.preset;
         scene.material.youngs_modulus = s.material.youngs_modulus;
         scene.material.poisson_ratio = s.material.poisson_ratio;
+        scene.probe.model = super::experiment::probe_model_path(&s.probe, &exp.dir);
         scene.probe.tip_radius = s.probe.tip_radius;
         scene.probe.mass = s.probe.mass;
         // check the scene builds now, so a bad mesh is reported before any replay

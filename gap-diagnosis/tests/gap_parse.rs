@@ -203,3 +203,53 @@ fn force_displacement_table() {
     }
     let _ = std::fs::remove_dir_all(&d);
 }
+
+/// An experiment names its indenter: a ball-tipped one is replayed as a ball, the default
+/// stays the hook, and a model that is neither built in nor an OBJ file is refused naming
+/// the experiment file.
+#[test]
+fn experiment_names_its_probe_model() {
+    use gap_diagnosis::sim_model::SimForceModel;
+    let data = gap_diagnosis::data_dir();
+    let d = dir("probe_model");
+    std::fs::write(d.join("a.csv"), rows(6)).unwrap();
+    let toml = |probe: &str| format!("{probe}\n[[trial]]\nfile = \"a.csv\"\nregion = \"mid\"\n");
+    std::fs::write(d.join("experiment.toml"), toml("")).unwrap();
+    let exp = load_experiment(&d, &data).unwrap();
+    assert_eq!(exp.spec.probe.model, "hook");
+    let replay = SimForceModel::for_experiment(&exp, &data).unwrap();
+    assert_eq!(replay.scene.probe.model, "hook");
+
+    std::fs::write(
+        d.join("experiment.toml"),
+        toml("[probe]\nmodel = \"sphere\"\ntip_radius = 2.0e-3\n"),
+    )
+    .unwrap();
+    let exp = load_experiment(&d, &data).unwrap();
+    let replay = SimForceModel::for_experiment(&exp, &data).unwrap();
+    assert_eq!(replay.scene.probe.model, "sphere");
+    assert_eq!(replay.scene.probe.tip_radius, 2.0e-3);
+
+    for (model, says) in [("ball", "`sphere`"), ("tip.obj", "not found")] {
+        std::fs::write(
+            d.join("experiment.toml"),
+            toml(&format!("[probe]\nmodel = \"{model}\"\n")),
+        )
+        .unwrap();
+        let e = load_experiment(&d, &data).unwrap_err().to_string();
+        assert!(e.contains("experiment.toml") && e.contains(says), "{e}");
+    }
+    // An OBJ next to the experiment is the collision model, resolved against the folder.
+    std::fs::write(
+        d.join("tip.obj"),
+        "v 0 0 0\nv 0 0 0.01\nv 0.003 0 0.012\nl 1 2\nl 2 3\n",
+    )
+    .unwrap();
+    let exp = load_experiment(&d, &data).unwrap();
+    let replay = SimForceModel::for_experiment(&exp, &data).unwrap();
+    assert_eq!(
+        replay.scene.probe.model,
+        d.join("tip.obj").display().to_string()
+    );
+    let _ = std::fs::remove_dir_all(&d);
+}

@@ -112,6 +112,25 @@ fn run_rejects_bad_session_names_and_seconds() {
     assert!(text(&out).contains("session name"), "{}", text(&out));
     let out = arthrosim(&["run", "--seconds", "-3"]);
     assert_ne!(out.status.code(), Some(0));
+    // `--seconds -3` stops at clap (a flag-like value); these reach the bound itself, which
+    // keeps a huge or non-finite session length from the launcher's `Duration`s.
+    let dir = scratch("run-seconds");
+    let out_dir = dir.join("session");
+    for value in ["-3", "1e300", "2592001", "inf", "nan"] {
+        let out = arthrosim(&[
+            "run",
+            &format!("--seconds={value}"),
+            "--out",
+            out_dir.to_str().unwrap(),
+        ]);
+        let all = text(&out);
+        assert_eq!(out.status.code(), Some(1), "--seconds={value}: {all}");
+        assert!(
+            all.contains("--seconds") && all.contains("2592000"),
+            "--seconds={value} names the flag and the bound: {all}"
+        );
+        assert!(!out_dir.exists(), "no session folder for --seconds={value}");
+    }
 }
 
 #[test]

@@ -267,7 +267,7 @@ pub struct TrainArgs {
     /// Trainee name (created on first use; no path separators or control characters).
     #[arg(long, value_name = "NAME")]
     pub trainee: String,
-    /// Number of scored specimens.
+    /// Number of scored specimens (1 to 1000).
     #[arg(long, default_value_t = 6, value_name = "N")]
     pub cases: u32,
     /// Seed of the hidden grade sequence (default: from the clock; stored with the session).

@@ -625,8 +625,13 @@ fn probe_curve(args: ProbeCurveArgs) -> Result<i32> {
 /// training driver runs the cases on this one; the driver's end (or Ctrl-C) stops the session.
 fn train(args: TrainArgs) -> Result<i32> {
     training::check_trainee_name(&args.trainee)?;
-    if args.cases == 0 {
-        bail!("--cases 0: at least one specimen");
+    // Before the database or a session folder is touched.
+    if !(1..=training::MAX_CASES).contains(&args.cases) {
+        bail!(
+            "--cases {}: a training session has 1 to {} specimens",
+            args.cases,
+            training::MAX_CASES
+        );
     }
     let db_path = args.db.clone().unwrap_or_else(training::default_path);
     // Open (and refuse) the database before anything starts.

@@ -133,6 +133,45 @@ fn run_rejects_bad_session_names_and_seconds() {
     }
 }
 
+/// `train --cases` is bounded before anything is opened or started. Run with a deadline:
+/// without the bound, 1001 cases would start a session of hours (and 4e9 allocated 16 GB).
+#[test]
+fn train_refuses_zero_or_too_many_cases_before_touching_anything() {
+    let dir = scratch("train-cases");
+    let db = dir.join("trainees.sqlite");
+    let out_dir = dir.join("session");
+    for cases in ["0", "1001", "4000000000"] {
+        let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_arthrosim"))
+            .args(["train", "--trainee", "bound", "--cases", cases, "--db"])
+            .arg(&db)
+            .arg("--out")
+            .arg(&out_dir)
+            .args(["--session", &format!("cli-cases-{}", std::process::id())])
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(30);
+        while child.try_wait().unwrap().is_none() {
+            if std::time::Instant::now() > deadline {
+                let _ = child.kill();
+                let _ = child.wait();
+                panic!("train --cases {cases} was not refused within 30 s");
+            }
+            std::thread::sleep(std::time::Duration::from_millis(50));
+        }
+        let out = child.wait_with_output().unwrap();
+        let all = text(&out);
+        assert_eq!(out.status.code(), Some(1), "--cases {cases}: {all}");
+        assert!(
+            all.contains(&format!("--cases {cases}")) && all.contains("1 to 1000"),
+            "--cases {cases} names the value and the bound: {all}"
+        );
+        assert!(!db.exists(), "--cases {cases}: database created");
+        assert!(!out_dir.exists(), "--cases {cases}: session folder created");
+    }
+}
+
 #[test]
 fn recordings_commands_fail_cleanly_on_files_that_are_not_mcap() {
     let dir = scratch("rec");

@@ -170,7 +170,7 @@ pub struct GapArgs {
     /// Folder for report.json and report.html.
     #[arg(long, value_name = "REPORT_DIR", required = true)]
     pub out: Option<PathBuf>,
-    /// Replay step, s.
+    /// Replay step, s (1e-5 to 0.1, like `[scene] dt`).
     #[arg(long, default_value_t = 0.02)]
     pub dt: f64,
     /// Only single effects (no pairs).

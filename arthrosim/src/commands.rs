@@ -344,8 +344,15 @@ fn gap_command(args: GapArgs) -> Result<i32> {
         return Ok(0);
     }
     let out = args.out.context("--out REPORT_DIR is required")?;
-    if !(args.dt.is_finite() && args.dt > 0.0) {
-        bail!("--dt {}: must be a finite number > 0", args.dt);
+    // The replay's physics steps at this dt (it becomes the replayed scene's `dt`), so it has
+    // `[scene] dt`'s bounds: below them the replay grid of a long trial overflowed or asked
+    // for hundreds of GB (1e-300 s: an add overflow panic; 1e-9 s: a 564 GB allocation).
+    let (lo, hi) = (
+        launch_config::validate::MIN_DT_S,
+        launch_config::validate::MAX_DT_S,
+    );
+    if !(args.dt.is_finite() && (lo..=hi).contains(&args.dt)) {
+        bail!("--dt {}: must be from {lo} to {hi} s (the replay's physics step, bounded like [scene] dt)", args.dt);
     }
     let opts = gap::Options {
         dt: args.dt,

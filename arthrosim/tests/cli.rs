@@ -172,6 +172,31 @@ fn train_refuses_zero_or_too_many_cases_before_touching_anything() {
     }
 }
 
+/// `gap --dt` is the replay's physics step: bounded like `[scene] dt` before anything is
+/// read (1e-300 panicked on an add overflow, 1e-9 aborted on a 564 GB allocation).
+#[test]
+fn gap_refuses_a_replay_step_outside_the_scene_bounds() {
+    let dir = scratch("gap-dt");
+    let table = dir.join("table.csv");
+    std::fs::write(&table, "displacement_mm,force_N\n0,0.3\n1,0.5\n2,1.0\n").unwrap();
+    for dt in ["1e-300", "1e-9", "0.5", "1e300", "nan", "-1"] {
+        let out = arthrosim(&[
+            "gap",
+            "--force-displacement",
+            table.to_str().unwrap(),
+            "--out",
+            dir.join("report").to_str().unwrap(),
+            &format!("--dt={dt}"),
+        ]);
+        let all = text(&out);
+        assert_eq!(out.status.code(), Some(1), "--dt={dt}: {all}");
+        assert!(
+            all.contains("--dt") && all.contains("0.00001 to 0.1 s"),
+            "--dt={dt} names the flag and the bounds: {all}"
+        );
+    }
+}
+
 #[test]
 fn recordings_commands_fail_cleanly_on_files_that_are_not_mcap() {
     let dir = scratch("rec");

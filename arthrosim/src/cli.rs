@@ -203,6 +203,7 @@ pub enum GapCommand {
     /// Diagnose N generated cases blind (each effect alone, some pairs, none) and print the
     /// confusion matrix and the mean held-out shrink.
     Selftest {
+        /// Generated cases (1 to 1000).
         #[arg(long, default_value_t = 12)]
         cases: usize,
         #[arg(long, default_value_t = 1)]

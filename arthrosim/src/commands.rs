@@ -324,8 +324,11 @@ fn gap_command(args: GapArgs) -> Result<i32> {
         json,
     }) = args.command
     {
-        if cases == 0 {
-            bail!("--cases must be at least 1");
+        if !(1..=gap::selftest::MAX_SELFTEST_CASES).contains(&cases) {
+            bail!(
+                "--cases {cases}: a self-test has 1 to {} cases",
+                gap::selftest::MAX_SELFTEST_CASES
+            );
         }
         let opts = gap::selftest::SelftestOptions {
             keep_dir: keep,

@@ -197,6 +197,21 @@ fn gap_refuses_a_replay_step_outside_the_scene_bounds() {
     }
 }
 
+/// `gap selftest --cases` is bounded: a huge count panicked (capacity overflow) or aborted
+/// out of memory building the case labels.
+#[test]
+fn gap_selftest_refuses_zero_or_too_many_cases() {
+    for cases in ["0", "1001", "100000000", "18446744073709551615"] {
+        let out = arthrosim(&["gap", "selftest", "--cases", cases]);
+        let all = text(&out);
+        assert_eq!(out.status.code(), Some(1), "--cases {cases}: {all}");
+        assert!(
+            all.contains(&format!("--cases {cases}")) && all.contains("1 to 1000"),
+            "--cases {cases} names the value and the bound: {all}"
+        );
+    }
+}
+
 #[test]
 fn recordings_commands_fail_cleanly_on_files_that_are_not_mcap() {
     let dir = scratch("rec");

@@ -170,7 +170,7 @@ pub struct GapArgs {
     /// Folder for report.json and report.html.
     #[arg(long, value_name = "REPORT_DIR", required = true)]
     pub out: Option<PathBuf>,
-    /// Replay step, s.
+    /// Replay step, s (1e-5 to 0.1, like `[scene] dt`).
     #[arg(long, default_value_t = 0.02)]
     pub dt: f64,
     /// Only single effects (no pairs).
@@ -203,6 +203,7 @@ pub enum GapCommand {
     /// Diagnose N generated cases blind (each effect alone, some pairs, none) and print the
     /// confusion matrix and the mean held-out shrink.
     Selftest {
+        /// Generated cases (1 to 1000).
         #[arg(long, default_value_t = 12)]
         cases: usize,
         #[arg(long, default_value_t = 1)]
@@ -267,7 +268,7 @@ pub struct TrainArgs {
     /// Trainee name (created on first use; no path separators or control characters).
     #[arg(long, value_name = "NAME")]
     pub trainee: String,
-    /// Number of scored specimens.
+    /// Number of scored specimens (1 to 1000).
     #[arg(long, default_value_t = 6, value_name = "N")]
     pub cases: u32,
     /// Seed of the hidden grade sequence (default: from the clock; stored with the session).

@@ -324,8 +324,11 @@ fn gap_command(args: GapArgs) -> Result<i32> {
         json,
     }) = args.command
     {
-        if cases == 0 {
-            bail!("--cases must be at least 1");
+        if !(1..=gap::selftest::MAX_SELFTEST_CASES).contains(&cases) {
+            bail!(
+                "--cases {cases}: a self-test has 1 to {} cases",
+                gap::selftest::MAX_SELFTEST_CASES
+            );
         }
         let opts = gap::selftest::SelftestOptions {
             keep_dir: keep,
@@ -344,8 +347,15 @@ fn gap_command(args: GapArgs) -> Result<i32> {
         return Ok(0);
     }
     let out = args.out.context("--out REPORT_DIR is required")?;
-    if !(args.dt.is_finite() && args.dt > 0.0) {
-        bail!("--dt {}: must be a finite number > 0", args.dt);
+    // The replay's physics steps at this dt (it becomes the replayed scene's `dt`), so it has
+    // `[scene] dt`'s bounds: below them the replay grid of a long trial overflowed or asked
+    // for hundreds of GB (1e-300 s: an add overflow panic; 1e-9 s: a 564 GB allocation).
+    let (lo, hi) = (
+        launch_config::validate::MIN_DT_S,
+        launch_config::validate::MAX_DT_S,
+    );
+    if !(args.dt.is_finite() && (lo..=hi).contains(&args.dt)) {
+        bail!("--dt {}: must be from {lo} to {hi} s (the replay's physics step, bounded like [scene] dt)", args.dt);
     }
     let opts = gap::Options {
         dt: args.dt,
@@ -625,8 +635,13 @@ fn probe_curve(args: ProbeCurveArgs) -> Result<i32> {
 /// training driver runs the cases on this one; the driver's end (or Ctrl-C) stops the session.
 fn train(args: TrainArgs) -> Result<i32> {
     training::check_trainee_name(&args.trainee)?;
-    if args.cases == 0 {
-        bail!("--cases 0: at least one specimen");
+    // Before the database or a session folder is touched.
+    if !(1..=training::MAX_CASES).contains(&args.cases) {
+        bail!(
+            "--cases {}: a training session has 1 to {} specimens",
+            args.cases,
+            training::MAX_CASES
+        );
     }
     let db_path = args.db.clone().unwrap_or_else(training::default_path);
     // Open (and refuse) the database before anything starts.

@@ -112,6 +112,104 @@ fn run_rejects_bad_session_names_and_seconds() {
     assert!(text(&out).contains("session name"), "{}", text(&out));
     let out = arthrosim(&["run", "--seconds", "-3"]);
     assert_ne!(out.status.code(), Some(0));
+    // `--seconds -3` stops at clap (a flag-like value); these reach the bound itself, which
+    // keeps a huge or non-finite session length from the launcher's `Duration`s.
+    let dir = scratch("run-seconds");
+    let out_dir = dir.join("session");
+    for value in ["-3", "1e300", "2592001", "inf", "nan"] {
+        let out = arthrosim(&[
+            "run",
+            &format!("--seconds={value}"),
+            "--out",
+            out_dir.to_str().unwrap(),
+        ]);
+        let all = text(&out);
+        assert_eq!(out.status.code(), Some(1), "--seconds={value}: {all}");
+        assert!(
+            all.contains("--seconds") && all.contains("2592000"),
+            "--seconds={value} names the flag and the bound: {all}"
+        );
+        assert!(!out_dir.exists(), "no session folder for --seconds={value}");
+    }
+}
+
+/// `train --cases` is bounded before anything is opened or started. Run with a deadline:
+/// without the bound, 1001 cases would start a session of hours (and 4e9 allocated 16 GB).
+#[test]
+fn train_refuses_zero_or_too_many_cases_before_touching_anything() {
+    let dir = scratch("train-cases");
+    let db = dir.join("trainees.sqlite");
+    let out_dir = dir.join("session");
+    for cases in ["0", "1001", "4000000000"] {
+        let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_arthrosim"))
+            .args(["train", "--trainee", "bound", "--cases", cases, "--db"])
+            .arg(&db)
+            .arg("--out")
+            .arg(&out_dir)
+            .args(["--session", &format!("cli-cases-{}", std::process::id())])
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(30);
+        while child.try_wait().unwrap().is_none() {
+            if std::time::Instant::now() > deadline {
+                let _ = child.kill();
+                let _ = child.wait();
+                panic!("train --cases {cases} was not refused within 30 s");
+            }
+            std::thread::sleep(std::time::Duration::from_millis(50));
+        }
+        let out = child.wait_with_output().unwrap();
+        let all = text(&out);
+        assert_eq!(out.status.code(), Some(1), "--cases {cases}: {all}");
+        assert!(
+            all.contains(&format!("--cases {cases}")) && all.contains("1 to 1000"),
+            "--cases {cases} names the value and the bound: {all}"
+        );
+        assert!(!db.exists(), "--cases {cases}: database created");
+        assert!(!out_dir.exists(), "--cases {cases}: session folder created");
+    }
+}
+
+/// `gap --dt` is the replay's physics step: bounded like `[scene] dt` before anything is
+/// read (1e-300 panicked on an add overflow, 1e-9 aborted on a 564 GB allocation).
+#[test]
+fn gap_refuses_a_replay_step_outside_the_scene_bounds() {
+    let dir = scratch("gap-dt");
+    let table = dir.join("table.csv");
+    std::fs::write(&table, "displacement_mm,force_N\n0,0.3\n1,0.5\n2,1.0\n").unwrap();
+    for dt in ["1e-300", "1e-9", "0.5", "1e300", "nan", "-1"] {
+        let out = arthrosim(&[
+            "gap",
+            "--force-displacement",
+            table.to_str().unwrap(),
+            "--out",
+            dir.join("report").to_str().unwrap(),
+            &format!("--dt={dt}"),
+        ]);
+        let all = text(&out);
+        assert_eq!(out.status.code(), Some(1), "--dt={dt}: {all}");
+        assert!(
+            all.contains("--dt") && all.contains("0.00001 to 0.1 s"),
+            "--dt={dt} names the flag and the bounds: {all}"
+        );
+    }
+}
+
+/// `gap selftest --cases` is bounded: a huge count panicked (capacity overflow) or aborted
+/// out of memory building the case labels.
+#[test]
+fn gap_selftest_refuses_zero_or_too_many_cases() {
+    for cases in ["0", "1001", "100000000", "18446744073709551615"] {
+        let out = arthrosim(&["gap", "selftest", "--cases", cases]);
+        let all = text(&out);
+        assert_eq!(out.status.code(), Some(1), "--cases {cases}: {all}");
+        assert!(
+            all.contains(&format!("--cases {cases}")) && all.contains("1 to 1000"),
+            "--cases {cases} names the value and the bound: {all}"
+        );
+    }
 }
 
 #[test]

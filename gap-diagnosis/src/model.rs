@@ -162,3 +162,69 @@ pub fn replay_checked(
     }
     Ok(out)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A model whose physics flags `faulty` steps while its forces stay finite and small:
+    /// what a caught divergence looks like after the rollback.
+    struct Flagging {
+        faulty: u64,
+    }
+
+    impl ForceModel for Flagging {
+        fn replay_untilted(
+            &self,
+            _: &Variant,
+            path: &ProbePath,
+        ) -> Result<Vec<[f64; 3]>, GapError> {
+            Ok(vec![[0.0, 0.0, 1.0]; path.poses.len()])
+        }
+        fn replay_untilted_checked(
+            &self,
+            v: &Variant,
+            path: &ProbePath,
+        ) -> Result<Replayed, GapError> {
+            Ok(Replayed {
+                forces: self.replay_untilted(v, path)?,
+                faulty_steps: self.faulty,
+            })
+        }
+        fn describe(&self) -> String {
+            "flagging".into()
+        }
+    }
+
+    /// A replay is diverged when the physics flagged a step, whatever its forces look like
+    /// (issue 14: the diagnosis reads the fault flag, not a force heuristic), also through
+    /// the tilt's rotation of the path; unflagged finite forces are a solution.
+    #[test]
+    fn a_replay_is_diverged_by_the_physics_fault_flag() {
+        let path = ProbePath {
+            t0: 0.0,
+            dt: 0.01,
+            poses: vec![Pose::IDENTITY; 5],
+        };
+        let tilted = Variant {
+            tilt: [0.10472, 0.0],
+            ..Variant::default()
+        };
+        for variant in [Variant::default(), tilted] {
+            let r = replay_checked(&Flagging { faulty: 1 }, &variant, &path).unwrap();
+            assert!(
+                r.diverged(),
+                "{variant:?}: a flagged step is a diverged replay"
+            );
+            assert_eq!(r.forces.len(), 5);
+            let r = replay_checked(&Flagging { faulty: 0 }, &variant, &path).unwrap();
+            assert!(!r.diverged(), "{variant:?}");
+        }
+        // Without a flag, a non-finite force is still not a solution.
+        let r = Replayed {
+            forces: vec![[f64::NAN, 0.0, 0.0]],
+            faulty_steps: 0,
+        };
+        assert!(r.diverged());
+    }
+}

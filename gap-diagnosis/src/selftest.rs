@@ -183,6 +183,11 @@ pub fn selftest(
 
 type ModelFor<'a> = dyn Fn(&super::Experiment) -> Result<Box<dyn ForceModel>, GapError> + 'a;
 
+/// Most cases one self-test may generate. A case is a generated experiment and its full
+/// diagnosis (seconds to minutes each), so 1,000 is already days; the labels are built up
+/// front, and an unbounded count panicked on a capacity overflow or aborted out of memory.
+pub const MAX_SELFTEST_CASES: usize = 1000;
+
 /// Self-test with a given truth model and a factory for the diagnosis model of a folder.
 pub fn selftest_with(
     cases: usize,
@@ -192,6 +197,11 @@ pub fn selftest_with(
     sites: &[Site],
     model_for: &ModelFor,
 ) -> Result<SelftestResult, GapError> {
+    if !(1..=MAX_SELFTEST_CASES).contains(&cases) {
+        return Err(GapError::Other(format!(
+            "self-test of {cases} cases: from 1 to {MAX_SELFTEST_CASES}"
+        )));
+    }
     let root = match &opts.keep_dir {
         Some(d) => d.clone(),
         None => std::env::temp_dir().join(format!(

@@ -1149,4 +1149,33 @@ mod tests {
         assert_eq!(utc_stamp(1_795_316_645), "20261122-030405");
         assert_eq!(utc_stamp(951_782_400), "20000229-000000");
     }
+
+    /// Runs started in the same second (threads racing here, like two `arthrosim run`
+    /// processes) each get a folder of their own, created, and never one another's.
+    #[test]
+    fn output_folders_of_runs_in_the_same_second_are_unique() {
+        let parent = std::env::temp_dir().join(format!("arthrosim-unique-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&parent);
+        let stamp = utc_stamp(1_795_316_645);
+        let dirs: Vec<PathBuf> = std::thread::scope(|s| {
+            let racers: Vec<_> = (0..8)
+                .map(|_| s.spawn(|| unique_dir(&parent, &stamp)))
+                .collect();
+            racers.into_iter().map(|r| r.join().unwrap()).collect()
+        });
+        let mut names: Vec<String> = dirs
+            .iter()
+            .map(|d| {
+                assert!(d.is_dir(), "{} not created", d.display());
+                assert_eq!(d.parent(), Some(parent.as_path()));
+                d.file_name().unwrap().to_string_lossy().into_owned()
+            })
+            .collect();
+        names.sort();
+        names.dedup();
+        assert_eq!(names.len(), 8, "two runs share a folder: {names:?}");
+        assert!(names.contains(&stamp), "{names:?}");
+        assert!(names.contains(&format!("{stamp}-8")), "{names:?}");
+        std::fs::remove_dir_all(&parent).unwrap();
+    }
 }

@@ -233,4 +233,115 @@ mod tests {
         dfree[3] = f64::NAN;
         assert!(corrected_penetration(&w, &dfree, &lambda, 6).is_infinite());
     }
+
+    /// A 1 cm cube held at its base, at rest (gravity on), and a probe.
+    fn cube() -> (FemModel, Probe) {
+        use crate::fem::test_meshes::{box_mesh, nodes_where};
+        use crate::fem::{FemSettings, Material};
+        let mesh = box_mesh(0.01, 0.01, 0.01, 2, 2, 2);
+        let fixed = nodes_where(&mesh, |p| p.z < 1e-9);
+        let fem = FemModel::new(&mesh, Material::lateral(), &fixed, FemSettings::default())
+            .expect("cube model");
+        let cfg = launch_config::scene::ProbeConfig::default();
+        let probe = Probe::new(&cfg, 1.1e-3, std::path::Path::new(".")).expect("probe");
+        (fem, probe)
+    }
+
+    fn good_step() -> StepReport {
+        StepReport {
+            contacts: 1,
+            force: [0.0, 0.0, 2.0],
+            cg_residual: 1e-3,
+            lcp_converged: true,
+            penetration: 1e-4,
+        }
+    }
+
+    /// Each check trips its own bit, and only its own: a diverged force (or a NaN one),
+    /// a deep penetration, an unconverged LCP or CG, and kinetic energy appearing without
+    /// contact. The divergence regression test (`tests/fault_divergence.rs`) exercises the
+    /// force bound end to end; the other kinds are only reachable here.
+    #[test]
+    fn every_check_trips_its_own_fault_bit() {
+        let (mut fem, _) = cube();
+        let cfg = FaultConfig::default();
+        let mut m = FaultMonitor::new(&cfg, &fem);
+        assert_eq!(m.check(&good_step(), &mut fem), 0);
+        type Spoil = fn(&mut StepReport);
+        let cases: [(u32, Spoil); 6] = [
+            (physics_fault::FORCE_BOUND, |r| r.force = [0.0, 1e4, 0.0]),
+            (physics_fault::FORCE_BOUND, |r| r.force[2] = f64::NAN),
+            (physics_fault::PENETRATION, |r| r.penetration = 1e-2),
+            (physics_fault::PENETRATION, |r| r.penetration = f64::NAN),
+            (physics_fault::LCP_NOT_CONVERGED, |r| {
+                r.lcp_converged = false
+            }),
+            (physics_fault::CG_NOT_CONVERGED, |r| r.cg_residual = 5.0),
+        ];
+        for (bit, spoil) in cases {
+            let mut r = good_step();
+            spoil(&mut r);
+            assert_eq!(m.check(&r, &mut fem), bit, "{r:?}");
+        }
+        // No contact: the first step sets the energy reference, a still tissue passes.
+        let free = StepReport {
+            contacts: 0,
+            force: [0.0; 3],
+            ..good_step()
+        };
+        assert_eq!(m.check(&free, &mut fem), 0);
+        assert_eq!(m.check(&free, &mut fem), 0);
+        // Kinetic energy from nowhere (no contact, no load): energy growth.
+        for n in 0..fem.node_count() {
+            fem.set_velocity(n, Vector3::new(0.0, 0.0, 0.5)).unwrap();
+        }
+        assert_eq!(m.check(&free, &mut fem), physics_fault::ENERGY_GROWTH);
+        // Contact is an input: the same motion in contact is not energy growth, and the
+        // reference restarts when the contact ends (this state becomes the new one).
+        assert_eq!(m.check(&good_step(), &mut fem), 0);
+        assert_eq!(m.check(&free, &mut fem), 0);
+    }
+
+    /// A faulty step goes back to the last good state at rest; faults in a row go back to
+    /// the rest state. Both are counted.
+    #[test]
+    fn roll_back_restores_the_last_good_state_then_the_rest_state() {
+        let (mut fem, mut probe) = cube();
+        let cfg = FaultConfig {
+            rest_after_faults: 2,
+            ..FaultConfig::default()
+        };
+        let mut m = FaultMonitor::new(&cfg, &fem);
+        let top = (0..fem.node_count())
+            .max_by(|&a, &b| {
+                fem.rest_positions()[a]
+                    .z
+                    .total_cmp(&fem.rest_positions()[b].z)
+            })
+            .unwrap();
+        let rest = fem.rest_positions()[top];
+        let good = rest + Vector3::new(0.0, 0.0, -1e-4);
+        fem.set_position(top, good).unwrap();
+        probe.position = Vector3::new(0.0, 0.0, 0.02);
+        m.commit_good(&fem, &probe);
+        // A diverged step moved both.
+        fem.set_position(top, rest + Vector3::new(0.0, 0.0, 0.5))
+            .unwrap();
+        fem.set_velocity(top, Vector3::new(9.0, 0.0, 0.0)).unwrap();
+        probe.position = Vector3::new(1.0, 0.0, 0.0);
+        probe.velocity = Vector3::new(3.0, 0.0, 0.0);
+        let to_rest = m.roll_back(physics_fault::FORCE_BOUND, 0.01, &mut fem, &mut probe);
+        assert!(!to_rest);
+        assert_eq!(fem.positions()[top], good);
+        assert_eq!(fem.kinetic_energy(), 0.0);
+        assert_eq!(probe.position, Vector3::new(0.0, 0.0, 0.02));
+        assert_eq!(probe.velocity, Vector3::zeros());
+        // A second fault in a row: back to the rest state.
+        fem.set_position(top, rest + Vector3::new(0.0, 0.0, 0.5))
+            .unwrap();
+        let to_rest = m.roll_back(physics_fault::NUMERICAL, 0.02, &mut fem, &mut probe);
+        assert!(to_rest);
+        assert_eq!(fem.positions()[top], rest);
+        assert_eq!(m.faulty_steps, 2);
+    }
 }

@@ -7,9 +7,15 @@
 //!
 //! The untilted replays of the same probings are the false-positive check: no step of a
 //! protocol probing may be flagged.
+//!
+//! The tilt is applied as the gap diagnosis applies it (`gap_diagnosis::model::replay`, where
+//! the divergence was found): a specimen rotated by R about the world origin (its footprint
+//! centre) sees the probe path R⁻¹·p. `[scene.meniscus.transform]` cannot do it here: the
+//! built-in mesh of this scene ignores the transform, which left all four "tilted" replays
+//! identical to the untilted one.
 
 use msgs::Pose;
-use nalgebra::Vector3;
+use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 use physics_node::sim::Simulation;
 
 const DT: f64 = 0.01;
@@ -38,6 +44,26 @@ fn protocol(point: Vector3<f64>, n: Vector3<f64>, depth: f64, standoff: f64) -> 
             Pose {
                 position: [p.x, p.y, p.z],
                 orientation: [0.0, 0.0, 0.0, 1.0],
+            }
+        })
+        .collect()
+}
+
+/// The probe path a specimen tilted by `deg` (x then y, degrees, about the world origin)
+/// sees: R⁻¹ applied to every position and orientation, as `gap_diagnosis::model::replay`.
+fn tilted(path: &[Pose], deg: [f64; 2]) -> Vec<Pose> {
+    let r = UnitQuaternion::from_axis_angle(&Vector3::y_axis(), deg[1].to_radians())
+        * UnitQuaternion::from_axis_angle(&Vector3::x_axis(), deg[0].to_radians());
+    let ri = r.inverse();
+    path.iter()
+        .map(|p| {
+            let x = ri * Vector3::from(p.position);
+            let [qx, qy, qz, qw] = p.orientation;
+            let q = ri * UnitQuaternion::from_quaternion(Quaternion::new(qw, qx, qy, qz));
+            let c = q.quaternion().coords; // [x, y, z, w]
+            Pose {
+                position: [x.x, x.y, x.z],
+                orientation: [c.x, c.y, c.z, c.w],
             }
         })
         .collect()
@@ -124,15 +150,14 @@ fn deep_replays_on_a_tilted_specimen_stay_bounded_or_are_flagged() {
             "region {region}: untilted peak {peak} N"
         );
 
-        for rot in [
-            [6.0, 0.0, 0.0],
-            [-6.0, 0.0, 0.0],
-            [0.0, 6.0, 0.0],
-            [0.0, -6.0, 0.0],
-        ] {
-            let mut scene = base.clone();
-            scene.meniscus.transform.rotation_deg = rot;
-            let r = replay(&scene, &path, tail);
+        let untilted_peak = peak;
+        eprintln!(
+            "region {region}: site {:.1} mm from the origin, untilted peak {peak:.2} N",
+            point.xy().norm() * 1e3
+        );
+        let mut tilt_changed_the_replay = false;
+        for rot in [[6.0, 0.0], [-6.0, 0.0], [0.0, 6.0], [0.0, -6.0]] {
+            let r = replay(&base, &tilted(&path, rot), tail);
             let flagged = r.steps.iter().filter(|s| s.1 != 0).count();
             assert_eq!(
                 flagged as u64, r.faults_counted,
@@ -169,7 +194,14 @@ fn deep_replays_on_a_tilted_specimen_stay_bounded_or_are_flagged() {
                 r.steps.iter().fold(0u32, |a, s| a | s.1)
             );
             flagged_replays += (flagged > 0) as usize;
+            tilt_changed_the_replay |= flagged > 0 || (peak - untilted_peak).abs() > 0.01;
         }
+        // A tilt ~20 mm from the centre moves the surface ~2 mm: a replay that did not change
+        // was not tilted, and tested nothing.
+        assert!(
+            tilt_changed_the_replay,
+            "region {region}: no tilt changed the replay (peak {untilted_peak:.2} N each)"
+        );
     }
     eprintln!(
         "{flagged_replays} of 12 tilted replays flagged; largest unflagged force {worst_unflagged:.2} N"

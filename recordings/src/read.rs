@@ -791,3 +791,59 @@ pub fn scan_parts(
     }
     Ok(outcomes)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every restart takes the part after the highest one (never an earlier name, so never a
+    /// truncation), and the set is read in numeric order (`session.10.mcap` after
+    /// `session.2.mcap`, not between `session.1.mcap` and `session.2.mcap`). The end-to-end
+    /// test (`tests/tests/session_safety.rs`) restarts the recorder once; this covers more.
+    #[test]
+    fn restarted_parts_follow_the_highest_and_are_read_in_numeric_order() {
+        let dir = std::env::temp_dir().join(format!("arthrosim-parts-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let touch = |p: &PathBuf| std::fs::write(p, b"x").unwrap();
+        assert_eq!(
+            next_part_path(&dir, "session.mcap"),
+            dir.join("session.mcap")
+        );
+        touch(&dir.join("session.mcap"));
+        for n in 1..=11 {
+            let next = next_part_path(&dir, "session.mcap");
+            assert_eq!(next, dir.join(format!("session.{n}.mcap")));
+            touch(&next);
+        }
+        // A missing part in the middle (deleted by hand) is not reused.
+        std::fs::remove_file(dir.join("session.5.mcap")).unwrap();
+        assert_eq!(
+            next_part_path(&dir, "session.mcap"),
+            dir.join("session.12.mcap")
+        );
+        // Other files in the folder are not parts.
+        touch(&dir.join("session.repaired.mcap"));
+        touch(&dir.join("contact_force.csv"));
+        let expected: Vec<PathBuf> = std::iter::once(dir.join("session.mcap"))
+            .chain(
+                (1..=11)
+                    .filter(|&n| n != 5)
+                    .map(|n| dir.join(format!("session.{n}.mcap"))),
+            )
+            .collect();
+        for from in [
+            dir.clone(),
+            dir.join("session.mcap"),
+            dir.join("session.10.mcap"),
+        ] {
+            assert_eq!(
+                session_parts(&from).unwrap(),
+                expected,
+                "from {}",
+                from.display()
+            );
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}

@@ -26,6 +26,13 @@ const PHYSICS_PERIOD_S: f64 = 0.01;
 const TICK_S: f64 = 0.001;
 /// DeviceState fault bit: frame not computed for this device (msgs::haptic_to_physics::fault).
 const FOREIGN_FRAME: u32 = 1 << 7;
+/// DeviceState fault bit: the frame in use is too old. A tick checks age first, so once the
+/// last own frame is older than `stale_frame_s`, a tick that refuses a remote-driven frame
+/// carries this bit instead of FOREIGN_FRAME.
+const STALE_FRAME: u32 = 1 << 0;
+/// The default `[device] stale_ramp_s`: a refused frame's force is zero this long after the
+/// refusal began; 5 ms more for the stand-in clock's tick jitter.
+const STALE_RAMP_S: f64 = 0.010 + 0.005;
 
 fn python() -> String {
     std::env::var("PYTHON").unwrap_or_else(|_| "python3".into())
@@ -212,9 +219,26 @@ fn flooded_session(tag: &str, launch: Option<&str>) -> Flooded {
     }
 }
 
+/// What the device rendered while it had no frame of its own to render: frames not computed
+/// for its own state (the probe driven by a remote target, or not yet by this device), or
+/// none recent enough.
+#[derive(Debug, Default)]
+struct Refusing {
+    /// Ticks flagged FOREIGN_FRAME or STALE_FRAME, all of the session.
+    ticks: usize,
+    /// Of those, flagged FOREIGN_FRAME.
+    foreign: usize,
+    /// Of those, ticks whose force rose over the previous tick's: must be none.
+    rises: usize,
+    /// Largest force on a refusing tick past the stale ramp since the refusal began, N: 0.
+    after_ramp_max_n: f64,
+    /// Largest force on any refusing tick (the ramp from the last own force), N.
+    max_n: f64,
+}
+
 /// Reads the MCAP; returns (max stylus force, max probe–stylus distance, frame age p99 s,
-/// ticks with FOREIGN_FRAME, steps driven by our device / all steps).
-fn measure(session_dir: &Path, context: &str) -> (f64, f64, f64, usize, (usize, usize)) {
+/// ticks with FOREIGN_FRAME, steps driven by our device / all steps, the refusing ticks).
+fn measure(session_dir: &Path, context: &str) -> (f64, f64, f64, usize, (usize, usize), Refusing) {
     let (steps, ticks) = recordings::export::read_lossless(&session_dir.join("session.mcap"))
         .unwrap_or_else(|e| panic!("reading the MCAP: {e}\n{context}"));
     assert!(
@@ -292,7 +316,39 @@ fn measure(session_dir: &Path, context: &str) -> (f64, f64, f64, usize, (usize, 
         .iter()
         .filter(|t| t.faults & FOREIGN_FRAME != 0)
         .count();
-    (max_force, max_distance, p99, foreign, (own, steps.len()))
+    // While the probe is not driven by this device, the device renders zero force: from
+    // the first refusing tick the force only falls, and is zero once the stale ramp is over.
+    // (The first ticks of a refusal say FOREIGN_FRAME; once the last own frame is older than
+    // the staleness limit they say STALE_FRAME.)
+    let mut refusing = Refusing::default();
+    let mut since: Option<u64> = None;
+    let mut previous_n = 0.0;
+    for t in &ticks_by_time {
+        let f = norm(&t.rendered_force);
+        if t.faults & (FOREIGN_FRAME | STALE_FRAME) != 0 {
+            let start = *since.get_or_insert(t.publish_ns);
+            refusing.ticks += 1;
+            refusing.foreign += (t.faults & FOREIGN_FRAME != 0) as usize;
+            refusing.max_n = refusing.max_n.max(f);
+            if f > previous_n + 1e-9 {
+                refusing.rises += 1;
+            }
+            if (t.publish_ns - start) as f64 * 1e-9 > STALE_RAMP_S {
+                refusing.after_ramp_max_n = refusing.after_ramp_max_n.max(f);
+            }
+        } else {
+            since = None;
+        }
+        previous_n = f;
+    }
+    (
+        max_force,
+        max_distance,
+        p99,
+        foreign,
+        (own, steps.len()),
+        refusing,
+    )
 }
 
 #[test]
@@ -302,7 +358,7 @@ fn dds_flood_neither_moves_the_probe_nor_pushes_the_hand_nor_stalls_physics() {
     }
     // Default launch file: external targets are refused.
     let f = flooded_session("flood", None);
-    let (max_force, max_distance, age_p99, foreign, (own, steps)) =
+    let (max_force, max_distance, age_p99, foreign, (own, steps), _) =
         measure(&f.out.join("session"), &f.context);
     let sent = &f.peer["sent"];
     let diag = &f.peer["diagnostics"];
@@ -353,13 +409,13 @@ fn dds_flood_neither_moves_the_probe_nor_pushes_the_hand_nor_stalls_physics() {
 
     // Opted in: only bounded targets pass; the rest are refused and counted.
     let f = flooded_session("floodacc", Some("[bridge]\naccept_target_pose = true\n"));
-    let (max_force, max_distance, age_p99, foreign, (own, steps)) =
+    let (max_force, max_distance, age_p99, foreign, (own, steps), refusing) =
         measure(&f.out.join("session"), &f.context);
     let diag = &f.peer["diagnostics"];
     eprintln!(
         "accepting session under flood: max stylus force {max_force:.3} N, max probe–stylus \
          distance {:.2} mm, frame age p99 {:.2} ms, {own}/{steps} steps driven by the device, \
-         {foreign} ticks refused foreign frames, diagnostics {diag}",
+         {foreign} ticks refused foreign frames, refusing {refusing:?}, diagnostics {diag}",
         max_distance * 1e3,
         age_p99 * 1e3,
     );
@@ -377,5 +433,18 @@ fn dds_flood_neither_moves_the_probe_nor_pushes_the_hand_nor_stalls_physics() {
     );
     assert_eq!(count("targets_refused_disabled"), 0, "{diag}");
     assert!(max_force <= TOUCH_PEAK_N, "stylus force {max_force} N");
+    // Issue 14 point 2: while the probe is driven externally the device renders zero force.
+    assert!(
+        own < steps && refusing.foreign > 100 && refusing.ticks > 5000,
+        "the remote targets never drove the probe ({own}/{steps} own steps, {refusing:?})"
+    );
+    assert_eq!(
+        refusing.rises, 0,
+        "force rose on refusing ticks: {refusing:?}"
+    );
+    assert!(
+        refusing.after_ramp_max_n == 0.0,
+        "force rendered while the probe was driven externally: {refusing:?}"
+    );
     let _ = std::fs::remove_dir_all(&f.out);
 }

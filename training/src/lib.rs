@@ -40,6 +40,12 @@ pub struct TrainRequest {
 /// How deep the emulated operator presses each specimen in training, m.
 pub const TRAINING_PRESS_DEPTH_M: f64 = 0.002;
 
+/// Most specimens one training session may have. A trainee answers a case in seconds to a
+/// minute, so 1,000 is days of probing in one session, far beyond a lab's 6–12. The bound
+/// keeps the hidden grade sequence (built whole before the first case) small: an unbounded
+/// `--cases 4000000000` allocated and shuffled 16 GB before the session could stop.
+pub const MAX_CASES: u32 = 1000;
+
 /// Adjusts a launch file for training: the viewer on (the trainee page), the recorder on
 /// (every case is in the session's MCAP), no time bound (the cases end the session), and
 /// with the emulated device, a protocol that visits every region within a few seconds.
@@ -77,6 +83,11 @@ pub fn train(
     progress: &mut dyn driver::Progress,
 ) -> anyhow::Result<String> {
     check_trainee_name(&request.trainee)?;
+    anyhow::ensure!(
+        (1..=MAX_CASES).contains(&request.cases),
+        "{} cases: a training session has 1 to {MAX_CASES}",
+        request.cases
+    );
     let config = &launch.training;
     config.validate()?;
     let scales = config.scales();

@@ -3,32 +3,9 @@
 //! sticks when the slope is below the friction angle and slides above it.
 
 use nalgebra::{Point3, UnitQuaternion, Vector3};
-use physics_node::fem::test_meshes::box_mesh;
-use physics_node::mesh::TetMesh;
+use physics_node::fem::test_meshes::{box_mesh, write_msh22};
 use physics_node::sim::Simulation;
-use std::path::{Path, PathBuf};
-
-/// Writes a tet mesh as Gmsh 2.2 ASCII (the scene reads meshes from files).
-fn write_msh22(mesh: &TetMesh, path: &Path) {
-    let mut s = String::from("$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n");
-    s += &format!("{}\n", mesh.nodes.len());
-    for (i, p) in mesh.nodes.iter().enumerate() {
-        s += &format!("{} {:.17e} {:.17e} {:.17e}\n", i + 1, p.x, p.y, p.z);
-    }
-    s += &format!("$EndNodes\n$Elements\n{}\n", mesh.tets.len());
-    for (i, t) in mesh.tets.iter().enumerate() {
-        s += &format!(
-            "{} 4 2 0 1 {} {} {} {}\n",
-            i + 1,
-            t[0] + 1,
-            t[1] + 1,
-            t[2] + 1,
-            t[3] + 1
-        );
-    }
-    s += "$EndElements\n";
-    std::fs::write(path, s).unwrap();
-}
+use std::path::PathBuf;
 
 /// A 30 × 30 × 6 mm tissue block centred on the origin, top at z = 6 mm, bottom held.
 fn block_scene(
@@ -44,7 +21,7 @@ fn block_scene(
     let dir = std::env::temp_dir().join(format!("physics-node-{}-{}", name, std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let path = dir.join("block.msh");
-    write_msh22(&mesh, &path);
+    write_msh22(&mesh, &path).unwrap();
     let mut scene = launch_config::SceneConfig::default();
     scene.meniscus.mesh = path.display().to_string();
     scene.gravity = [gravity.x, gravity.y, gravity.z];

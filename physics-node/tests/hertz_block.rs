@@ -14,10 +14,8 @@
 //! Run with `--nocapture` to see the table; the README quotes it.
 
 use nalgebra::{UnitQuaternion, Vector3};
-use physics_node::fem::test_meshes::graded_box_mesh;
-use physics_node::mesh::TetMesh;
+use physics_node::fem::test_meshes::{graded_box_mesh, write_msh22};
 use physics_node::sim::Simulation;
-use std::path::Path;
 
 const RADIUS_M: f64 = 3.0e-3;
 const DEPTHS_MM: [f64; 3] = [0.1, 0.2, 0.3];
@@ -41,27 +39,6 @@ fn graded(h0: f64, g: f64, extent: f64) -> Vec<f64> {
         h *= g;
     }
     out
-}
-
-fn write_msh22(mesh: &TetMesh, path: &Path) {
-    let mut s = String::from("$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n");
-    s += &format!("{}\n", mesh.nodes.len());
-    for (i, p) in mesh.nodes.iter().enumerate() {
-        s += &format!("{} {:.17e} {:.17e} {:.17e}\n", i + 1, p.x, p.y, p.z);
-    }
-    s += &format!("$EndNodes\n$Elements\n{}\n", mesh.tets.len());
-    for (i, t) in mesh.tets.iter().enumerate() {
-        s += &format!(
-            "{} 4 2 0 1 {} {} {} {}\n",
-            i + 1,
-            t[0] + 1,
-            t[1] + 1,
-            t[2] + 1,
-            t[3] + 1
-        );
-    }
-    s += "$EndElements\n";
-    std::fs::write(path, s).unwrap();
 }
 
 /// Hertz: rigid sphere on an elastic half-space.
@@ -89,7 +66,7 @@ fn ball_on_thick_block_follows_hertz() {
     let dir = std::env::temp_dir().join(format!("physics-node-hertz-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let msh = dir.join("block.msh");
-    write_msh22(&mesh, &msh);
+    write_msh22(&mesh, &msh).unwrap();
     let fixed = dir.join("fixed.txt");
     std::fs::write(&fixed, bottom.join(" ")).unwrap();
 

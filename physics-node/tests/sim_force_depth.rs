@@ -6,6 +6,7 @@
 //! Run with `cargo test -p physics-node --test sim_force_depth -- --nocapture` to see the table.
 
 use nalgebra::{Matrix3, Point3, UnitQuaternion, Vector3};
+use physics_node::fem::test_meshes::write_msh22;
 use physics_node::mesh::TetMesh;
 use physics_node::sim::Simulation;
 use std::collections::BTreeMap;
@@ -25,27 +26,6 @@ fn data_dir() -> Option<PathBuf> {
         );
         None
     }
-}
-
-fn write_msh22(mesh: &TetMesh, path: &Path) {
-    let mut s = String::from("$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n");
-    s += &format!("{}\n", mesh.nodes.len());
-    for (i, p) in mesh.nodes.iter().enumerate() {
-        s += &format!("{} {:.17e} {:.17e} {:.17e}\n", i + 1, p.x, p.y, p.z);
-    }
-    s += &format!("$EndNodes\n$Elements\n{}\n", mesh.tets.len());
-    for (i, t) in mesh.tets.iter().enumerate() {
-        s += &format!(
-            "{} 4 2 0 1 {} {} {} {}\n",
-            i + 1,
-            t[0] + 1,
-            t[1] + 1,
-            t[2] + 1,
-            t[3] + 1
-        );
-    }
-    s += "$EndElements\n";
-    std::fs::write(path, s).unwrap();
 }
 
 fn volume(m: &TetMesh, t: &[usize; 4]) -> f64 {
@@ -167,7 +147,7 @@ fn force_depth_curve_on_study_lateral_mesh_and_refined() {
     let dir = std::env::temp_dir().join(format!("physics-node-refined-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let msh = dir.join("lateral_refined.msh");
-    write_msh22(&fine_mesh, &msh);
+    write_msh22(&fine_mesh, &msh).unwrap();
     let fixed_path = dir.join("fixed.txt");
     let list: Vec<String> = fine_fixed.iter().map(|i| i.to_string()).collect();
     std::fs::write(&fixed_path, list.join(" ")).unwrap();

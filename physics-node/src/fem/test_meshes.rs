@@ -58,6 +58,30 @@ pub fn graded_box_mesh(xs: &[f64], ys: &[f64], zs: &[f64]) -> TetMesh {
     TetMesh { nodes, tets }
 }
 
+/// Writes a tet mesh as Gmsh 2.2 ASCII (scenes read their meshes from files).
+pub fn write_msh22(mesh: &TetMesh, path: &std::path::Path) -> std::io::Result<()> {
+    use std::fmt::Write as _;
+    let mut s = String::from("$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n");
+    let _ = writeln!(s, "{}", mesh.nodes.len());
+    for (i, p) in mesh.nodes.iter().enumerate() {
+        let _ = writeln!(s, "{} {:.17e} {:.17e} {:.17e}", i + 1, p.x, p.y, p.z);
+    }
+    let _ = writeln!(s, "$EndNodes\n$Elements\n{}", mesh.tets.len());
+    for (i, t) in mesh.tets.iter().enumerate() {
+        let _ = writeln!(
+            s,
+            "{} 4 2 0 1 {} {} {} {}",
+            i + 1,
+            t[0] + 1,
+            t[1] + 1,
+            t[2] + 1,
+            t[3] + 1
+        );
+    }
+    s += "$EndElements\n";
+    std::fs::write(path, s)
+}
+
 /// Indices of the nodes whose position satisfies `pred`.
 pub fn nodes_where(mesh: &TetMesh, pred: impl Fn(&Point3<f64>) -> bool) -> Vec<usize> {
     (0..mesh.nodes.len())

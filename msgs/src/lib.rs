@@ -235,7 +235,10 @@ pub mod physics_to_haptic {
 
     impl Topic for ContactFrame {
         const SERVICE: &'static str = "physics_to_haptic/contact_frame";
-        const HISTORY: usize = 1;
+        /// The last ~0.5 s (at 100 Hz) are kept for a recorder restarted after a crash (it
+        /// skips what its earlier part holds); readers of the newest frame take only the
+        /// newest of them. Bounded by the queue, whose frames are ~80 KB each.
+        const HISTORY: usize = 48;
         const MAX_BUFFER: usize = 64;
     }
 }
@@ -325,7 +328,11 @@ pub mod haptic_to_physics {
 
     impl Topic for DeviceState {
         const SERVICE: &'static str = "haptic_to_physics/device_state";
-        const HISTORY: usize = 1;
+        /// The last 1.8 s (at 1 kHz) are kept for late subscribers: a recorder restarted
+        /// after a crash is down ~1.1 s and its predecessor's last ≤ 0.5 s were never
+        /// flushed, so it recovers every tick (skipping what its earlier part holds). Below
+        /// the queue size, so ticks arriving before the first drain do not push history out.
+        const HISTORY: usize = 1800;
         const MAX_BUFFER: usize = 2048;
     }
 }

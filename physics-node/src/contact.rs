@@ -789,12 +789,14 @@ mod tests {
             (deepest + 0.1e-3).abs() < 1e-6,
             "the ball is 0.1 mm in, the deepest contact found: {deepest} m"
         );
-        // The kept ones are the features under the ball, not far ones at the rim of reach.
+        // The kept ones are the features under and around the ball (all within half a
+        // millimetre of touching), not far ones at the rim of reach (the list that dropped
+        // new features kept ones 1.4–2.2 mm away).
         assert!(
             detector
                 .contacts
                 .iter()
-                .all(|c| c.free_violation[0] < 0.05e-3),
+                .all(|c| c.free_violation[0] < 0.5e-3),
             "{:?}",
             detector
                 .contacts

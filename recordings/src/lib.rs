@@ -52,6 +52,7 @@ pub mod length_guard;
 pub mod read;
 pub mod recorder;
 pub mod repair;
+pub mod resume;
 pub mod rosbag2;
 pub mod writer;
 

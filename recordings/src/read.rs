@@ -396,6 +396,9 @@ pub struct TopicInfo {
     /// Lossless channels: messages missing by their own sequence numbers (dropped
     /// upstream of the file).
     pub sequence_missing: Option<u64>,
+    /// Lossless channels: messages whose sequence number was already recorded (the same
+    /// sample twice, e.g. in two parts of a restarted recorder).
+    pub sequence_repeated: Option<u64>,
 }
 
 /// Summary of a recording (`arthrosim recordings info`).
@@ -425,8 +428,12 @@ pub struct RecordingInfo {
 
 struct TopicAcc {
     times: Vec<u64>,
-    last_seq: Option<(u64, u64)>,
+    /// Newest sequence number per publisher instance.
+    newest: BTreeMap<u64, u64>,
+    /// Instance of the previous message (a new instance restarts the count).
+    last_instance: Option<u64>,
     missing: u64,
+    repeated: u64,
     lossless: bool,
 }
 
@@ -463,8 +470,10 @@ pub fn info(path: &Path) -> Result<RecordingInfo, RecordingError> {
                         .entry(channel.topic.clone())
                         .or_insert_with(|| TopicAcc {
                             times: Vec::new(),
-                            last_seq: None,
+                            newest: BTreeMap::new(),
+                            last_instance: None,
                             missing: 0,
+                            repeated: 0,
                             lossless,
                         });
                     a.times.push(header.log_time);
@@ -478,12 +487,21 @@ pub fn info(path: &Path) -> Result<RecordingInfo, RecordingError> {
                                 .map(|m| (m.instance_id, m.sequence))
                         };
                         let (instance, seq) = ids?;
-                        if let Some((last_instance, last)) = a.last_seq {
-                            if last_instance == instance && seq > last + 1 {
-                                a.missing += seq - last - 1;
+                        match a.newest.get(&instance).copied() {
+                            Some(newest) if seq <= newest => a.repeated += 1,
+                            Some(newest) => {
+                                // Gaps within one instance's run; a publisher that came back
+                                // (another instance in between) restarts the count.
+                                if a.last_instance == Some(instance) {
+                                    a.missing += seq - newest - 1;
+                                }
+                                a.newest.insert(instance, seq);
+                            }
+                            None => {
+                                a.newest.insert(instance, seq);
                             }
                         }
-                        a.last_seq = Some((instance, seq));
+                        a.last_instance = Some(instance);
                     }
                 }
                 Event::Metadata(m) => {
@@ -521,40 +539,49 @@ pub fn info(path: &Path) -> Result<RecordingInfo, RecordingError> {
         }
     }
     for channel in channels {
-        let (count, first_ns, last_ns, rate_hz, gaps, missing) = match acc.get_mut(&channel.topic) {
-            Some(a) if !a.times.is_empty() => {
-                a.times.sort_unstable();
-                let first = a.times[0];
-                let last = *a.times.last().unwrap_or(&first);
-                let n = a.times.len() as u64;
-                let span = (last - first) as f64 * 1e-9;
-                let rate = if n > 1 && span > 0.0 {
-                    (n - 1) as f64 / span
-                } else {
-                    0.0
-                };
-                let mut intervals: Vec<u64> = a.times.windows(2).map(|w| w[1] - w[0]).collect();
-                let gaps = if intervals.len() >= 2 {
-                    let mut sorted = intervals.clone();
-                    sorted.sort_unstable();
-                    let median = sorted[sorted.len() / 2];
-                    let threshold = (median.saturating_mul(5)).max(50_000_000);
-                    a.times
-                        .windows(2)
-                        .filter(|w| w[1] - w[0] > threshold)
-                        .map(|w| Gap {
-                            at_s: (w[0] - start_ns) as f64 * 1e-9,
-                            length_s: (w[1] - w[0]) as f64 * 1e-9,
-                        })
-                        .collect()
-                } else {
-                    Vec::new()
-                };
-                intervals.clear();
-                (n, first, last, rate, gaps, a.lossless.then_some(a.missing))
-            }
-            _ => (0, 0, 0, 0.0, Vec::new(), None),
-        };
+        let (count, first_ns, last_ns, rate_hz, gaps, missing, repeated) =
+            match acc.get_mut(&channel.topic) {
+                Some(a) if !a.times.is_empty() => {
+                    a.times.sort_unstable();
+                    let first = a.times[0];
+                    let last = *a.times.last().unwrap_or(&first);
+                    let n = a.times.len() as u64;
+                    let span = (last - first) as f64 * 1e-9;
+                    let rate = if n > 1 && span > 0.0 {
+                        (n - 1) as f64 / span
+                    } else {
+                        0.0
+                    };
+                    let mut intervals: Vec<u64> = a.times.windows(2).map(|w| w[1] - w[0]).collect();
+                    let gaps = if intervals.len() >= 2 {
+                        let mut sorted = intervals.clone();
+                        sorted.sort_unstable();
+                        let median = sorted[sorted.len() / 2];
+                        let threshold = (median.saturating_mul(5)).max(50_000_000);
+                        a.times
+                            .windows(2)
+                            .filter(|w| w[1] - w[0] > threshold)
+                            .map(|w| Gap {
+                                at_s: (w[0] - start_ns) as f64 * 1e-9,
+                                length_s: (w[1] - w[0]) as f64 * 1e-9,
+                            })
+                            .collect()
+                    } else {
+                        Vec::new()
+                    };
+                    intervals.clear();
+                    (
+                        n,
+                        first,
+                        last,
+                        rate,
+                        gaps,
+                        a.lossless.then_some(a.missing),
+                        a.lossless.then_some(a.repeated),
+                    )
+                }
+                _ => (0, 0, 0, 0.0, Vec::new(), None, None),
+            };
         topics.push(TopicInfo {
             topic: channel.topic.clone(),
             type_name: channel.schema_name.clone(),
@@ -564,6 +591,7 @@ pub fn info(path: &Path) -> Result<RecordingInfo, RecordingError> {
             rate_hz,
             gaps,
             sequence_missing: missing,
+            sequence_repeated: repeated,
         });
     }
     let first = &outcomes[0].1;
@@ -648,6 +676,9 @@ impl std::fmt::Display for RecordingInfo {
             )?;
             if let Some(m) = t.sequence_missing {
                 write!(f, "  missing {m}")?;
+            }
+            if let Some(r) = t.sequence_repeated.filter(|&r| r > 0) {
+                write!(f, "  repeated {r}")?;
             }
             if !t.gaps.is_empty() {
                 let longest = t.gaps.iter().map(|g| g.length_s).fold(0.0, f64::max);

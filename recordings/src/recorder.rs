@@ -7,6 +7,7 @@
 //! (last drain, summary, index, `metadata.yaml`).
 
 use crate::error::RecordingError;
+use crate::resume::Progress;
 use crate::writer::{SessionInfo, SessionWriter, WriteSummary};
 use anyhow::Context;
 use launch_config::{LaunchFile, RecordingConfig};
@@ -45,6 +46,9 @@ pub struct RecorderStats {
     pub contact_frames_dropped: u64,
     pub device_states_dropped: u64,
     pub messages_written: u64,
+    /// Samples received again after a restart (the publishers' history) that an earlier
+    /// part already holds: not written twice.
+    pub already_recorded: u64,
     /// Most samples found in one drain of the device queue (capacity 2048).
     pub max_device_backlog: u64,
     pub flushes: u64,
@@ -93,6 +97,10 @@ pub struct Recorder {
     clock: StampClock,
     contact_seq: Continuity,
     device_seq: Continuity,
+    /// What earlier parts hold (a restarted recorder skips it) and what this part holds as
+    /// of its last flush (saved beside it for the next restart).
+    earlier: Progress,
+    progress: Progress,
     pub stats: RecorderStats,
 }
 
@@ -114,14 +122,25 @@ impl Recorder {
         // A restarted recorder continues in a new part; it never reopens the first one.
         let path = crate::read::next_part_path(out_dir, &config.file_name);
         let writer = SessionWriter::create_with_mapping(&path, config, info, mapping)?;
+        // Continuing after a crash: the samples the publishers kept for us that an earlier
+        // part holds are skipped, and sequence gaps are counted from where it stopped.
+        let earlier = Progress::of_earlier_parts(&path);
+        let contact_seq = Continuity {
+            last: earlier.contact_steps.last,
+        };
+        let device_seq = Continuity {
+            last: earlier.device_ticks.last,
+        };
         Ok(Recorder {
             session: session.to_string(),
             config: config.clone(),
             writer: Some(writer),
             ports: None,
             clock,
-            contact_seq: Continuity::default(),
-            device_seq: Continuity::default(),
+            contact_seq,
+            device_seq,
+            earlier,
+            progress: Progress::default(),
             stats: RecorderStats::default(),
         })
     }
@@ -178,12 +197,18 @@ impl Recorder {
         // Device ticks first: their queue is the one that fills fastest.
         let stats = &mut self.stats;
         let device_seq = &mut self.device_seq;
+        let (earlier, progress) = (&self.earlier, &mut self.progress);
         let n = ipc::drain_each(&ports.device, |d| {
+            if earlier.device_ticks.holds(d.instance_id, d.sequence) {
+                stats.already_recorded += 1;
+                return;
+            }
             stats.device_states += 1;
             stats.device_states_dropped += device_seq.observe(d.instance_id, d.sequence);
             if first_error.is_none() {
-                if let Err(e) = writer.write_device_state(d, to_log(d.publish_ns)) {
-                    first_error = Some(e);
+                match writer.write_device_state(d, to_log(d.publish_ns)) {
+                    Ok(()) => progress.device_ticks.wrote(d.instance_id, d.sequence),
+                    Err(e) => first_error = Some(e),
                 }
             }
         })
@@ -193,11 +218,16 @@ impl Recorder {
 
         let contact_seq = &mut self.contact_seq;
         taken += ipc::drain_each(&ports.contact, |f| {
+            if earlier.contact_steps.holds(f.instance_id, f.sequence) {
+                stats.already_recorded += 1;
+                return;
+            }
             stats.contact_frames += 1;
             stats.contact_frames_dropped += contact_seq.observe(f.instance_id, f.sequence);
             if first_error.is_none() {
-                if let Err(e) = writer.write_contact_frame(f, to_log(f.publish_ns)) {
-                    first_error = Some(e);
+                match writer.write_contact_frame(f, to_log(f.publish_ns)) {
+                    Ok(()) => progress.contact_steps.wrote(f.instance_id, f.sequence),
+                    Err(e) => first_error = Some(e),
                 }
             }
         })
@@ -230,6 +260,8 @@ impl Recorder {
         }
         if writer.maybe_flush(msgs::clock::monotonic_ns())? {
             stats.flushes += 1;
+            // What is flushed is what a kill leaves in the file.
+            progress.save(writer.path())?;
         }
         stats.messages_written = writer.messages();
         Ok(taken)
@@ -244,6 +276,7 @@ impl Recorder {
         let Some(writer) = self.writer.take() else {
             return Ok(None);
         };
+        let part = writer.path().to_path_buf();
         let mut extra = BTreeMap::new();
         if let Ok(serde_json::Value::Object(map)) = serde_json::to_value(&self.stats) {
             for (k, v) in map {
@@ -254,7 +287,9 @@ impl Recorder {
             "closed_ns".into(),
             self.log_time(msgs::clock::monotonic_ns()).to_string(),
         );
-        writer.finish(extra).map(Some)
+        let summary = writer.finish(extra)?;
+        self.progress.save(&part)?;
+        Ok(Some(summary))
     }
 
     /// The drain period from the configuration.

@@ -560,7 +560,9 @@ impl Renderer {
         out.frame_instance = frame.instance_id;
         out.contact_count = frame.contact_count;
         if out.frame_age_ns > self.limits.stale_frame_ns {
-            out.faults |= fault::STALE_FRAME;
+            // A frame in use that has aged out while newer ones are refused: both are true,
+            // and the refusal (foreign, physics fault) is the reason no fresh frame took over.
+            out.faults |= fault::STALE_FRAME | self.unrenderable;
             if self.logged.first(fault::STALE_FRAME) {
                 tracing::warn!(
                     age_ms = out.frame_age_ns as f64 / 1e6,

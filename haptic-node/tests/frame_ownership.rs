@@ -102,6 +102,20 @@ impl Bench {
             last = f;
         }
         assert_eq!(last, 0.0, "force did not reach zero within the stale ramp");
+        // Past the staleness limit of the last frame rendered, the refusal is still named
+        // (regression: from 20 ms on, refused frames were reported as stale only, so the
+        // diagnostics undercounted foreign ones: 1,251 of 12,379 in a flood).
+        let past_stale = (self.limits.stale_frame_ns / self.limits.period_ns) as usize + 10;
+        // Frames arrive at the physics rate (one tick in ten), as in a session.
+        for i in 0..past_stale {
+            let (f, faults) = self.tick((i % 10 == 0).then_some(edit));
+            assert!(
+                faults & bit != 0,
+                "tick {} after the ramp: fault bit {bit:#x} not reported ({faults:#x})",
+                i
+            );
+            assert_eq!(f, 0.0);
+        }
     }
 }
 

@@ -26,9 +26,9 @@ const PHYSICS_PERIOD_S: f64 = 0.01;
 const TICK_S: f64 = 0.001;
 /// DeviceState fault bit: frame not computed for this device (msgs::haptic_to_physics::fault).
 const FOREIGN_FRAME: u32 = 1 << 7;
-/// DeviceState fault bit: the frame in use is too old. A tick checks age first, so once the
-/// last own frame is older than `stale_frame_s`, a tick that refuses a remote-driven frame
-/// carries this bit instead of FOREIGN_FRAME.
+/// DeviceState fault bit: the frame in use is too old. Once the last own frame is older than
+/// `stale_frame_s`, a tick that refuses a remote-driven frame carries this bit as well as
+/// FOREIGN_FRAME.
 const STALE_FRAME: u32 = 1 << 0;
 /// The default `[device] stale_ramp_s`: a refused frame's force is zero this long after the
 /// refusal began; 5 ms more for the stand-in clock's tick jitter.
@@ -318,8 +318,8 @@ fn measure(session_dir: &Path, context: &str) -> (f64, f64, f64, usize, (usize, 
         .count();
     // While the probe is not driven by this device, the device renders zero force: from
     // the first refusing tick the force only falls, and is zero once the stale ramp is over.
-    // (The first ticks of a refusal say FOREIGN_FRAME; once the last own frame is older than
-    // the staleness limit they say STALE_FRAME.)
+    // (A refusing tick says FOREIGN_FRAME; once the last own frame is older than the
+    // staleness limit it also says STALE_FRAME.)
     let mut refusing = Refusing::default();
     let mut since: Option<u64> = None;
     let mut previous_n = 0.0;

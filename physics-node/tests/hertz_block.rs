@@ -13,7 +13,7 @@
 //!
 //! Run with `--nocapture` to see the table; the README quotes it.
 
-use nalgebra::{UnitQuaternion, Vector3};
+use nalgebra::{Point3, UnitQuaternion};
 use physics_node::fem::test_meshes::{graded_box_mesh, write_msh22};
 use physics_node::sim::Simulation;
 
@@ -87,14 +87,12 @@ fn ball_on_thick_block_follows_hertz() {
     let (e, nu) = (3.5e6, 0.29); // the default preset "lateral"
     let mut sim = Simulation::new(&scene, &dir).unwrap();
 
-    let q = UnitQuaternion::identity();
-    let centre = |depth: f64| Vector3::new(0.0, 0.0, RADIUS_M - depth);
+    // The ball's centre above the origin, `depth` into the block.
     let pose = |depth: f64| {
-        let c = centre(depth);
-        msgs::Pose {
-            position: [c.x, c.y, c.z],
-            orientation: [q.i, q.j, q.k, q.w],
-        }
+        physics_node::probe::pose(
+            Point3::new(0.0, 0.0, RADIUS_M - depth),
+            UnitQuaternion::identity(),
+        )
     };
     sim.teleport_probe(&pose(-0.05e-3));
     println!(

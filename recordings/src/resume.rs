@@ -26,9 +26,13 @@ pub struct StreamProgress {
 impl StreamProgress {
     /// Notes a written sample.
     pub fn wrote(&mut self, instance: u64, sequence: u64) {
+        self.raise(instance, sequence);
+        self.last = Some((instance, sequence));
+    }
+
+    fn raise(&mut self, instance: u64, sequence: u64) {
         let newest = self.newest.entry(instance).or_insert(sequence);
         *newest = (*newest).max(sequence);
-        self.last = Some((instance, sequence));
     }
 
     /// True when an earlier part already holds this sample.
@@ -38,8 +42,7 @@ impl StreamProgress {
 
     fn merge(&mut self, other: &StreamProgress) {
         for (&instance, &sequence) in &other.newest {
-            let newest = self.newest.entry(instance).or_insert(sequence);
-            *newest = (*newest).max(sequence);
+            self.raise(instance, sequence);
         }
         if other.last.is_some() {
             self.last = other.last;

@@ -120,7 +120,7 @@ pub fn open_service<T: Topic>(node: &IpcNode, session: &str) -> Result<IpcServic
         .subscriber_max_buffer_size(T::MAX_BUFFER)
         .subscriber_max_borrowed_samples(4)
         .max_publishers(4)
-        .max_subscribers(16)
+        .max_subscribers(T::MAX_SUBSCRIBERS)
         .max_nodes(24)
         .open_or_create()
         .map_err(|e| LinkError::Service {

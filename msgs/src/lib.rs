@@ -74,6 +74,10 @@ pub trait Topic: ZeroCopySend + core::fmt::Debug + 'static {
     /// Largest per-subscriber queue the service allows; a reader that must see every sample
     /// (the recorder) asks for all of it, a reader that wants the newest asks for little.
     const MAX_BUFFER: usize;
+    /// Most subscribers the service admits at once. The publisher's shared memory holds
+    /// `MAX_SUBSCRIBERS × (MAX_BUFFER + 4) + HISTORY` samples, so a large payload with a deep
+    /// queue admits fewer readers.
+    const MAX_SUBSCRIBERS: usize = 16;
 
     /// An all-zero value. Every payload is plain old data (numbers and fixed arrays), so the
     /// zero bit pattern is a valid value; used to fill shared memory in place without a
@@ -235,11 +239,16 @@ pub mod physics_to_haptic {
 
     impl Topic for ContactFrame {
         const SERVICE: &'static str = "physics_to_haptic/contact_frame";
-        /// The last ~0.5 s (at 100 Hz) are kept for a recorder restarted after a crash (it
-        /// skips what its earlier part holds); readers of the newest frame take only the
-        /// newest of them. Bounded by the queue, whose frames are ~80 KB each.
-        const HISTORY: usize = 48;
-        const MAX_BUFFER: usize = 64;
+        /// The last 1.6 s (at 100 Hz) are kept for late subscribers: a recorder restarted
+        /// after a crash is down ~1.1 s and its predecessor's last ≤ 0.5 s were never
+        /// flushed, so it recovers every step (skipping what its earlier part holds). Below
+        /// the queue size, so steps arriving before the first drain do not push history out.
+        const HISTORY: usize = 160;
+        const MAX_BUFFER: usize = 192;
+        /// Frames are ~80 KB: 8 readers (a session has at most 6: haptic node, recorder,
+        /// bridge, launcher status, viewer, training driver) keep the publisher's shared
+        /// memory at 8 × 196 + 160 samples, ~140 MB, instead of ~290 MB for 16.
+        const MAX_SUBSCRIBERS: usize = 8;
     }
 }
 

@@ -50,6 +50,7 @@ pub mod html;
 pub mod metrics;
 pub mod model;
 pub mod reality;
+pub mod refine;
 pub mod replay;
 pub mod selftest;
 pub mod session;
@@ -86,6 +87,9 @@ pub enum GapError {
     Io(PathBuf, std::io::Error),
     #[error("simulation: {0}")]
     Sim(String),
+    /// The scene's offline solver setting is out of bounds.
+    #[error(transparent)]
+    Solver(#[from] launch_config::scene::SolverConfigError),
     /// Reading a session recording (the error names the file).
     #[error(transparent)]
     Recording(#[from] recordings::RecordingError),

@@ -89,9 +89,13 @@ impl SimForceModel {
         Ok(SimForceModel::from_scene(rec.scene.clone(), data_dir))
     }
 
+    /// The scene a replay of variant `v` steps: the model's scene with the effect applied,
+    /// step `dt`, and the offline solver of `[scene.solver] offline` (converged by default,
+    /// not the live node's 25-iteration CG).
     pub fn scene_for(&self, v: &Variant, dt: f64) -> Result<SceneConfig, GapError> {
         let mut sc = self.scene.clone();
         sc.dt = dt;
+        sc.solver = sc.solver.offline()?;
         sc.material.modulus_scale *= v.modulus_scale;
         if v.neo_hookean {
             sc.material.model = launch_config::scene::MaterialModel::StableNeoHookean;

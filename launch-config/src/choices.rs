@@ -88,8 +88,27 @@ choice! {
         CgCholesky = "cg-cholesky",
         /// CG preconditioned by the rest factor, rotation-warped (SOFA's WarpPreconditioner).
         CgWarpedCholesky = "cg-warped-cholesky",
+        /// CG preconditioned by a factor of the step's own system, refactored when a solve
+        /// needs more than a few iterations (converged solves for offline replays).
+        CgLaggedFactor = "cg-lagged-factor",
         /// faer sparse Cholesky every step.
         Direct = "direct",
+    }
+}
+
+choice! {
+    /// `[scene.solver] offline`: how offline replays (the gap diagnosis, `arthrosim reality`,
+    /// `arthrosim replay --converged`) solve the implicit step. The live physics node ignores
+    /// it and keeps `kind` (SOFA's 25-iteration CG, sized for the 1 ms budget).
+    pub enum OfflineSolver {
+        /// faer sparse Cholesky of the step's matrix every step: exact to round-off.
+        Direct = "direct",
+        /// CG preconditioned by a lagged factor of the step's own system (`cg-lagged-factor`),
+        /// in double precision, every element re-rotated every step, to the relative residual
+        /// `offline_tolerance`.
+        Cg = "cg",
+        /// The scene's own `kind` and CG settings, as the live node steps them.
+        Scene = "scene",
     }
 }
 
@@ -159,6 +178,9 @@ mod tests {
     fn spellings_round_trip_and_unknown_values_list_the_allowed_ones() {
         for v in SolverKind::ALL {
             assert_eq!(v.as_str().parse::<SolverKind>(), Ok(*v));
+        }
+        for v in OfflineSolver::ALL {
+            assert_eq!(v.as_str().parse::<OfflineSolver>(), Ok(*v));
         }
         assert_eq!(
             "joystick".parse::<DeviceBackend>().unwrap_err(),

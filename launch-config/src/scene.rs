@@ -4,7 +4,9 @@
 //! (the project's parametric meniscus), `study:lateral` / `study:medial` (the study's meshes
 //! from `ARTHROSIM_DATA`, with the study's scale and, for the lateral, its fixed nodes), or a
 //! path to a `.msh` file.
-pub use crate::choices::{CgMatrix, MaterialModel, MaterialPreset, RotationMethod, SolverKind};
+pub use crate::choices::{
+    CgMatrix, MaterialModel, MaterialPreset, OfflineSolver, RotationMethod, SolverKind,
+};
 use serde::{Deserialize, Serialize};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -201,6 +203,72 @@ pub struct SolverConfig {
     /// as SOFA. Elastic forces always use the current rotation. At most
     /// [`crate::validate::MAX_STIFFNESS_ROTATION_TOLERANCE`].
     pub stiffness_rotation_tolerance: f64,
+    /// How offline replays solve the step (the live node ignores it): `direct` (default),
+    /// `cg` (to `offline_tolerance`) or `scene` (as the live node). See [`Self::offline`].
+    pub offline: OfflineSolver,
+    /// Relative residual an offline `cg` stops at, within
+    /// [`OFFLINE_TOLERANCE_MIN`]..=[`OFFLINE_TOLERANCE_MAX`].
+    pub offline_tolerance: f64,
+}
+
+/// Tightest `offline_tolerance`: below ~1e-12 the f64 residual of a ~10⁴-unknown system is
+/// round-off, and CG would run to its iteration ceiling without getting there.
+pub const OFFLINE_TOLERANCE_MIN: f64 = 1e-12;
+/// Loosest `offline_tolerance`: a looser CG is a truncated solve again, which is what the
+/// offline setting exists to avoid.
+pub const OFFLINE_TOLERANCE_MAX: f64 = 1e-4;
+/// Iteration ceiling of an offline `cg`: a guard, not the stopping rule (the tolerance is;
+/// the warped rest preconditioner reaches 1e-8 in tens of iterations on the study meshes).
+pub const OFFLINE_CG_MAX_ITERATIONS: u32 = 1000;
+
+/// A `[scene.solver]` setting outside its bounds.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SolverConfigError {
+    #[error("scene.solver.offline_tolerance: {0}")]
+    OfflineTolerance(String),
+}
+
+impl SolverConfig {
+    /// What is wrong with `offline_tolerance`, if anything (the one check, shared by
+    /// [`crate::validate`] and [`Self::offline`]).
+    pub fn offline_tolerance_problem(&self) -> Option<String> {
+        let t = self.offline_tolerance;
+        (!(t.is_finite() && (OFFLINE_TOLERANCE_MIN..=OFFLINE_TOLERANCE_MAX).contains(&t))).then(
+            || {
+                format!(
+                    "{t} is out of range; allowed: {OFFLINE_TOLERANCE_MIN} ≤ offline_tolerance \
+                     ≤ {OFFLINE_TOLERANCE_MAX} (relative residual of the offline CG)"
+                )
+            },
+        )
+    }
+
+    /// The solver settings an offline replay steps with: a converged solve instead of the
+    /// live node's iteration-capped CG. Offline there is no 1 ms budget, and a truncated
+    /// solve under-resolves the deformation (a numerical dissipation that the gap diagnosis
+    /// would otherwise read as a tissue effect).
+    pub fn offline(&self) -> Result<SolverConfig, SolverConfigError> {
+        if let Some(p) = self.offline_tolerance_problem() {
+            return Err(SolverConfigError::OfflineTolerance(p));
+        }
+        let mut s = self.clone();
+        match self.offline {
+            OfflineSolver::Scene => {}
+            OfflineSolver::Direct => {
+                s.kind = SolverKind::Direct;
+                // the direct solver reads the full f64 matrix, every element re-rotated
+                s.stiffness_rotation_tolerance = 0.0;
+            }
+            OfflineSolver::Cg => {
+                s.kind = SolverKind::CgLaggedFactor;
+                s.cg_iterations = OFFLINE_CG_MAX_ITERATIONS;
+                s.cg_tolerance = self.offline_tolerance;
+                s.cg_matrix = CgMatrix::F64;
+                s.stiffness_rotation_tolerance = 0.0;
+            }
+        }
+        Ok(s)
+    }
 }
 
 impl Default for SolverConfig {
@@ -214,6 +282,8 @@ impl Default for SolverConfig {
             // 1e-3 rad: a quarter of the default fine mesh's elements turn that far per step
             // while the probe slides; the mean contact force moves by < 1e-4 relative.
             stiffness_rotation_tolerance: 1e-3,
+            offline: OfflineSolver::Cg,
+            offline_tolerance: 1e-6,
         }
     }
 }

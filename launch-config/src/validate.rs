@@ -190,6 +190,9 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
         );
     }
     v.positive("scene.solver.cg_tolerance", sol.cg_tolerance, "");
+    if let Some(p) = sol.offline_tolerance_problem() {
+        v.push("scene.solver.offline_tolerance", p);
+    }
 
     let c = &s.contact;
     v.positive("scene.contact.alarm_distance", c.alarm_distance, "m");

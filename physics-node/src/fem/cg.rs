@@ -29,6 +29,12 @@ impl FemModel {
     pub(super) fn precondition(&mut self, pc: Preconditioner) {
         match pc {
             Preconditioner::None => self.z.copy_from_slice(&self.r),
+            Preconditioner::LaggedFactor => {
+                self.z.copy_from_slice(&self.r);
+                if let Some(chol) = &mut self.direct {
+                    chol.solve_in_place(&mut self.z);
+                }
+            }
             Preconditioner::BlockJacobi => {
                 for (row, inv) in self.jacobi.iter().enumerate() {
                     let r = Vector3::new(self.r[3 * row], self.r[3 * row + 1], self.r[3 * row + 2]);

@@ -73,7 +73,9 @@ use corotational_pass::{element_rotation, CorotationalUpperPass};
 use element::{ElementOutput, TetRest, UpperScatter};
 pub use material::{Material, MaterialModel, StrainStiffening};
 pub use rest_compliance::RestCompliance;
-pub use settings::{CgMatrix, FemSettings, LinearSolver, Preconditioner, RotationMethod};
+pub use settings::{
+    CgMatrix, FemSettings, LinearSolver, Preconditioner, RotationMethod, LAGGED_FACTOR_ITERATIONS,
+};
 pub use sparse::{BlockPattern, SparseCholesky};
 use sparse::{UpperF32, NO_BLOCK};
 use stiffening::StiffeningState;
@@ -162,8 +164,11 @@ pub struct FemModel {
     z: Vec<f64>,
     /// Rest-state factor for the CG preconditioner, with the dt it was built for.
     rest_factor: Option<(f64, SparseCholesky)>,
-    /// Factor of the current system for the direct solver.
+    /// Factor of the current system for the direct solver (and the lagged-factor
+    /// preconditioner).
     direct: Option<SparseCholesky>,
+    /// Lagged-factor preconditioner: refactor `direct` before the next solve.
+    refactor_lagged: bool,
     last_dt: f64,
     last_stats: SolveStats,
     /// Strain-stiffening factors (all 1 with the linear law).

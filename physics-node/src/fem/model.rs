@@ -123,6 +123,7 @@ impl FemModel {
             z: vec![0.0; 3 * nf],
             rest_factor: None,
             direct: None,
+            refactor_lagged: true,
             last_dt: settings.dt,
             last_stats: SolveStats::default(),
             stiffening,
@@ -145,10 +146,15 @@ impl FemModel {
                 self.assemble_rest_system(dt);
                 self.rest_factor = Some((dt, SparseCholesky::new(&self.pattern, &self.a, 1)?));
             }
-            LinearSolver::Direct => {
+            LinearSolver::Direct
+            | LinearSolver::Cg {
+                preconditioner: Preconditioner::LaggedFactor,
+                ..
+            } => {
                 let dt = self.settings.dt;
                 self.assemble_rest_system(dt);
                 self.direct = Some(SparseCholesky::new(&self.pattern, &self.a, 1)?);
+                self.refactor_lagged = true;
             }
             _ => {}
         }
@@ -355,7 +361,9 @@ impl FemModel {
 
     /// The CG system lives in `upper32` (f32), not in the upper triangle of `a`.
     pub(super) fn packed_cg_matrix(&self) -> bool {
-        matches!(self.settings.solver, LinearSolver::Cg { .. })
+        // the lagged factor is built from the full f64 system, so its CG reads that too
+        matches!(self.settings.solver, LinearSolver::Cg { preconditioner, .. }
+            if preconditioner != Preconditioner::LaggedFactor)
             && self.settings.cg_matrix == CgMatrix::F32
     }
 }

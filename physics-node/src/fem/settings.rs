@@ -14,7 +14,16 @@ pub enum Preconditioner {
     RestCholesky,
     /// R A0⁻¹ Rᵀ with the per-node rotations (SOFA's WarpPreconditioner).
     WarpedRestCholesky,
+    /// A factor of the step's own system, refactored only after a solve needed more than
+    /// [`LAGGED_FACTOR_ITERATIONS`] iterations (the system changes only slowly, with the
+    /// element rotations and the stiffening): a converged solve at about the cost of a few
+    /// triangular solves per step instead of a numeric factorization (offline replays).
+    LaggedFactor,
 }
+
+/// With [`Preconditioner::LaggedFactor`]: a solve that needed more iterations than this
+/// refactors the system at the next step (a fresh factor converges in one).
+pub const LAGGED_FACTOR_ITERATIONS: usize = 4;
 
 /// Precision of the system matrix the CG products read: the launch file's choice.
 pub use launch_config::scene::CgMatrix;
@@ -113,6 +122,11 @@ impl FemSettings {
                 max_iterations: scene.solver.cg_iterations as usize,
                 tolerance: scene.solver.cg_tolerance,
                 preconditioner: Preconditioner::WarpedRestCholesky,
+            },
+            SolverKind::CgLaggedFactor => LinearSolver::Cg {
+                max_iterations: scene.solver.cg_iterations as usize,
+                tolerance: scene.solver.cg_tolerance,
+                preconditioner: Preconditioner::LaggedFactor,
             },
             SolverKind::Direct => LinearSolver::Direct,
         };

@@ -39,7 +39,14 @@ impl FemModel {
         );
         let k_scale = dt * beta + dt * dt;
         // CG reads only the upper triangle; the direct solver factors the lower one.
-        let full = matches!(self.settings.solver, LinearSolver::Direct);
+        let full = matches!(
+            self.settings.solver,
+            LinearSolver::Direct
+                | LinearSolver::Cg {
+                    preconditioner: Preconditioner::LaggedFactor,
+                    ..
+                }
+        );
         self.assemble(false, k_scale, true, full);
         // K·v for the implicit damping and stiffness terms, from the assembled k_scale·K
         // (before the mass goes on the diagonal): one sparse product instead of two 3×3
@@ -205,9 +212,26 @@ impl FemModel {
                             self.update_node_rotations();
                         }
                     }
+                    Preconditioner::LaggedFactor => {
+                        if self.refactor_lagged {
+                            self.direct
+                                .as_mut()
+                                .ok_or_else(|| {
+                                    FemError::Solver("lagged factor not prepared".into())
+                                })?
+                                .refactor(&self.a)?;
+                            self.refactor_lagged = false;
+                        }
+                    }
                     Preconditioner::None => {}
                 }
-                Ok(self.cg(max_iterations, tolerance, preconditioner))
+                let stats = self.cg(max_iterations, tolerance, preconditioner);
+                if preconditioner == Preconditioner::LaggedFactor
+                    && stats.iterations > LAGGED_FACTOR_ITERATIONS
+                {
+                    self.refactor_lagged = true;
+                }
+                Ok(stats)
             }
         }
     }

@@ -86,6 +86,7 @@ fn settles_under_gravity_with_every_solver() {
         tight_cg(Preconditioner::BlockJacobi),
         tight_cg(Preconditioner::RestCholesky),
         tight_cg(Preconditioner::WarpedRestCholesky),
+        tight_cg(Preconditioner::LaggedFactor),
         LinearSolver::Direct,
     ] {
         let mut m = cube_model(solver);

@@ -1,6 +1,6 @@
 //! The replay model's error floor against an independent discretisation (issue 15, point 1):
 //! a no-effect probing of the study's lateral mesh replayed by the gap diagnosis' model
-//! (study mesh, ball tip, the offline converged solve) against a direct solve on the same
+//! (study mesh, ball tip, the default offline solve: CG to 1e-6) against a direct solve on the same
 //! specimen refined once (every tet split into eight; eight times the elements, a contact
 //! surface with four times the facets).
 //!
@@ -49,7 +49,7 @@ fn replay_model_against_the_refined_study_mesh() {
     scene.meniscus.mesh = "study:lateral".into();
     scene.probe.model = "sphere".into();
     // the replay model as the diagnosis runs it (default offline solve)
-    assert_eq!(scene.solver.offline, OfflineSolver::Direct);
+    assert_eq!(scene.solver.offline, OfflineSolver::Cg);
     let model = SimForceModel::from_scene(scene.clone(), &data);
 
     let loaded = physics_node::mesh::load_scene_mesh(&scene.meniscus, &data).unwrap();
@@ -151,6 +151,19 @@ fn replay_model_against_the_refined_study_mesh() {
     let mean_r: f64 = results.iter().map(|a| a.mean_reference).sum();
     let diff = 100.0 * (mean_m / mean_r - 1.0);
     let rmse = (results.iter().map(|a| a.rmse * a.rmse).sum::<f64>() / results.len() as f64).sqrt();
+    // What this measures (README, "The replay model against a refined study mesh"): the
+    // study mesh (258 nodes, 2.2 mm facets) is far stiffer under a ball than the same
+    // specimen refined once — the floor is the discretisation, not the solve. The bounds are
+    // what the model reaches now, with a margin, so a change that widens the floor fails
+    // here; the issue's target (3%, 0.4 N) is not met.
+    assert!(
+        diff.abs() < 160.0,
+        "mean normal force {diff:+.1}% from the refined reference (measured +124%)"
+    );
+    assert!(
+        rmse < 18.0,
+        "RMSE {rmse:.3} N against the refined reference (measured 13.9 N)"
+    );
     eprintln!(
         "floor: study:lateral ({n_coarse} nodes) vs refined once ({n_fine} nodes), ball tip, \
          direct solve: mean normal force {diff:+.1}%, RMSE {rmse:.3} N over the three trials"

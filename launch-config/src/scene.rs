@@ -236,8 +236,9 @@ impl SolverConfig {
         (!(t.is_finite() && (OFFLINE_TOLERANCE_MIN..=OFFLINE_TOLERANCE_MAX).contains(&t))).then(
             || {
                 format!(
-                    "{t} is out of range; allowed: {OFFLINE_TOLERANCE_MIN} ≤ offline_tolerance \
-                     ≤ {OFFLINE_TOLERANCE_MAX} (relative residual of the offline CG)"
+                    "{t:e} is out of range; allowed: {OFFLINE_TOLERANCE_MIN:e} ≤ \
+                     offline_tolerance ≤ {OFFLINE_TOLERANCE_MAX:e} (relative residual of the \
+                     offline CG)"
                 )
             },
         )
@@ -357,6 +358,54 @@ impl Default for ProbeConfig {
             coupling_angular_damping: 0.05,
             initial_position: [0.0, 0.0, 0.05],
             initial_orientation: [0.0, 0.0, 0.0, 1.0],
+        }
+    }
+}
+
+#[cfg(test)]
+mod offline_solver_tests {
+    use super::*;
+
+    /// The offline solve is converged by default and leaves the live `kind` alone; each
+    /// choice maps to its solver, and a tolerance outside the bounds is an error naming the
+    /// key and the allowed range.
+    #[test]
+    fn offline_solver_maps_and_checks_its_tolerance() {
+        let live = SolverConfig::default();
+        assert_eq!(live.kind, SolverKind::Cg);
+        assert_eq!(live.cg_iterations, 25);
+        let off = live.offline().unwrap();
+        assert_eq!(off.kind, SolverKind::CgLaggedFactor);
+        assert_eq!(off.cg_tolerance, 1e-6);
+        assert_eq!(off.cg_iterations, OFFLINE_CG_MAX_ITERATIONS);
+        assert_eq!(off.cg_matrix, CgMatrix::F64);
+        let direct = SolverConfig {
+            offline: OfflineSolver::Direct,
+            ..live.clone()
+        };
+        assert_eq!(direct.offline().unwrap().kind, SolverKind::Direct);
+        let scene = SolverConfig {
+            offline: OfflineSolver::Scene,
+            ..live.clone()
+        };
+        assert_eq!(scene.offline().unwrap(), scene);
+        for bad in [0.0, 1e-13, 1e-3, f64::NAN, f64::INFINITY, -1e-6] {
+            let s = SolverConfig {
+                offline_tolerance: bad,
+                ..live.clone()
+            };
+            let e = s.offline().unwrap_err().to_string();
+            assert!(
+                e.starts_with("scene.solver.offline_tolerance:") && e.contains("allowed: 1e-12"),
+                "{bad}: {e}"
+            );
+        }
+        for good in [OFFLINE_TOLERANCE_MIN, 1e-8, OFFLINE_TOLERANCE_MAX] {
+            let s = SolverConfig {
+                offline_tolerance: good,
+                ..live.clone()
+            };
+            assert!(s.offline().is_ok(), "{good}");
         }
     }
 }

@@ -465,3 +465,36 @@ fn automatic_scale_maps_the_cadaver_table_into_the_touch() {
     assert!(!fixed.automatic);
     assert!((fixed.coupling_stiffness_n_per_m - 5000.0).abs() < 1e-9);
 }
+
+/// `[scene.solver] offline` and `offline_tolerance`: a value out of bounds or an unknown
+/// solver is an issue naming the key, its line and what is allowed.
+#[test]
+fn offline_solver_keys_are_checked() {
+    let (issue, text) = only_issue(
+        load_str(
+            "[scene.solver]\noffline = \"cg\"\noffline_tolerance = 0.01\n",
+            Path::new("off.toml"),
+        )
+        .unwrap_err(),
+    );
+    assert_eq!(issue.key, "scene.solver.offline_tolerance");
+    assert_eq!(issue.line, Some(3));
+    assert!(text.contains("allowed: 1e-12 ≤ offline_tolerance ≤ 1e-4"), "{text}");
+    let (issue, text) = only_issue(
+        load_str("[scene.solver]\noffline = \"lu\"\n", Path::new("off.toml")).unwrap_err(),
+    );
+    assert_eq!(issue.key, "scene.solver.offline");
+    assert!(
+        text.contains("`direct`") && text.contains("`cg`") && text.contains("`scene`"),
+        "{text}"
+    );
+    let ok = load_str(
+        "[scene.solver]\noffline = \"direct\"\noffline_tolerance = 1e-10\n",
+        Path::new("off.toml"),
+    )
+    .unwrap();
+    assert_eq!(
+        ok.scene.solver.offline,
+        launch_config::scene::OfflineSolver::Direct
+    );
+}

@@ -52,6 +52,7 @@ pub mod model;
 pub mod reality;
 pub mod replay;
 pub mod selftest;
+pub mod separability;
 pub mod session;
 pub mod signal;
 
@@ -232,6 +233,14 @@ pub struct Verdict {
     pub heldout_shrink: f64,
     pub params: Vec<fit::FittedParam>,
     pub reason: String,
+    /// Candidates the held-out data cannot tell apart from `effect` within its between-trial
+    /// scatter ([`separability`]): `effect` first, then each rival, best first (read as
+    /// `support ~ modulus`). Empty when every rival is told apart, or the verdict is `none`.
+    #[serde(default)]
+    pub indistinguishable: Vec<String>,
+    /// Per rival (`indistinguishable[1..]`): what kind of trial would separate it from `effect`.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub separate_by: Vec<String>,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -475,7 +484,7 @@ pub fn diagnose_data(
     ranking.sort_by(|a, b| a.score.total_cmp(&b.score));
 
     // two effects need several independent trials to be told apart (not one table)
-    let verdict = decide(
+    let mut verdict = decide(
         &singles,
         &ranking,
         r0,
@@ -483,6 +492,15 @@ pub fn diagnose_data(
         opts.min_shrink,
         data.len() >= 3,
     );
+    if let Some(set) = separability::indistinguishable(&verdict.effect, &ranking, data) {
+        verdict.reason.push_str(&format!(
+            "; on held-out trials it cannot be told apart from {} ({})",
+            set.candidates[1..].join(", "),
+            set.label()
+        ));
+        verdict.indistinguishable = set.candidates;
+        verdict.separate_by = set.separate_by;
+    }
     let winner = ranking.iter().find(|c| c.effect == verdict.effect);
     let heldout = Heldout {
         scheme,
@@ -554,6 +572,8 @@ fn decide(
         heldout_shrink: 0.0,
         params: vec![],
         reason,
+        indistinguishable: Vec::new(),
+        separate_by: Vec::new(),
     };
     if r0 <= 1.15 * noise {
         return none(format!(
@@ -598,6 +618,8 @@ fn decide(
                         100.0 * pair.heldout_weighted_shrink,
                         pair.delta_bic
                     ),
+                    indistinguishable: Vec::new(),
+                    separate_by: Vec::new(),
                 };
             }
         }
@@ -650,6 +672,8 @@ fn decide(
         heldout_shrink: win.heldout_shrink,
         params: win.params.clone(),
         reason,
+        indistinguishable: Vec::new(),
+        separate_by: Vec::new(),
     }
 }
 

@@ -243,6 +243,15 @@ fn ball_slid_across_facets_at_constant_depth() {
     let fixed_path = dir.join("fixed.txt");
     let list: Vec<String> = fine_fixed.iter().map(|i| i.to_string()).collect();
     std::fs::write(&fixed_path, list.join(" ")).unwrap();
+    println!(
+        "study mesh {} nodes / {} tets, refined once {} nodes / {} tets; ball R {} mm, {} mm deep",
+        loaded.mesh.nodes.len(),
+        loaded.mesh.tets.len(),
+        fine_mesh.nodes.len(),
+        fine_mesh.tets.len(),
+        RADIUS_M * 1e3,
+        DEPTH_M * 1e3
+    );
     let mut fine_scene = scene.clone();
     fine_scene.meniscus.mesh = msh.display().to_string();
     fine_scene.meniscus.fixed = fixed_path.display().to_string();

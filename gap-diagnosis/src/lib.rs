@@ -128,6 +128,32 @@ pub struct Options {
     pub min_shrink: f64,
 }
 
+impl Options {
+    /// Checks the bounds every diagnosis needs. The replay steps at `dt` (it becomes the
+    /// replayed scene's `dt`), so it has `[scene] dt`'s bounds: below them the replay grid of a
+    /// long trial overflowed or asked for hundreds of GB (1e-300 s: an add overflow panic;
+    /// 1e-9 s: a 564 GB allocation).
+    pub fn check(&self) -> Result<(), GapError> {
+        let (lo, hi) = (
+            launch_config::validate::MIN_DT_S,
+            launch_config::validate::MAX_DT_S,
+        );
+        if !(self.dt.is_finite() && (lo..=hi).contains(&self.dt)) {
+            return Err(GapError::Other(format!(
+                "replay step dt = {} s: must be from {lo} to {hi} s (bounded like [scene] dt)",
+                self.dt
+            )));
+        }
+        if !(self.min_shrink.is_finite() && (0.0..1.0).contains(&self.min_shrink)) {
+            return Err(GapError::Other(format!(
+                "min_shrink = {}: must be in [0, 1) (a fraction of the held-out error)",
+                self.min_shrink
+            )));
+        }
+        Ok(())
+    }
+}
+
 impl Default for Options {
     fn default() -> Self {
         Options {
@@ -236,6 +262,7 @@ pub struct Report {
 /// recording (an `.mcap` file, or a folder without `experiment.toml` holding one) is
 /// diagnosed with [`diagnose_session`].
 pub fn diagnose_dir(dir: &Path, opts: &Options) -> Result<Report, GapError> {
+    opts.check()?;
     if let Some(mcap) = session::session_file(dir)? {
         return diagnose_session(&mcap, opts);
     }
@@ -251,6 +278,7 @@ pub mod sim_model;
 /// Diagnose an arthrosim session recording: its probings are the trials, its scene the
 /// model; with device ticks, the report also carries the rendering gap.
 pub fn diagnose_session(mcap: &Path, opts: &Options) -> Result<Report, GapError> {
+    opts.check()?;
     let rec = session::read_session(mcap)?;
     diagnose_recording(&rec, opts)
 }
@@ -295,6 +323,7 @@ pub fn diagnose(
     model: &dyn ForceModel,
     opts: &Options,
 ) -> Result<Report, GapError> {
+    opts.check()?;
     let start = std::time::Instant::now();
     let effects = candidate_effects(exp, model, opts);
     let data = dataset::build(

@@ -493,9 +493,14 @@ pub fn diagnose_data(
         data.len() >= 3,
     );
     if let Some(set) = separability::indistinguishable(&verdict.effect, &ranking, data) {
+        let rivals: Vec<String> = set.candidates[1..]
+            .iter()
+            .zip(set.excess_mse.iter().zip(&set.excess_se))
+            .map(|(c, (m, se))| format!("{c} (held-out MSE {m:+.4} ± {se:.4} N² per trial)"))
+            .collect();
         verdict.reason.push_str(&format!(
             "; on held-out trials it cannot be told apart from {} ({})",
-            set.candidates[1..].join(", "),
+            rivals.join(", "),
             set.label()
         ));
         verdict.indistinguishable = set.candidates;

@@ -107,7 +107,18 @@ fn run(args: RunArgs) -> Result<i32> {
     } else {
         LiveMode::Auto
     };
-    let report = launcher::run(&opts)?;
+    let report = match launcher::run(&opts) {
+        Ok(report) => report,
+        Err(e) => {
+            // A run refused before it started (e.g. its session name is live) leaves no empty
+            // `sessions/<stamp>` folder behind; `remove_dir` only removes an empty one, so a
+            // failed session's logs stay.
+            if args.out.is_none() {
+                let _ = std::fs::remove_dir(&opts.out_dir);
+            }
+            return Err(e.into());
+        }
+    };
 
     if args.json {
         println!("{}", serde_json::to_string_pretty(&report)?);
@@ -347,22 +358,14 @@ fn gap_command(args: GapArgs) -> Result<i32> {
         return Ok(0);
     }
     let out = args.out.context("--out REPORT_DIR is required")?;
-    // The replay's physics steps at this dt (it becomes the replayed scene's `dt`), so it has
-    // `[scene] dt`'s bounds: below them the replay grid of a long trial overflowed or asked
-    // for hundreds of GB (1e-300 s: an add overflow panic; 1e-9 s: a 564 GB allocation).
-    let (lo, hi) = (
-        launch_config::validate::MIN_DT_S,
-        launch_config::validate::MAX_DT_S,
-    );
-    if !(args.dt.is_finite() && (lo..=hi).contains(&args.dt)) {
-        bail!("--dt {}: must be from {lo} to {hi} s (the replay's physics step, bounded like [scene] dt)", args.dt);
-    }
     let opts = gap::Options {
         dt: args.dt,
         progress: !args.json,
         pairs: !args.no_pairs,
         ..gap::Options::default()
     };
+    // checked before anything is read: a bad flag fails before minutes of replays
+    opts.check().context("--dt")?;
     // the session is read first: a bad recording fails before minutes of replays
     let rendering = match &args.session {
         Some(session) => Some(

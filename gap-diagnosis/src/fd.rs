@@ -83,6 +83,7 @@ fn diagnose_table_at_mid_site(
     model: &SimForceModel,
     opts: &Options,
 ) -> Result<Report, GapError> {
+    opts.check()?;
     let site = mid_site(file, conv, model)?;
     diagnose_table_with(file, conv, model, site.point, site.normal, opts)
 }
@@ -120,6 +121,7 @@ pub fn diagnose_table_with(
     opts: &Options,
 ) -> Result<Report, GapError> {
     let start = std::time::Instant::now();
+    opts.check()?;
     let (exp, input) = table_experiment(file, conv, model, point, normal, opts.dt)?;
     let mut r = super::diagnose(&exp, model, opts)?;
     r.input = input;

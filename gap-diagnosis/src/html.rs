@@ -435,6 +435,26 @@ pub fn render(r: &Report) -> String {
     let _ = write!(h, "<div class=\"verdict\"><h2>Verdict: {}</h2><p>held-out RMSE shrink <b>{:.1}%</b> ({} → {} N, {}); study metric error (mean normal force in contact) {} → {} N</p><p>{}</p>",
         esc(&r.verdict.effect), 100.0 * r.verdict.heldout_shrink, fmt(r.heldout.baseline_rmse), fmt(r.heldout.winner_rmse), esc(&r.heldout.scheme),
         fmt(r.heldout.baseline_study_error), fmt(r.heldout.winner_study_error), esc(&r.verdict.reason));
+    if r.verdict.indistinguishable.len() > 1 {
+        let _ = write!(
+            h,
+            "<p><b>Indistinguishable on held-out trials:</b> {}</p><ul>",
+            esc(&r.verdict.indistinguishable.join(" ~ "))
+        );
+        for (rival, how) in r.verdict.indistinguishable[1..]
+            .iter()
+            .zip(&r.verdict.separate_by)
+        {
+            let _ = write!(
+                h,
+                "<li>{} vs {}: {}</li>",
+                esc(&r.verdict.effect),
+                esc(rival),
+                esc(how)
+            );
+        }
+        h.push_str("</ul>");
+    }
     if !r.verdict.params.is_empty() {
         h.push_str("<table><tr><th>effect</th><th>parameter</th><th>value</th><th>± 1 s.e.</th><th>unit</th></tr>");
         for p in &r.verdict.params {

@@ -50,9 +50,9 @@ pub mod html;
 pub mod metrics;
 pub mod model;
 pub mod reality;
-pub mod refine;
 pub mod replay;
 pub mod selftest;
+pub mod separability;
 pub mod session;
 pub mod signal;
 
@@ -130,6 +130,32 @@ pub struct Options {
     pub pairs: bool,
     /// Minimum held-out shrink for an effect to count as identified.
     pub min_shrink: f64,
+}
+
+impl Options {
+    /// Checks the bounds every diagnosis needs. The replay steps at `dt` (it becomes the
+    /// replayed scene's `dt`), so it has `[scene] dt`'s bounds: below them the replay grid of a
+    /// long trial overflowed or asked for hundreds of GB (1e-300 s: an add overflow panic;
+    /// 1e-9 s: a 564 GB allocation).
+    pub fn check(&self) -> Result<(), GapError> {
+        let (lo, hi) = (
+            launch_config::validate::MIN_DT_S,
+            launch_config::validate::MAX_DT_S,
+        );
+        if !(self.dt.is_finite() && (lo..=hi).contains(&self.dt)) {
+            return Err(GapError::Other(format!(
+                "replay step dt = {} s: must be from {lo} to {hi} s (bounded like [scene] dt)",
+                self.dt
+            )));
+        }
+        if !(self.min_shrink.is_finite() && (0.0..1.0).contains(&self.min_shrink)) {
+            return Err(GapError::Other(format!(
+                "min_shrink = {}: must be in [0, 1) (a fraction of the held-out error)",
+                self.min_shrink
+            )));
+        }
+        Ok(())
+    }
 }
 
 impl Default for Options {
@@ -210,6 +236,14 @@ pub struct Verdict {
     pub heldout_shrink: f64,
     pub params: Vec<fit::FittedParam>,
     pub reason: String,
+    /// Candidates the held-out data cannot tell apart from `effect` within its between-trial
+    /// scatter ([`separability`]): `effect` first, then each rival, best first (read as
+    /// `support ~ modulus`). Empty when every rival is told apart, or the verdict is `none`.
+    #[serde(default)]
+    pub indistinguishable: Vec<String>,
+    /// Per rival (`indistinguishable[1..]`): what kind of trial would separate it from `effect`.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub separate_by: Vec<String>,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -240,6 +274,7 @@ pub struct Report {
 /// recording (an `.mcap` file, or a folder without `experiment.toml` holding one) is
 /// diagnosed with [`diagnose_session`].
 pub fn diagnose_dir(dir: &Path, opts: &Options) -> Result<Report, GapError> {
+    opts.check()?;
     if let Some(mcap) = session::session_file(dir)? {
         return diagnose_session(&mcap, opts);
     }
@@ -255,6 +290,7 @@ pub mod sim_model;
 /// Diagnose an arthrosim session recording: its probings are the trials, its scene the
 /// model; with device ticks, the report also carries the rendering gap.
 pub fn diagnose_session(mcap: &Path, opts: &Options) -> Result<Report, GapError> {
+    opts.check()?;
     let rec = session::read_session(mcap)?;
     diagnose_recording(&rec, opts)
 }
@@ -299,6 +335,7 @@ pub fn diagnose(
     model: &dyn ForceModel,
     opts: &Options,
 ) -> Result<Report, GapError> {
+    opts.check()?;
     let start = std::time::Instant::now();
     let effects = candidate_effects(exp, model, opts);
     let data = dataset::build(
@@ -450,7 +487,7 @@ pub fn diagnose_data(
     ranking.sort_by(|a, b| a.score.total_cmp(&b.score));
 
     // two effects need several independent trials to be told apart (not one table)
-    let verdict = decide(
+    let mut verdict = decide(
         &singles,
         &ranking,
         r0,
@@ -458,6 +495,20 @@ pub fn diagnose_data(
         opts.min_shrink,
         data.len() >= 3,
     );
+    if let Some(set) = separability::indistinguishable(&verdict.effect, &ranking, data) {
+        let rivals: Vec<String> = set.candidates[1..]
+            .iter()
+            .zip(set.excess_mse.iter().zip(&set.excess_se))
+            .map(|(c, (m, se))| format!("{c} (held-out MSE {m:+.4} ± {se:.4} N² per trial)"))
+            .collect();
+        verdict.reason.push_str(&format!(
+            "; on held-out trials it cannot be told apart from {} ({})",
+            rivals.join(", "),
+            set.label()
+        ));
+        verdict.indistinguishable = set.candidates;
+        verdict.separate_by = set.separate_by;
+    }
     let winner = ranking.iter().find(|c| c.effect == verdict.effect);
     let heldout = Heldout {
         scheme,
@@ -529,6 +580,8 @@ fn decide(
         heldout_shrink: 0.0,
         params: vec![],
         reason,
+        indistinguishable: Vec::new(),
+        separate_by: Vec::new(),
     };
     if r0 <= 1.15 * noise {
         return none(format!(
@@ -573,6 +626,8 @@ fn decide(
                         100.0 * pair.heldout_weighted_shrink,
                         pair.delta_bic
                     ),
+                    indistinguishable: Vec::new(),
+                    separate_by: Vec::new(),
                 };
             }
         }
@@ -625,6 +680,8 @@ fn decide(
         heldout_shrink: win.heldout_shrink,
         params: win.params.clone(),
         reason,
+        indistinguishable: Vec::new(),
+        separate_by: Vec::new(),
     }
 }
 

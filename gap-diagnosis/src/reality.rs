@@ -111,6 +111,10 @@ impl RealitySpec {
                     "unknown effect {name:?} (modulus, hardening, viscoelastic, friction, tilt, device, support, mesh, sensor)"
                 ))
             })?;
+            if let Some(v) = strength {
+                check_strength(e, v)
+                    .map_err(|msg| GapError::Other(format!("effect {item:?}: {msg}")))?;
+            }
             injected.push(draw(e, strength, &mut rng));
         }
         Ok(RealitySpec {
@@ -137,6 +141,28 @@ impl RealitySpec {
             .filter_map(|i| Effect::parse(&i.effect))
             .collect();
         Candidate(effects).name()
+    }
+}
+
+/// Physically meaningful range of an effect's strength (units as in
+/// [`RealitySpec::from_effects`]). Beyond it the truth is no experiment (1e300 as a modulus
+/// scale gave an infinite truth force), so a case is refused with the range.
+fn check_strength(e: Effect, v: f64) -> Result<(), String> {
+    let (lo, hi, unit) = match e {
+        Effect::Modulus => (0.05, 20.0, "× the modulus"),
+        Effect::Hardening => (0.0, 5.0, "1/mm"),
+        Effect::Viscoelastic => (0.0, 0.95, "(Prony g1)"),
+        Effect::Friction => (0.0, 2.0, "(μ)"),
+        Effect::Tilt => (-30.0, 30.0, "degrees"),
+        Effect::Device => (0.0, 5.0, "N"),
+        Effect::Support => (1.0, 1.0e6, "N/m per node"),
+        Effect::Sensor => (0.0, 1.0, "s"),
+        Effect::Mesh => return Err("takes no strength".into()),
+    };
+    if v.is_finite() && (lo..=hi).contains(&v) {
+        Ok(())
+    } else {
+        Err(format!("strength {v} must be from {lo} to {hi} {unit}"))
     }
 }
 
@@ -482,4 +508,41 @@ pub fn write_experiment_with(
     let js = serde_json::to_string_pretty(&truth).map_err(|e| GapError::Other(e.to_string()))?;
     std::fs::write(truth_path, js).map_err(|e| GapError::Io(truth_path.to_path_buf(), e))?;
     Ok(truth)
+}
+
+#[cfg(test)]
+mod strength_tests {
+    use super::*;
+
+    /// `reality --effect modulus=1e300` was accepted and gave an infinite truth.
+    #[test]
+    fn an_effect_strength_outside_its_physical_range_is_refused() {
+        for bad in [
+            "modulus=1e300",
+            "friction=-0.1",
+            "tilt=90",
+            "sensor=nan",
+            "mesh=2",
+            "support=inf",
+        ] {
+            let err = RealitySpec::from_effects(&[bad], 1)
+                .unwrap_err()
+                .to_string();
+            assert!(err.contains(bad.split('=').next().unwrap()), "{bad}: {err}");
+            assert!(
+                err.contains("must be") || err.contains("no strength"),
+                "{bad}: {err}"
+            );
+        }
+        for good in [
+            "modulus=1.4",
+            "friction=0.3",
+            "tilt=-6",
+            "sensor=0.08",
+            "mesh",
+            "support=1500",
+        ] {
+            assert!(RealitySpec::from_effects(&[good], 1).is_ok(), "{good}");
+        }
+    }
 }

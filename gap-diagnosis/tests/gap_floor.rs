@@ -7,10 +7,10 @@
 //! Reads the study data (`ARTHROSIM_DATA`); required under `CI=true`, skipped with a note
 //! otherwise.
 use gap_diagnosis::model::{replay, Variant};
-use gap_diagnosis::refine::{refine_once, write_msh};
 use gap_diagnosis::{self as gap, reality::protocol_path, Region, SimForceModel};
 use launch_config::scene::OfflineSolver;
 use launch_config::SceneConfig;
+use physics_node::fem::test_meshes::{refine_once, write_msh22};
 
 fn data_present() -> bool {
     let d = gap::data_dir();
@@ -53,11 +53,13 @@ fn replay_model_against_the_refined_study_mesh() {
     let model = SimForceModel::from_scene(scene.clone(), &data);
 
     let loaded = physics_node::mesh::load_scene_mesh(&scene.meniscus, &data).unwrap();
-    let refined = refine_once(&loaded.mesh, &loaded.fixed_nodes);
+    let (fine_mesh, fine_fixed) = refine_once(&loaded.mesh, &loaded.fixed_nodes);
     let dir = std::env::temp_dir().join(format!("gap_floor_{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let (msh, list) = (dir.join("lateral_refined.msh"), dir.join("fixed.txt"));
-    write_msh(&refined.mesh, &refined.fixed, &msh, &list).unwrap();
+    write_msh22(&fine_mesh, &msh).unwrap();
+    let held: Vec<String> = fine_fixed.iter().map(|i| i.to_string()).collect();
+    std::fs::write(&list, held.join(" ")).unwrap();
     let mut fine = scene.clone();
     fine.meniscus.mesh = msh.display().to_string();
     fine.meniscus.fixed = list.display().to_string();

@@ -253,3 +253,32 @@ fn experiment_names_its_probe_model() {
     );
     let _ = std::fs::remove_dir_all(&d);
 }
+
+/// The replay step is bounded in the library, not only by the CLI flag: a library caller
+/// asking for a 1e-9 s replay of a table gets an error, not a 564 GB allocation.
+#[test]
+fn a_replay_step_outside_the_scene_bounds_is_refused_by_the_library() {
+    let d = dir("dt_bounds");
+    let table = d.join("table.csv");
+    std::fs::write(&table, "displacement_mm,force_N\n0,0.3\n1,0.5\n2,1.0\n").unwrap();
+    for dt in [1e-300, 1e-9, 0.5, f64::NAN, -1.0] {
+        let opts = gap_diagnosis::Options {
+            dt,
+            ..gap_diagnosis::Options::default()
+        };
+        let err = gap_diagnosis::diagnose_force_displacement(&table, &opts)
+            .err()
+            .unwrap_or_else(|| panic!("dt {dt} accepted"));
+        let text = err.to_string();
+        assert!(
+            text.contains("dt") && text.contains("0.00001 to 0.1 s"),
+            "{text}"
+        );
+    }
+    let opts = gap_diagnosis::Options {
+        min_shrink: f64::INFINITY,
+        ..gap_diagnosis::Options::default()
+    };
+    assert!(opts.check().is_err());
+    assert!(gap_diagnosis::Options::default().check().is_ok());
+}

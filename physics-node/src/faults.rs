@@ -139,11 +139,17 @@ impl FaultMonitor {
         faults
     }
 
-    /// A step that failed numerically (solver error, non-finite state): its detail is
-    /// logged once; the fault itself is counted by [`Self::roll_back`].
+    /// A step that failed numerically (solver error, non-finite state): logged once, with its
+    /// detail, in place of [`Self::roll_back`]'s line for that kind (which only this call
+    /// knows the detail of); the fault itself is counted by `roll_back`.
     pub fn note_numerical(&mut self, detail: &str) {
         if self.logged & physics_fault::NUMERICAL == 0 {
-            tracing::warn!(detail, "physics step failed numerically (logged once)");
+            self.logged |= physics_fault::NUMERICAL;
+            tracing::warn!(
+                tripped = "numerical",
+                detail,
+                "physics fault: step not rendered, state rolled back (logged once per kind)"
+            );
         }
     }
 

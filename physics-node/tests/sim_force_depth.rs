@@ -5,11 +5,9 @@
 //!
 //! Run with `cargo test -p physics-node --test sim_force_depth -- --nocapture` to see the table.
 
-use nalgebra::{Matrix3, Point3, UnitQuaternion, Vector3};
-use physics_node::fem::test_meshes::write_msh22;
-use physics_node::mesh::TetMesh;
+use nalgebra::{Point3, UnitQuaternion, Vector3};
+use physics_node::fem::test_meshes::{refine_once, write_msh22};
 use physics_node::sim::Simulation;
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 const DEPTHS_MM: [f64; 9] = [0.25, 0.5, 0.75, 1.0, 1.25, 1.5, 2.0, 2.5, 3.0];
@@ -26,69 +24,6 @@ fn data_dir() -> Option<PathBuf> {
         );
         None
     }
-}
-
-fn volume(m: &TetMesh, t: &[usize; 4]) -> f64 {
-    let x = |i: usize| m.nodes[t[i]];
-    Matrix3::from_columns(&[x(1) - x(0), x(2) - x(0), x(3) - x(0)]).determinant() / 6.0
-}
-
-/// Splits every tet into 8 (edge midpoints; inner octahedron cut along one diagonal); a
-/// midpoint is fixed when both ends of its edge are.
-fn refine(mesh: &TetMesh, fixed: &[usize]) -> (TetMesh, Vec<usize>) {
-    let mut out = TetMesh {
-        nodes: mesh.nodes.clone(),
-        tets: Vec::new(),
-    };
-    let mut is_fixed = vec![false; mesh.nodes.len()];
-    for &f in fixed {
-        is_fixed[f] = true;
-    }
-    let mut mid: BTreeMap<(usize, usize), usize> = BTreeMap::new();
-    let mut midpoint = |a: usize, b: usize, out: &mut TetMesh, is_fixed: &mut Vec<bool>| {
-        let key = (a.min(b), a.max(b));
-        *mid.entry(key).or_insert_with(|| {
-            out.nodes.push(Point3::from(
-                (out.nodes[a].coords + out.nodes[b].coords) * 0.5,
-            ));
-            is_fixed.push(is_fixed[a] && is_fixed[b]);
-            out.nodes.len() - 1
-        })
-    };
-    for t in &mesh.tets {
-        let [a, b, c, d] = *t;
-        let ab = midpoint(a, b, &mut out, &mut is_fixed);
-        let ac = midpoint(a, c, &mut out, &mut is_fixed);
-        let ad = midpoint(a, d, &mut out, &mut is_fixed);
-        let bc = midpoint(b, c, &mut out, &mut is_fixed);
-        let bd = midpoint(b, d, &mut out, &mut is_fixed);
-        let cd = midpoint(c, d, &mut out, &mut is_fixed);
-        let children = [
-            [a, ab, ac, ad],
-            [ab, b, bc, bd],
-            [ac, bc, c, cd],
-            [ad, bd, cd, d],
-            [ac, bd, ab, bc],
-            [ac, bd, bc, cd],
-            [ac, bd, cd, ad],
-            [ac, bd, ad, ab],
-        ];
-        let v0 = volume(mesh, t);
-        let mut sum = 0.0;
-        for mut ch in children {
-            if volume(&out, &ch) < 0.0 {
-                ch.swap(2, 3);
-            }
-            sum += volume(&out, &ch);
-            out.tets.push(ch);
-        }
-        assert!(
-            (sum - v0).abs() <= 1e-9 * v0.abs(),
-            "refinement must preserve volume"
-        );
-    }
-    let fixed = (0..out.nodes.len()).filter(|&i| is_fixed[i]).collect();
-    (out, fixed)
 }
 
 /// Presses the sphere kinematically at the mid-body site; returns (depth mm, normal force N).
@@ -143,7 +78,7 @@ fn force_depth_curve_on_study_lateral_mesh_and_refined() {
     let coarse = curve(&scene, &data, &site);
 
     // Refined once, same geometry and support.
-    let (fine_mesh, fine_fixed) = refine(&loaded.mesh, &loaded.fixed_nodes);
+    let (fine_mesh, fine_fixed) = refine_once(&loaded.mesh, &loaded.fixed_nodes);
     let dir = std::env::temp_dir().join(format!("physics-node-refined-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let msh = dir.join("lateral_refined.msh");

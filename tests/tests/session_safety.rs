@@ -180,6 +180,26 @@ fn recorder_killed_mid_session_loses_nothing_and_sighup_stops_in_order() {
         !twin_ok && twin_text.contains("already running"),
         "a second session named {session} was not refused:\n{twin_text}"
     );
+    // Refused with the default output folder: no empty `sessions/<stamp>` is left behind.
+    let twin_cwd = tmp.join("twin-cwd");
+    std::fs::create_dir_all(&twin_cwd).unwrap();
+    let twin = Command::new(&bin)
+        .args(["run", "--seconds", "5", "--plain", "--session", &session])
+        .current_dir(&twin_cwd)
+        .stdin(Stdio::null())
+        .output()
+        .expect("start arthrosim run");
+    assert!(
+        !twin.status.success(),
+        "the twin without --out was not refused"
+    );
+    let left: Vec<_> = std::fs::read_dir(twin_cwd.join("sessions"))
+        .map(|d| d.filter_map(|e| e.ok()).map(|e| e.file_name()).collect())
+        .unwrap_or_default();
+    assert!(
+        left.is_empty(),
+        "a refused run left session folders {left:?}"
+    );
 
     // Snapshot of the first part, then SIGKILL the recorder.
     let snapshot = tmp.join("before_kill.mcap");

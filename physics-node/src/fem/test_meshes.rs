@@ -82,6 +82,70 @@ pub fn write_msh22(mesh: &TetMesh, path: &std::path::Path) -> std::io::Result<()
     std::fs::write(path, s)
 }
 
+fn tet_volume(m: &TetMesh, t: &[usize; 4]) -> f64 {
+    let x = |i: usize| m.nodes[t[i]];
+    nalgebra::Matrix3::from_columns(&[x(1) - x(0), x(2) - x(0), x(3) - x(0)]).determinant() / 6.0
+}
+
+/// The mesh refined once: every tet split into 8 (edge midpoints; inner octahedron cut along one diagonal); a
+/// midpoint is fixed when both ends of its edge are.
+pub fn refine_once(mesh: &TetMesh, fixed: &[usize]) -> (TetMesh, Vec<usize>) {
+    let mut out = TetMesh {
+        nodes: mesh.nodes.clone(),
+        tets: Vec::new(),
+    };
+    let mut is_fixed = vec![false; mesh.nodes.len()];
+    for &f in fixed {
+        is_fixed[f] = true;
+    }
+    let mut mid: std::collections::BTreeMap<(usize, usize), usize> =
+        std::collections::BTreeMap::new();
+    let mut midpoint = |a: usize, b: usize, out: &mut TetMesh, is_fixed: &mut Vec<bool>| {
+        let key = (a.min(b), a.max(b));
+        *mid.entry(key).or_insert_with(|| {
+            out.nodes.push(nalgebra::Point3::from(
+                (out.nodes[a].coords + out.nodes[b].coords) * 0.5,
+            ));
+            is_fixed.push(is_fixed[a] && is_fixed[b]);
+            out.nodes.len() - 1
+        })
+    };
+    for t in &mesh.tets {
+        let [a, b, c, d] = *t;
+        let ab = midpoint(a, b, &mut out, &mut is_fixed);
+        let ac = midpoint(a, c, &mut out, &mut is_fixed);
+        let ad = midpoint(a, d, &mut out, &mut is_fixed);
+        let bc = midpoint(b, c, &mut out, &mut is_fixed);
+        let bd = midpoint(b, d, &mut out, &mut is_fixed);
+        let cd = midpoint(c, d, &mut out, &mut is_fixed);
+        let children = [
+            [a, ab, ac, ad],
+            [ab, b, bc, bd],
+            [ac, bc, c, cd],
+            [ad, bd, cd, d],
+            [ac, bd, ab, bc],
+            [ac, bd, bc, cd],
+            [ac, bd, cd, ad],
+            [ac, bd, ad, ab],
+        ];
+        let v0 = tet_volume(mesh, t);
+        let mut sum = 0.0;
+        for mut ch in children {
+            if tet_volume(&out, &ch) < 0.0 {
+                ch.swap(2, 3);
+            }
+            sum += tet_volume(&out, &ch);
+            out.tets.push(ch);
+        }
+        assert!(
+            (sum - v0).abs() <= 1e-9 * v0.abs(),
+            "refinement must preserve volume"
+        );
+    }
+    let fixed = (0..out.nodes.len()).filter(|&i| is_fixed[i]).collect();
+    (out, fixed)
+}
+
 /// Indices of the nodes whose position satisfies `pred`.
 pub fn nodes_where(mesh: &TetMesh, pred: impl Fn(&Point3<f64>) -> bool) -> Vec<usize> {
     (0..mesh.nodes.len())

@@ -1,0 +1,233 @@
+//! Which candidates the held-out data cannot tell apart from the verdict (issue 15 point 2).
+//!
+//! Every candidate predicts each trial from a fit on the other folds. Per trial, the mean
+//! squared held-out residual of a rival minus the verdict's is one paired difference; over
+//! the trials these differences have a mean and a standard error. A rival whose mean is not
+//! at least two standard errors above zero explains the held-out data as well as the verdict
+//! within the data's own between-trial scatter: the report names it beside the verdict
+//! (`verdict.indistinguishable`) with what kind of trial would separate the two. The verdict's
+//! effect itself is not changed here.
+
+use crate::dataset::TrialData;
+use crate::effects::Effect;
+use crate::fit::CandidateScore;
+use serde::{Deserialize, Serialize};
+
+/// Standard errors by which a rival's held-out error must exceed the verdict's to count as
+/// told apart (a one-sided ~97.5% paired test over trials).
+pub const SEPARATION_SE: f64 = 2.0;
+/// Fewest trials with a held-out prediction for the paired test to mean anything.
+pub const MIN_TRIALS: usize = 4;
+
+/// A set of candidates the held-out data cannot separate, and what would.
+#[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
+pub struct Indistinguishable {
+    /// The verdict first, then each rival within [`SEPARATION_SE`] standard errors, best
+    /// first (e.g. `["support", "modulus"]`, reported as `support ~ modulus`).
+    pub candidates: Vec<String>,
+    /// Per rival: its held-out mean squared error above the verdict's, N², and the standard
+    /// error of that difference over trials.
+    pub excess_mse: Vec<f64>,
+    pub excess_se: Vec<f64>,
+    /// What kind of experiment would tell each rival from the verdict.
+    pub separate_by: Vec<String>,
+}
+
+impl Indistinguishable {
+    /// `a ~ b ~ c`.
+    pub fn label(&self) -> String {
+        self.candidates.join(" ~ ")
+    }
+}
+
+/// Mean squared held-out residual of each trial (all axes), N².
+fn trial_mse(c: &CandidateScore, data: &[TrialData]) -> Option<Vec<f64>> {
+    if c.heldout_pred.len() != data.len() {
+        return None;
+    }
+    data.iter()
+        .zip(&c.heldout_pred)
+        .map(|(d, pred)| {
+            if pred.len() != d.f.len() || d.f.is_empty() {
+                return None;
+            }
+            let sse: f64 =
+                d.f.iter()
+                    .zip(pred)
+                    .map(|(m, p)| (0..3).map(|k| (m[k] - p[k]).powi(2)).sum::<f64>())
+                    .sum();
+            Some(sse / d.f.len() as f64)
+        })
+        .collect()
+}
+
+/// Rivals of `verdict` (a candidate of `ranking`) the held-out data cannot separate from it.
+/// `None` when the verdict is not a ranked candidate (e.g. `none`), when there are too few
+/// trials, or when every rival is told apart.
+pub fn indistinguishable(
+    verdict: &str,
+    ranking: &[CandidateScore],
+    data: &[TrialData],
+) -> Option<Indistinguishable> {
+    if data.len() < MIN_TRIALS {
+        return None;
+    }
+    let win = ranking.iter().find(|c| c.effect == verdict)?;
+    let win_mse = trial_mse(win, data)?;
+    let mut rivals: Vec<(f64, f64, &CandidateScore)> = ranking
+        .iter()
+        .filter(|c| c.effect != verdict)
+        // a rival that contains the verdict (its pair) or is contained in it adds or drops an
+        // effect; that choice is the verdict's own parsimony rule, not a confusion
+        .filter(|c| !shares_effect(&c.effect, verdict))
+        // a rival with more effects that fits no better loses on parsimony, as in the verdict
+        .filter(|c| effects_of(&c.effect).len() <= effects_of(verdict).len())
+        .filter_map(|c| {
+            let (mean, se) = paired_excess(&win_mse, &trial_mse(c, data)?);
+            (!told_apart(mean, se)).then_some((mean, se, c))
+        })
+        .collect();
+    if rivals.is_empty() {
+        return None;
+    }
+    rivals.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut out = Indistinguishable {
+        candidates: vec![verdict.to_string()],
+        ..Default::default()
+    };
+    for (mean, se, c) in rivals {
+        out.candidates.push(c.effect.clone());
+        out.excess_mse.push(mean);
+        out.excess_se.push(se);
+        out.separate_by
+            .push(separating_experiment(verdict, &c.effect));
+    }
+    Some(out)
+}
+
+/// Mean and standard error over trials of `rival − verdict` (per-trial held-out MSE).
+fn paired_excess(verdict: &[f64], rival: &[f64]) -> (f64, f64) {
+    let n = verdict.len().min(rival.len()) as f64;
+    let diff: Vec<f64> = rival.iter().zip(verdict).map(|(r, w)| r - w).collect();
+    let mean = diff.iter().sum::<f64>() / n;
+    let var = diff.iter().map(|d| (d - mean).powi(2)).sum::<f64>() / (n - 1.0).max(1.0);
+    (mean, (var / n).sqrt())
+}
+
+/// The rival is worse than the verdict by more than the trials' scatter explains.
+fn told_apart(mean: f64, se: f64) -> bool {
+    mean >= SEPARATION_SE * se && mean > 0.0
+}
+
+fn effects_of(name: &str) -> Vec<Effect> {
+    name.split('+').filter_map(Effect::parse).collect()
+}
+
+fn shares_effect(a: &str, b: &str) -> bool {
+    let b = effects_of(b);
+    effects_of(a).iter().any(|e| b.contains(e))
+}
+
+/// Where two effects' predictions part, from how each acts on the probe force.
+fn separating_experiment(a: &str, b: &str) -> String {
+    let (ea, eb) = (effects_of(a), effects_of(b));
+    let mut hints: Vec<&str> = Vec::new();
+    for x in &ea {
+        for y in &eb {
+            if let Some(h) = hint(*x, *y).or_else(|| hint(*y, *x)) {
+                if !hints.contains(&h) {
+                    hints.push(h);
+                }
+            }
+        }
+    }
+    if hints.is_empty() {
+        format!("trials whose phases {a} and {b} act on differently (more probings, more sites)")
+    } else {
+        hints.join("; ")
+    }
+}
+
+fn hint(x: Effect, y: Effect) -> Option<&'static str> {
+    use Effect::*;
+    Some(match (x, y) {
+        (Support, Modulus) => {
+            "a deeper press, and a probing near the fixed edge: the support moves the whole \
+             body (it dominates far from the attachments), the modulus stiffens only the tissue \
+             under the tip"
+        }
+        (Support, Hardening) | (Modulus, Hardening) => {
+            "presses over a wider depth range: hardening grows with depth, a constant stiffness \
+             scale does not"
+        }
+        (Support, Tilt) | (Modulus, Tilt) => {
+            "forces on the tangential axes while pressing: a tilt turns part of the normal force \
+             sideways, a stiffness change does not"
+        }
+        (Friction, Tilt) => {
+            "slides in opposite directions: friction opposes each slide, a tilt pushes one way"
+        }
+        (Friction, Support) | (Friction, Modulus) | (Friction, Hardening) => {
+            "longer tangential slides at constant depth: friction acts only while sliding"
+        }
+        (Viscoelastic, Sensor) => {
+            "longer holds at constant depth: relaxation decays over the hold, a sensor delay or \
+             low-pass only shifts and rounds the onsets"
+        }
+        (Viscoelastic, Support) | (Viscoelastic, Modulus) | (Viscoelastic, Hardening) => {
+            "presses at two speeds and holds: viscoelasticity depends on the rate and relaxes, \
+             a stiffness does not"
+        }
+        (Device, Sensor) => {
+            "samples with the probe out of contact: a device bias is there at rest, a sensor \
+             delay is not"
+        }
+        (Device, Support) | (Device, Modulus) | (Device, Hardening) | (Device, Tilt) => {
+            "samples with the probe out of contact: a device bias or tool inertia shows without \
+             tissue"
+        }
+        (Sensor, Support) | (Sensor, Modulus) | (Sensor, Hardening) => {
+            "faster presses: a sensor delay grows with the loading rate, a stiffness does not"
+        }
+        (Mesh, _) => "a refined specimen mesh near the probing sites",
+        _ => return None,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A rival whose per-trial held-out error scatters around the verdict's is not told
+    /// apart; one that is worse on every trial by more than the scatter is.
+    #[test]
+    fn a_rival_is_told_apart_only_beyond_the_between_trial_scatter() {
+        let verdict = [1.0, 1.2, 0.9, 1.1, 1.0, 1.3, 0.8, 1.0];
+        let close = [1.05, 1.1, 1.0, 1.05, 0.95, 1.35, 0.85, 1.0];
+        let (m, se) = paired_excess(&verdict, &close);
+        assert!(!told_apart(m, se), "mean {m} se {se}");
+        let worse: Vec<f64> = verdict.iter().map(|v| v + 0.3).collect();
+        let (m, se) = paired_excess(&verdict, &worse);
+        assert!(
+            (m - 0.3).abs() < 1e-12 && told_apart(m, se),
+            "mean {m} se {se}"
+        );
+        // better than the verdict (the verdict's own rule chose it anyway): not told apart
+        let better: Vec<f64> = verdict.iter().map(|v| v - 0.1).collect();
+        let (m, se) = paired_excess(&verdict, &better);
+        assert!(!told_apart(m, se));
+    }
+
+    #[test]
+    fn separating_experiments_are_symmetric_and_name_pairs() {
+        assert_eq!(
+            separating_experiment("support", "modulus"),
+            separating_experiment("modulus", "support")
+        );
+        assert!(separating_experiment("support", "modulus").contains("fixed edge"));
+        let pair = separating_experiment("friction+device", "tilt");
+        assert!(pair.contains("opposite directions") && pair.contains("out of contact"));
+        assert!(shares_effect("modulus+sensor", "sensor"));
+        assert!(!shares_effect("modulus", "support"));
+    }
+}

@@ -1,0 +1,301 @@
+//! A frictionless ball slid at constant depth along the study's lateral meniscus, across its
+//! facets: how much the normal force varies from facet to facet (issue 15, point 1: "≤ 5%, as
+//! a converged reference does").
+//!
+//! The reference surface is not the mesh's own facets but a smooth one through its vertices
+//! (Phong tessellation with angle-weighted vertex normals, built in this test: the surface an
+//! independent FE with a smooth surface contact sees; the study mesh is too coarse for a local
+//! fit, 3–4 superior vertices within 5 mm of the site). The ball's centre follows it at
+//! `R − depth` along its normal from the mid-body probing site, along the body and across it,
+//! quasi-statically (direct FEM solve, converged LCP; holding each position 8 steps instead
+//! of 3 changes no number by more than 0.1%). A contact
+//! that is smooth across facets then gives a force that changes only slowly along the path,
+//! with the surface's curvature and the body's thickness; what the facets add shows as the
+//! residual about a quadratic trend over the 6 mm path. The same paths are run on the study
+//! mesh and on the mesh refined once (every tet split into 8: the same facets, four triangles
+//! each, so its own smooth surface lies close to the facets and what varies there is mostly
+//! the contact's and the elements' discretisation, not the geometry).
+//!
+//! Run with `--nocapture` to see the numbers; the README quotes them.
+
+use nalgebra::{DMatrix, DVector, Point3, UnitQuaternion, Vector3};
+use parry3d_f64::math::Vector as GVec;
+use parry3d_f64::query::PointQueryWithLocation;
+use parry3d_f64::shape::TriMesh;
+use physics_node::contact::boundary_triangles;
+use physics_node::fem::test_meshes::{refine_once, write_msh22};
+use physics_node::mesh::TetMesh;
+use physics_node::sim::Simulation;
+use std::path::{Path, PathBuf};
+
+const RADIUS_M: f64 = 1.5e-3; // the built-in ball tip
+const DEPTH_M: f64 = 0.4e-3;
+/// Half length of the path, m: 6 mm across the 2.2 mm facets.
+const HALF_PATH_M: f64 = 3.0e-3;
+const STEP_M: f64 = 0.05e-3;
+/// Steps each position is held before its force is read (quasi-static: 8 give the same
+/// numbers to 0.1%).
+const HOLD_STEPS: usize = 3;
+
+fn data_dir() -> Option<PathBuf> {
+    let d = launch_config::data_dir();
+    if d.join("meniscus/lateral_meniscus_computation.msh").exists() {
+        Some(d)
+    } else {
+        assert!(
+            std::env::var("CI").as_deref() != Ok("true"),
+            "study data missing in CI: {}",
+            d.display()
+        );
+        eprintln!(
+            "facet_slide skipped: no study mesh under {} (set ARTHROSIM_DATA)",
+            d.display()
+        );
+        None
+    }
+}
+
+/// The reference surface: the smooth surface through a mesh's boundary vertices, Phong
+/// tessellation (Boubekeur & Alexa 2008, shape factor 3/4) with angle-weighted vertex normals
+/// (Thürmer & Wüthrich 1998), interpolated normals. Built here from the rest mesh, apart from
+/// the contact code it measures.
+struct SmoothSurface {
+    mesh: TriMesh,
+    normals: Vec<Vector3<f64>>,
+}
+
+impl SmoothSurface {
+    fn new(mesh: &TetMesh) -> SmoothSurface {
+        let tris = boundary_triangles(&mesh.tets);
+        let verts: Vec<_> = mesh
+            .nodes
+            .iter()
+            .map(|p| GVec::new(p.x, p.y, p.z))
+            .collect();
+        let idx: Vec<[u32; 3]> = tris.iter().map(|t| t.map(|i| i as u32)).collect();
+        let mut normals = vec![Vector3::zeros(); mesh.nodes.len()];
+        for t in &tris {
+            let [a, b, c] = t.map(|i| mesh.nodes[i].coords);
+            let face = (b - a).cross(&(c - a)).normalize();
+            for j in 0..3 {
+                let p = mesh.nodes[t[j]].coords;
+                let e1 = (mesh.nodes[t[(j + 1) % 3]].coords - p).normalize();
+                let e2 = (mesh.nodes[t[(j + 2) % 3]].coords - p).normalize();
+                normals[t[j]] += face * e1.dot(&e2).clamp(-1.0, 1.0).acos();
+            }
+        }
+        for n in normals.iter_mut() {
+            *n = n.try_normalize(0.0).unwrap_or_else(Vector3::zeros);
+        }
+        SmoothSurface {
+            mesh: TriMesh::new(verts, idx).unwrap(),
+            normals,
+        }
+    }
+
+    /// The facets' closest point to `x`, the smooth surface's point over it and its normal.
+    fn project(&self, x: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>, Vector3<f64>) {
+        let (_, (t, loc)) = self
+            .mesh
+            .project_local_point_and_get_location(GVec::new(x.x, x.y, x.z), false);
+        let w = loc.barycentric_coordinates().unwrap_or([1.0 / 3.0; 3]);
+        let l = self.mesh.indices()[t as usize];
+        let v = |k: usize| {
+            let g = self.mesh.vertices()[l[k] as usize];
+            Vector3::new(g.x, g.y, g.z)
+        };
+        let n = |k: usize| self.normals[l[k] as usize];
+        let flat = v(0) * w[0] + v(1) * w[1] + v(2) * w[2];
+        let mut phong = Vector3::zeros();
+        let mut normal = Vector3::zeros();
+        for k in 0..3 {
+            phong += w[k] * (flat - n(k) * n(k).dot(&(flat - v(k))));
+            normal += w[k] * n(k);
+        }
+        (flat, flat * 0.25 + phong * 0.75, normal.normalize())
+    }
+}
+
+/// Normal force along the path (s, force N). The path walks the smooth surface through the
+/// mesh's vertices from the site in small steps along `dir` projected onto the local tangent
+/// plane, each step carried back onto the surface; the ball's centre is `R − depth` out along
+/// the surface's normal.
+fn slide(
+    scene: &launch_config::SceneConfig,
+    data: &Path,
+    mesh: &TetMesh,
+    site: (Vector3<f64>, Vector3<f64>),
+) -> Vec<(f64, f64)> {
+    let surface = SmoothSurface::new(mesh);
+    let mut sim = Simulation::new(scene, data).unwrap();
+    let rot = UnitQuaternion::identity();
+    let (origin, dir) = site;
+    // Surface points (point, normal) every STEP_M / 10 from −(HALF_PATH_M + 0.5 mm) to
+    // +HALF_PATH_M, walked both ways from the site.
+    let fine = STEP_M / 10.0;
+    let walk = |sign: f64, length: f64| {
+        let mut at = surface.project(&origin);
+        let mut out = vec![at];
+        for _ in 0..(length / fine).round() as usize {
+            // Walk on the facets (their closest point moves continuously along them), read
+            // the smooth surface over each step.
+            let step = dir * sign - at.2 * at.2.dot(&(dir * sign));
+            at = surface.project(&(at.0 + step.normalize() * fine));
+            out.push(at);
+        }
+        out
+    };
+    let back = walk(-1.0, HALF_PATH_M + 0.5e-3);
+    let ahead = walk(1.0, HALF_PATH_M);
+    let surface_at = |s: f64| {
+        let k = (s.abs() / fine).round() as usize;
+        if s < 0.0 {
+            back[k]
+        } else {
+            ahead[k]
+        }
+    };
+    let centre = |s: f64, depth: f64| {
+        let (_, p, n) = surface_at(s);
+        (Point3::from(p + n * (RADIUS_M - depth)), n)
+    };
+    let s0 = -HALF_PATH_M - 0.5e-3;
+    sim.teleport_probe(&physics_node::probe::pose(centre(s0, -0.05e-3).0, rot));
+    // Press to depth before the path starts, then settle.
+    for k in 0..30 {
+        let d = -0.05e-3 + (DEPTH_M + 0.05e-3) * ((k + 1) as f64 / 10.0).min(1.0);
+        sim.set_probe_kinematic(&physics_node::probe::pose(centre(s0, d).0, rot));
+        sim.step().unwrap();
+    }
+    let n_steps = ((2.0 * HALF_PATH_M + 0.5e-3) / STEP_M).round() as usize;
+    let mut out = Vec::new();
+    for k in 1..=n_steps {
+        let s = s0 + k as f64 * STEP_M;
+        let (c, n) = centre(s, DEPTH_M);
+        for _ in 0..HOLD_STEPS {
+            sim.set_probe_kinematic(&physics_node::probe::pose(c, rot));
+            sim.step().unwrap();
+            assert_eq!(
+                sim.contact_frame().physics_faults,
+                0,
+                "faulty step at s = {s}"
+            );
+        }
+        if s >= -HALF_PATH_M - 1e-12 {
+            out.push((s, Vector3::from(sim.contact_force()).dot(&n)));
+        }
+    }
+    out
+}
+
+/// Variation of a force along the path: (mean, (max − min)/mean, RMS and largest |residual|
+/// about a least-squares quadratic trend, both / mean).
+fn variation(curve: &[(f64, f64)]) -> (f64, f64, f64, f64) {
+    let n = curve.len();
+    let mean = curve.iter().map(|c| c.1).sum::<f64>() / n as f64;
+    let (lo, hi) = curve
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), c| {
+            (l.min(c.1), h.max(c.1))
+        });
+    let a = DMatrix::from_fn(n, 3, |r, k| curve[r].0.powi(k as i32));
+    let b = DVector::from_iterator(n, curve.iter().map(|c| c.1));
+    let c = a.clone().svd(true, true).solve(&b, 1e-18).unwrap();
+    let res = &a * &c - &b;
+    let rms = (res.norm_squared() / n as f64).sqrt();
+    (mean, (hi - lo) / mean, rms / mean, res.amax() / mean)
+}
+
+#[test]
+fn ball_slid_across_facets_at_constant_depth() {
+    let Some(data) = data_dir() else { return };
+    let mut scene = launch_config::SceneConfig {
+        gravity: [0.0; 3],
+        ..Default::default()
+    };
+    scene.meniscus.mesh = "study:lateral".into();
+    scene.meniscus.support_stiffness = 0.0;
+    scene.material.strain_stiffening = 0.0;
+    scene.contact.friction = 0.0;
+    scene.contact.lcp_max_iterations = 3000;
+    scene.probe.model = "sphere".into();
+    scene.probe.tip_radius = RADIUS_M;
+    scene.solver.kind = launch_config::scene::SolverKind::Direct;
+    let loaded = physics_node::mesh::load_scene_mesh(&scene.meniscus, &data).unwrap();
+    let mid: Vec<_> = loaded
+        .probing_sites
+        .iter()
+        .filter(|s| s.region == 2)
+        .collect();
+    let site = mid[mid.len() / 2];
+    // Along the body (the line of the mid-body sites, in the middle site's tangent plane),
+    // where the thickness changes slowly, and across it.
+    let n = site.normal.normalize();
+    let along = mid[mid.len() - 1].point - mid[0].point;
+    let e1 = (along - n * n.dot(&along)).normalize();
+    let e2 = n.cross(&e1);
+
+    let (fine_mesh, fine_fixed) = refine_once(&loaded.mesh, &loaded.fixed_nodes);
+    let dir = std::env::temp_dir().join(format!("physics-node-facet-slide-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let msh = dir.join("lateral_refined.msh");
+    write_msh22(&fine_mesh, &msh).unwrap();
+    let fixed_path = dir.join("fixed.txt");
+    let list: Vec<String> = fine_fixed.iter().map(|i| i.to_string()).collect();
+    std::fs::write(&fixed_path, list.join(" ")).unwrap();
+    println!(
+        "study mesh {} nodes / {} tets, refined once {} nodes / {} tets; ball R {} mm, {} mm deep",
+        loaded.mesh.nodes.len(),
+        loaded.mesh.tets.len(),
+        fine_mesh.nodes.len(),
+        fine_mesh.tets.len(),
+        RADIUS_M * 1e3,
+        DEPTH_M * 1e3
+    );
+    let mut fine_scene = scene.clone();
+    fine_scene.meniscus.mesh = msh.display().to_string();
+    fine_scene.meniscus.fixed = fixed_path.display().to_string();
+
+    // (path, mesh) → detrended RMS / mean.
+    let mut along_body = Vec::new();
+    for (label, e) in [("the body", e1), ("across", e2)] {
+        for (name, mesh, sc) in [
+            ("study", &loaded.mesh, &scene),
+            ("refined once", &fine_mesh, &fine_scene),
+        ] {
+            let t = std::time::Instant::now();
+            let curve = slide(sc, &data, mesh, (site.point.coords, e));
+            let (mean, range, rms, largest) = variation(&curve);
+            println!(
+                "{name:>12} along {label}: mean {mean:.3} N, (max − min)/mean {:.1}%, detrended RMS {:.1}%, largest {:.1}% ({} positions, {:.1} s)",
+                range * 100.0,
+                rms * 100.0,
+                largest * 100.0,
+                curve.len(),
+                t.elapsed().as_secs_f64()
+            );
+            let line: Vec<String> = curve.iter().map(|c| format!("{:.3}", c.1)).collect();
+            println!("  F: {}", line.join(" "));
+            assert!(
+                curve.iter().all(|c| c.1 > 0.0 && c.1.is_finite()),
+                "the ball must stay in contact on {name} along {label}"
+            );
+            if label == "the body" {
+                along_body.push((name, rms));
+            }
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+    // Reached (README): detrended RMS 9.8% (study) and 11.7% (refined once) along the body,
+    // largest residual 22% and 29%: the issue's ≤ 5% facet to facet is NOT met. Across the
+    // body the force follows the thickness (1.2 → 13 N over 6 mm), which a quadratic trend
+    // does not remove, so only the path along the body is held to a bound: what is reached,
+    // with margin, so that a rougher contact fails here.
+    for (name, rms) in along_body {
+        assert!(
+            rms < 0.15,
+            "{name}: the force slid along the body varies {:.1}% RMS about its trend",
+            rms * 100.0
+        );
+    }
+}

@@ -21,7 +21,10 @@ fn data_present() -> bool {
         if std::env::var("CI").map(|v| v == "true").unwrap_or(false) {
             panic!("CI=true but the study data is missing at {}", d.display());
         }
-        eprintln!("skipped: no study data at {} (set ARTHROSIM_DATA)", d.display());
+        eprintln!(
+            "skipped: no study data at {} (set ARTHROSIM_DATA)",
+            d.display()
+        );
     }
     ok
 }
@@ -66,7 +69,10 @@ fn replay_model_against_the_refined_study_mesh() {
     fine.solver.offline = OfflineSolver::Direct;
     let reference = SimForceModel::from_scene(fine, &data);
     let (n_coarse, n_fine) = (
-        model.simulation(&Variant::default(), 0.02).unwrap().node_count(),
+        model
+            .simulation(&Variant::default(), 0.02)
+            .unwrap()
+            .node_count(),
         reference
             .simulation(&Variant::default(), 0.02)
             .unwrap()
@@ -90,7 +96,11 @@ fn replay_model_against_the_refined_study_mesh() {
             .unwrap();
         let n = site.normal;
         let slide_dir = slide.then(|| {
-            let a = if n[2].abs() < 0.9 { [0.0, 0.0, 1.0] } else { [1.0, 0.0, 0.0] };
+            let a = if n[2].abs() < 0.9 {
+                [0.0, 0.0, 1.0]
+            } else {
+                [1.0, 0.0, 0.0]
+            };
             let k = dot(a, n);
             let t = [a[0] - k * n[0], a[1] - k * n[1], a[2] - k * n[2]];
             let l = dot(t, t).sqrt();
@@ -126,8 +136,7 @@ fn replay_model_against_the_refined_study_mesh() {
             rmse_slide: if sliding.is_empty() {
                 0.0
             } else {
-                (sliding.iter().map(|&k| err2(fm[k], fr[k])).sum::<f64>()
-                    / sliding.len() as f64)
+                (sliding.iter().map(|&k| err2(fm[k], fr[k])).sum::<f64>() / sliding.len() as f64)
                     .sqrt()
             },
         };
@@ -145,7 +154,11 @@ fn replay_model_against_the_refined_study_mesh() {
             a.rmse_slide,
             peak
         );
-        assert!(peak > 0.5, "{}: no contact in the reference ({peak} N)", region.name());
+        assert!(
+            peak > 0.5,
+            "{}: no contact in the reference ({peak} N)",
+            region.name()
+        );
         results.push(a);
     }
     let _ = std::fs::remove_dir_all(&dir);

@@ -479,7 +479,10 @@ fn offline_solver_keys_are_checked() {
     );
     assert_eq!(issue.key, "scene.solver.offline_tolerance");
     assert_eq!(issue.line, Some(3));
-    assert!(text.contains("allowed: 1e-12 ≤ offline_tolerance ≤ 1e-4"), "{text}");
+    assert!(
+        text.contains("allowed: 1e-12 ≤ offline_tolerance ≤ 1e-4"),
+        "{text}"
+    );
     let (issue, text) = only_issue(
         load_str("[scene.solver]\noffline = \"lu\"\n", Path::new("off.toml")).unwrap_err(),
     );

@@ -107,16 +107,10 @@ impl From<msgs::csv_input::CsvError> for GapError {
     }
 }
 
-/// Study data folder: `ARTHROSIM_DATA`, else `../shared/data` next to the workspace.
+/// Study data folder: the one definition, [`launch_config::data_dir`] (`ARTHROSIM_DATA`, else
+/// `../shared/data` beside the workspace).
 pub fn data_dir() -> PathBuf {
-    if let Ok(d) = std::env::var("ARTHROSIM_DATA") {
-        return PathBuf::from(d);
-    }
-    let rel = PathBuf::from("../shared/data");
-    if rel.is_dir() {
-        return rel;
-    }
-    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data"))
+    launch_config::data_dir()
 }
 
 #[derive(Debug, Clone)]

@@ -7,27 +7,10 @@
 //! Reads the study data (`ARTHROSIM_DATA`); required under `CI=true`, skipped with a note
 //! otherwise.
 use gap_diagnosis::model::{replay, Variant};
-use gap_diagnosis::{self as gap, reality::protocol_path, Region, SimForceModel};
+use gap_diagnosis::{reality::protocol_path, Region, SimForceModel};
 use launch_config::scene::OfflineSolver;
 use launch_config::SceneConfig;
 use physics_node::fem::test_meshes::{refine_once, write_msh22};
-
-fn data_present() -> bool {
-    let d = gap::data_dir();
-    let ok = d
-        .join("meniscus/lateral_meniscus_computation.msh")
-        .is_file();
-    if !ok {
-        if std::env::var("CI").map(|v| v == "true").unwrap_or(false) {
-            panic!("CI=true but the study data is missing at {}", d.display());
-        }
-        eprintln!(
-            "skipped: no study data at {} (set ARTHROSIM_DATA)",
-            d.display()
-        );
-    }
-    ok
-}
 
 fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
@@ -44,10 +27,9 @@ struct Agreement {
 
 #[test]
 fn replay_model_against_the_refined_study_mesh() {
-    if !data_present() {
+    let Some(data) = physics_node::fem::test_meshes::study_data("gap_floor") else {
         return;
-    }
-    let data = gap::data_dir();
+    };
     let mut scene = SceneConfig::default();
     scene.meniscus.mesh = "study:lateral".into();
     scene.probe.model = "sphere".into();

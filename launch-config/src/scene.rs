@@ -203,8 +203,10 @@ pub struct SolverConfig {
     /// as SOFA. Elastic forces always use the current rotation. At most
     /// [`crate::validate::MAX_STIFFNESS_ROTATION_TOLERANCE`].
     pub stiffness_rotation_tolerance: f64,
-    /// How offline replays solve the step (the live node ignores it): `direct` (default),
-    /// `cg` (to `offline_tolerance`) or `scene` (as the live node). See [`Self::offline`].
+    /// How offline replays solve the step (the live node ignores it): `cg` (default: CG
+    /// preconditioned by a lagged factor of the step's matrix, to `offline_tolerance`),
+    /// `direct` (a Cholesky solve every step) or `scene` (as the live node). See
+    /// [`Self::offline`].
     pub offline: OfflineSolver,
     /// Relative residual an offline `cg` stops at, within
     /// [`OFFLINE_TOLERANCE_MIN`]..=[`OFFLINE_TOLERANCE_MAX`].

@@ -26,7 +26,7 @@ use physics_node::contact::boundary_triangles;
 use physics_node::fem::test_meshes::{refine_once, write_msh22};
 use physics_node::mesh::TetMesh;
 use physics_node::sim::Simulation;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 const RADIUS_M: f64 = 1.5e-3; // the built-in ball tip
 const DEPTH_M: f64 = 0.4e-3;
@@ -36,24 +36,6 @@ const STEP_M: f64 = 0.05e-3;
 /// Steps each position is held before its force is read (quasi-static: 8 give the same
 /// numbers to 0.1%).
 const HOLD_STEPS: usize = 3;
-
-fn data_dir() -> Option<PathBuf> {
-    let d = launch_config::data_dir();
-    if d.join("meniscus/lateral_meniscus_computation.msh").exists() {
-        Some(d)
-    } else {
-        assert!(
-            std::env::var("CI").as_deref() != Ok("true"),
-            "study data missing in CI: {}",
-            d.display()
-        );
-        eprintln!(
-            "facet_slide skipped: no study mesh under {} (set ARTHROSIM_DATA)",
-            d.display()
-        );
-        None
-    }
-}
 
 /// The reference surface: the smooth surface through a mesh's boundary vertices, Phong
 /// tessellation (Boubekeur & Alexa 2008, shape factor 3/4) with angle-weighted vertex normals
@@ -208,7 +190,9 @@ fn variation(curve: &[(f64, f64)]) -> (f64, f64, f64, f64) {
 
 #[test]
 fn ball_slid_across_facets_at_constant_depth() {
-    let Some(data) = data_dir() else { return };
+    let Some(data) = physics_node::fem::test_meshes::study_data("facet_slide") else {
+        return;
+    };
     let mut scene = launch_config::SceneConfig {
         gravity: [0.0; 3],
         ..Default::default()

@@ -8,23 +8,9 @@
 use nalgebra::{Point3, UnitQuaternion, Vector3};
 use physics_node::fem::test_meshes::{refine_once, write_msh22};
 use physics_node::sim::Simulation;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 const DEPTHS_MM: [f64; 9] = [0.25, 0.5, 0.75, 1.0, 1.25, 1.5, 2.0, 2.5, 3.0];
-
-fn data_dir() -> Option<PathBuf> {
-    let d = launch_config::data_dir();
-    if d.join("meniscus/lateral_meniscus_computation.msh").exists() {
-        Some(d)
-    } else {
-        assert!(
-            std::env::var("CI").as_deref() != Ok("true"),
-            "study data missing in CI: {}",
-            d.display()
-        );
-        None
-    }
-}
 
 /// Presses the sphere kinematically at the mid-body site; returns (depth mm, normal force N).
 fn curve(
@@ -60,7 +46,9 @@ fn curve(
 
 #[test]
 fn force_depth_curve_on_study_lateral_mesh_and_refined() {
-    let Some(data) = data_dir() else { return };
+    let Some(data) = physics_node::fem::test_meshes::study_data("sim_force_depth") else {
+        return;
+    };
     let mut scene = launch_config::SceneConfig::default();
     scene.meniscus.mesh = "study:lateral".into();
     scene.probe.model = "sphere".into();

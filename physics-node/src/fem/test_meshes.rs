@@ -196,3 +196,25 @@ pub fn cantilever_deflection(
     let eb = p_total * l * l * l / (3.0 * mat.youngs_modulus * inertia);
     Ok((deflection, eb))
 }
+
+/// The data folder when the study's lateral mesh is there (`ARTHROSIM_DATA`, see
+/// [`launch_config::data_dir`]); `None`, with a note naming `test`, when it is not. Under
+/// `CI=true` the study data is required, so a missing mesh fails the test instead.
+pub fn study_data(test: &str) -> Option<std::path::PathBuf> {
+    let d = launch_config::data_dir();
+    if d.join("meniscus/lateral_meniscus_computation.msh")
+        .is_file()
+    {
+        return Some(d);
+    }
+    assert!(
+        std::env::var("CI").as_deref() != Ok("true"),
+        "{test}: CI=true but the study data is missing at {}",
+        d.display()
+    );
+    eprintln!(
+        "{test} skipped: no study mesh under {} (set ARTHROSIM_DATA)",
+        d.display()
+    );
+    None
+}

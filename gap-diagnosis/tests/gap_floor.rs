@@ -10,7 +10,7 @@ use gap_diagnosis::model::{replay, Variant};
 use gap_diagnosis::{reality::protocol_path, Region, SimForceModel};
 use launch_config::scene::OfflineSolver;
 use launch_config::SceneConfig;
-use physics_node::fem::test_meshes::{refine_once, write_msh22};
+use physics_node::fem::test_meshes::write_refined_once;
 
 fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
@@ -38,13 +38,8 @@ fn replay_model_against_the_refined_study_mesh() {
     let model = SimForceModel::from_scene(scene.clone(), &data);
 
     let loaded = physics_node::mesh::load_scene_mesh(&scene.meniscus, &data).unwrap();
-    let (fine_mesh, fine_fixed) = refine_once(&loaded.mesh, &loaded.fixed_nodes);
     let dir = std::env::temp_dir().join(format!("gap_floor_{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let (msh, list) = (dir.join("lateral_refined.msh"), dir.join("fixed.txt"));
-    write_msh22(&fine_mesh, &msh).unwrap();
-    let held: Vec<String> = fine_fixed.iter().map(|i| i.to_string()).collect();
-    std::fs::write(&list, held.join(" ")).unwrap();
+    let (_, msh, list) = write_refined_once(&loaded.mesh, &loaded.fixed_nodes, &dir).unwrap();
     let mut fine = scene.clone();
     fine.meniscus.mesh = msh.display().to_string();
     fine.meniscus.fixed = list.display().to_string();

@@ -23,7 +23,7 @@ use parry3d_f64::math::Vector as GVec;
 use parry3d_f64::query::PointQueryWithLocation;
 use parry3d_f64::shape::TriMesh;
 use physics_node::contact::boundary_triangles;
-use physics_node::fem::test_meshes::{refine_once, write_msh22};
+use physics_node::fem::test_meshes::write_refined_once;
 use physics_node::mesh::TetMesh;
 use physics_node::sim::Simulation;
 use std::path::Path;
@@ -219,14 +219,9 @@ fn ball_slid_across_facets_at_constant_depth() {
     let e1 = (along - n * n.dot(&along)).normalize();
     let e2 = n.cross(&e1);
 
-    let (fine_mesh, fine_fixed) = refine_once(&loaded.mesh, &loaded.fixed_nodes);
     let dir = std::env::temp_dir().join(format!("physics-node-facet-slide-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let msh = dir.join("lateral_refined.msh");
-    write_msh22(&fine_mesh, &msh).unwrap();
-    let fixed_path = dir.join("fixed.txt");
-    let list: Vec<String> = fine_fixed.iter().map(|i| i.to_string()).collect();
-    std::fs::write(&fixed_path, list.join(" ")).unwrap();
+    let (fine_mesh, msh, fixed_path) =
+        write_refined_once(&loaded.mesh, &loaded.fixed_nodes, &dir).unwrap();
     println!(
         "study mesh {} nodes / {} tets, refined once {} nodes / {} tets; ball R {} mm, {} mm deep",
         loaded.mesh.nodes.len(),

@@ -6,7 +6,7 @@
 //! Run with `cargo test -p physics-node --test sim_force_depth -- --nocapture` to see the table.
 
 use nalgebra::{Point3, UnitQuaternion, Vector3};
-use physics_node::fem::test_meshes::{refine_once, write_msh22};
+use physics_node::fem::test_meshes::write_refined_once;
 use physics_node::sim::Simulation;
 use std::path::Path;
 
@@ -66,14 +66,9 @@ fn force_depth_curve_on_study_lateral_mesh_and_refined() {
     let coarse = curve(&scene, &data, &site);
 
     // Refined once, same geometry and support.
-    let (fine_mesh, fine_fixed) = refine_once(&loaded.mesh, &loaded.fixed_nodes);
     let dir = std::env::temp_dir().join(format!("physics-node-refined-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let msh = dir.join("lateral_refined.msh");
-    write_msh22(&fine_mesh, &msh).unwrap();
-    let fixed_path = dir.join("fixed.txt");
-    let list: Vec<String> = fine_fixed.iter().map(|i| i.to_string()).collect();
-    std::fs::write(&fixed_path, list.join(" ")).unwrap();
+    let (fine_mesh, msh, fixed_path) =
+        write_refined_once(&loaded.mesh, &loaded.fixed_nodes, &dir).unwrap();
     let mut fine_scene = scene.clone();
     fine_scene.meniscus.mesh = msh.display().to_string();
     fine_scene.meniscus.fixed = fixed_path.display().to_string();

@@ -218,3 +218,21 @@ pub fn study_data(test: &str) -> Option<std::path::PathBuf> {
     );
     None
 }
+
+/// A scene's mesh refined once ([`refine_once`]) and written into `dir` as Gmsh 2.2 with its
+/// fixed-node list, so a scene can name it (`[scene.meniscus] mesh`, `fixed`). Returns the
+/// refined mesh, the `.msh` path and the fixed-node list path.
+pub fn write_refined_once(
+    mesh: &TetMesh,
+    fixed: &[usize],
+    dir: &std::path::Path,
+) -> std::io::Result<(TetMesh, std::path::PathBuf, std::path::PathBuf)> {
+    let (fine, fine_fixed) = refine_once(mesh, fixed);
+    std::fs::create_dir_all(dir)?;
+    let msh = dir.join("refined_once.msh");
+    write_msh22(&fine, &msh)?;
+    let list = dir.join("refined_once_fixed.txt");
+    let held: Vec<String> = fine_fixed.iter().map(|i| i.to_string()).collect();
+    std::fs::write(&list, held.join(" "))?;
+    Ok((fine, msh, list))
+}

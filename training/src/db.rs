@@ -130,6 +130,28 @@ pub fn default_path() -> PathBuf {
     base.join("arthrosim").join("trainees.sqlite")
 }
 
+/// How long a write waits for another process's write to finish.
+const BUSY_TIMEOUT: Duration = Duration::from_secs(30);
+
+/// Switches the file to WAL and returns the journal mode it is in. Changing the journal mode
+/// takes an exclusive lock without going through the busy handler, so two processes opening
+/// a new database at once can get `SQLITE_BUSY` here (seen in `two_writers_share_one_database`):
+/// retried, like any other busy write, for up to `timeout`.
+fn set_wal(conn: &Connection, timeout: Duration) -> Result<String, rusqlite::Error> {
+    let deadline = std::time::Instant::now() + timeout;
+    loop {
+        match conn.query_row("PRAGMA journal_mode=WAL", [], |r| r.get::<_, String>(0)) {
+            Err(rusqlite::Error::SqliteFailure(e, _))
+                if e.code == rusqlite::ErrorCode::DatabaseBusy
+                    && std::time::Instant::now() < deadline =>
+            {
+                std::thread::sleep(Duration::from_millis(5));
+            }
+            other => return other,
+        }
+    }
+}
+
 pub struct Db {
     conn: Connection,
     path: PathBuf,
@@ -217,10 +239,8 @@ impl Db {
             check_existing(path)?;
         }
         let conn = Connection::open(path).map_err(sql)?;
-        conn.busy_timeout(Duration::from_secs(30)).map_err(sql)?;
-        let mode: String = conn
-            .query_row("PRAGMA journal_mode=WAL", [], |r| r.get(0))
-            .map_err(sql)?;
+        conn.busy_timeout(BUSY_TIMEOUT).map_err(sql)?;
+        let mode = set_wal(&conn, BUSY_TIMEOUT).map_err(sql)?;
         if !mode.eq_ignore_ascii_case("wal") {
             tracing::warn!("{}: journal mode {mode}, not WAL", path.display());
         }
@@ -484,7 +504,7 @@ fn check_existing(path: &Path) -> Result<(), DbError> {
         OpenFlags::SQLITE_OPEN_READ_ONLY | OpenFlags::SQLITE_OPEN_NO_MUTEX,
     )
     .map_err(|e| corrupt(e.to_string()))?;
-    conn.busy_timeout(Duration::from_secs(30))
+    conn.busy_timeout(BUSY_TIMEOUT)
         .map_err(|e| corrupt(e.to_string()))?;
     let check: String = conn
         .query_row("PRAGMA quick_check", [], |r| r.get(0))

@@ -146,11 +146,7 @@ impl FemModel {
                 self.assemble_rest_system(dt);
                 self.rest_factor = Some((dt, SparseCholesky::new(&self.pattern, &self.a, 1)?));
             }
-            LinearSolver::Direct
-            | LinearSolver::Cg {
-                preconditioner: Preconditioner::LaggedFactor,
-                ..
-            } => {
+            solver if solver.factors_current_system() => {
                 let dt = self.settings.dt;
                 self.assemble_rest_system(dt);
                 self.direct = Some(SparseCholesky::new(&self.pattern, &self.a, 1)?);
@@ -361,9 +357,9 @@ impl FemModel {
 
     /// The CG system lives in `upper32` (f32), not in the upper triangle of `a`.
     pub(super) fn packed_cg_matrix(&self) -> bool {
-        // the lagged factor is built from the full f64 system, so its CG reads that too
-        matches!(self.settings.solver, LinearSolver::Cg { preconditioner, .. }
-            if preconditioner != Preconditioner::LaggedFactor)
+        // a factored solver's CG reads the full f64 system its factor is built from
+        matches!(self.settings.solver, LinearSolver::Cg { .. })
+            && !self.settings.solver.factors_current_system()
             && self.settings.cg_matrix == CgMatrix::F32
     }
 }

@@ -52,6 +52,20 @@ impl LinearSolver {
             preconditioner: Preconditioner::None,
         }
     }
+
+    /// The solver keeps a sparse Cholesky factor of the whole current system (the direct
+    /// solve, and the lagged-factor preconditioner), so the full f64 matrix is assembled
+    /// rather than only the upper triangle the other CG variants read.
+    pub fn factors_current_system(&self) -> bool {
+        matches!(
+            self,
+            LinearSolver::Direct
+                | LinearSolver::Cg {
+                    preconditioner: Preconditioner::LaggedFactor,
+                    ..
+                }
+        )
+    }
 }
 
 /// Settings of a [`FemModel`] besides mesh, material and fixed set.

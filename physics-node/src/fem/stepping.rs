@@ -39,14 +39,7 @@ impl FemModel {
         );
         let k_scale = dt * beta + dt * dt;
         // CG reads only the upper triangle; the direct solver factors the lower one.
-        let full = matches!(
-            self.settings.solver,
-            LinearSolver::Direct
-                | LinearSolver::Cg {
-                    preconditioner: Preconditioner::LaggedFactor,
-                    ..
-                }
-        );
+        let full = self.settings.solver.factors_current_system();
         self.assemble(false, k_scale, true, full);
         // K·v for the implicit damping and stiffness terms, from the assembled k_scale·K
         // (before the mass goes on the diagonal): one sparse product instead of two 3×3

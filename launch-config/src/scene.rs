@@ -1,13 +1,41 @@
 //! `[scene]`: the physics node's scene. Owned by physics-node.
 //!
 //! SI units. A mesh spec is `default:lateral:coarse|fine|finest`, `default:medial:...`
-//! (the project's parametric meniscus), `study:lateral` / `study:medial` (the study's meshes
+//! (the project's parametric meniscus; the resolution may also be chosen divisions
+//! `ARCxRADIALxVERTICAL`, see [`parse_mesh_divisions`]), `study:lateral` / `study:medial` (the study's meshes
 //! from `ARTHROSIM_DATA`, with the study's scale and, for the lateral, its fixed nodes), or a
 //! path to a `.msh` file.
 pub use crate::choices::{
     CgMatrix, MaterialModel, MaterialPreset, OfflineSolver, RotationMethod, SolverKind,
 };
 use serde::{Deserialize, Serialize};
+
+/// The resolutions of the parametric meniscus a mesh spec may name, for messages.
+pub const RESOLUTIONS: &str = "coarse | fine | finest, or divisions ARCxRADIALxVERTICAL \
+    such as 44x3x2, each at least 1, at most 100,000 nodes";
+/// Most nodes chosen divisions may make: ten times the `finest` mesh (10,504), already far
+/// beyond what a scene can step; without a bound `400x400x400` would ask for 64 M nodes.
+pub const MAX_DIVISION_NODES: usize = 100_000;
+
+/// Chosen divisions of the parametric meniscus, `ARCxRADIALxVERTICAL` (arc, radial and
+/// vertical element counts, each ≥ 1, at most [`MAX_DIVISION_NODES`] nodes), as a mesh
+/// spec's resolution (`default:lateral:44x3x2`), for mesh convergence studies: the one
+/// parser for the launch file's check and the mesh loader.
+pub fn parse_mesh_divisions(s: &str) -> Option<[usize; 3]> {
+    let mut out = [0usize; 3];
+    let mut parts = s.split('x');
+    for d in &mut out {
+        let text = parts.next()?;
+        if text.is_empty() || !text.bytes().all(|b| b.is_ascii_digit()) {
+            return None;
+        }
+        *d = text.parse().ok().filter(|&d| d >= 1)?;
+    }
+    let nodes = out
+        .iter()
+        .try_fold(1usize, |acc, &d| acc.checked_mul(d.checked_add(1)?))?;
+    (parts.next().is_none() && nodes <= MAX_DIVISION_NODES).then_some(out)
+}
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]

@@ -590,14 +590,16 @@ fn check_upper_bounds(v: &mut Checks, file: &LaunchFile) {
 }
 
 fn check_mesh_spec(v: &mut Checks, key: &str, spec: &str) {
-    const ALLOWED: &str = "allowed: `default:lateral|medial:coarse|fine|finest`, \
+    const ALLOWED: &str =
+        "allowed: `default:lateral|medial:coarse|fine|finest|ARCxRADIALxVERTICAL`, \
         `study:lateral|medial` (from ARTHROSIM_DATA), or a path to a Gmsh 4.1 `.msh` file \
         (relative to the launch file's folder)";
     if let Some(rest) = spec.strip_prefix("default:") {
         let parts: Vec<&str> = rest.split(':').collect();
         let ok = parts.len() == 2
             && matches!(parts[0], "lateral" | "medial")
-            && matches!(parts[1], "coarse" | "fine" | "finest");
+            && (matches!(parts[1], "coarse" | "fine" | "finest")
+                || crate::scene::parse_mesh_divisions(parts[1]).is_some());
         if !ok {
             v.push(key, format!("{spec:?} is not a mesh spec; {ALLOWED}"));
         }

@@ -185,6 +185,52 @@ fn bad_specs_and_ranges_are_all_reported_with_lines() {
 }
 
 #[test]
+fn chosen_mesh_divisions_are_a_mesh_spec_within_bounds() {
+    // A convergence study names its divisions; they load like `coarse`.
+    for spec in [
+        "default:lateral:44x3x2",
+        "default:medial:22x3x2",
+        "default:lateral:1x1x1",
+    ] {
+        let text = format!("[scene.meniscus]\nmesh = \"{spec}\"\n");
+        let file = load_str(&text, Path::new("divisions.toml")).unwrap();
+        assert_eq!(file.scene.meniscus.mesh, spec);
+    }
+    // Zero, signs, missing or extra parts, and a mesh beyond the node bound are refused at
+    // the key's line, naming what is allowed.
+    for bad in [
+        "0x3x2",
+        "44x3",
+        "44x3x2x1",
+        "44x-3x2",
+        "44x+3x2",
+        "44x3x",
+        "x3x2",
+        "400x400x400",
+        "18446744073709551615x2x2",
+    ] {
+        let text = format!(
+            "[session]\nname = \"d\"\n[scene.meniscus]\nmesh = \"default:lateral:{bad}\"\n"
+        );
+        let (issue, rendered) =
+            only_issue(load_str(&text, Path::new("divisions.toml")).unwrap_err());
+        assert_eq!(issue.key, "scene.meniscus.mesh", "{bad}");
+        assert_eq!(issue.line, Some(4), "{bad}");
+        assert!(
+            rendered.contains("ARCxRADIALxVERTICAL"),
+            "{bad}: {rendered}"
+        );
+    }
+    assert_eq!(
+        launch_config::scene::parse_mesh_divisions("44x3x2"),
+        Some([44, 3, 2])
+    );
+    // 45 × 4 × 3 = 540 nodes; the bound is on nodes, not on any one count.
+    assert!(launch_config::scene::parse_mesh_divisions("1000x1x1").is_some());
+    assert!(launch_config::scene::parse_mesh_divisions("100000x1x1").is_none());
+}
+
+#[test]
 fn solver_matrix_precision_and_stiffness_tolerance_are_checked() {
     let text = "[scene.solver]\ncg_matrix = \"f16\"\nstiffness_rotation_tolerance = 1.0\n";
     let err = load_str(text, Path::new("solver.toml")).unwrap_err();

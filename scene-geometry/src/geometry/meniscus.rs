@@ -51,6 +51,8 @@ pub enum Resolution {
     Coarse,
     Fine,
     Finest,
+    /// Chosen (arc, radial, vertical) divisions, e.g. for a mesh convergence study.
+    Divisions([usize; 3]),
 }
 
 impl Resolution {
@@ -60,6 +62,7 @@ impl Resolution {
             Resolution::Coarse => [22, 3, 2],
             Resolution::Fine => [63, 7, 4],
             Resolution::Finest => [100, 12, 7],
+            Resolution::Divisions(d) => d,
         }
     }
 }

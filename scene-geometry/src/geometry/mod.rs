@@ -228,6 +228,8 @@ mod tests {
             ("default:coarse", 276),
             ("default:medial:coarse", 276),
             ("default:lateral:fine", 2560),
+            // Chosen divisions (a convergence study): 45 × 4 × 3 nodes.
+            ("default:lateral:44x3x2", 540),
         ] {
             let m = load(spec);
             assert_eq!(m.mesh.nodes.len(), nodes, "{spec}");
@@ -283,6 +285,7 @@ mod tests {
     fn bad_specs_are_typed_errors() {
         for (spec, needle) in [
             ("default:lateral:huge", "unknown resolution `huge`"),
+            ("default:lateral:44x0x2", "ARCxRADIALxVERTICAL"),
             ("default:left:coarse", "unknown meniscus `left`"),
             ("study:knee", "unknown meniscus `knee`"),
             ("default:a:b:c", "expected default:SIDE:RESOLUTION"),

@@ -83,10 +83,17 @@ fn parse_resolution(spec: &str, s: &str) -> Result<Resolution, MeshError> {
         "coarse" => Ok(Resolution::Coarse),
         "fine" => Ok(Resolution::Fine),
         "finest" => Ok(Resolution::Finest),
-        _ => Err(spec_err(
-            spec,
-            format!("unknown resolution `{s}` (coarse | fine | finest)"),
-        )),
+        _ => launch_config::scene::parse_mesh_divisions(s)
+            .map(Resolution::Divisions)
+            .ok_or_else(|| {
+                spec_err(
+                    spec,
+                    format!(
+                        "unknown resolution `{s}` ({})",
+                        launch_config::scene::RESOLUTIONS
+                    ),
+                )
+            }),
     }
 }
 

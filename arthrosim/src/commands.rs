@@ -646,10 +646,16 @@ fn train(args: TrainArgs) -> Result<i32> {
             training::MAX_CASES
         );
     }
+    let (mut launch, origin, session) = session_launch(args.file.as_deref(), &args.session)?;
+    // A live session of that name is refused before the database gets a session row or a
+    // session folder is made: the trainer finds the session's nodes by name, so it would
+    // drive the live session's probe and store its cases as this trainee's. (The claim is
+    // released at once; the launcher below takes its own, and refuses a run that started
+    // in between.)
+    drop(launcher::SessionLock::acquire(&session)?);
     let db_path = args.db.clone().unwrap_or_else(training::default_path);
     // Open (and refuse) the database before anything starts.
     let mut db = training::Db::open(&db_path)?;
-    let (mut launch, origin, session) = session_launch(args.file.as_deref(), &args.session)?;
     let operator = training::prepare_launch(&mut launch);
     let issues = launch_config::validate(&launch);
     if !issues.is_empty() {
@@ -685,7 +691,14 @@ fn train(args: TrainArgs) -> Result<i32> {
     let mut opts = RunOptions::for_current_exe(launch.clone(), origin, session, out_dir, None)?;
     opts.live = LiveMode::Quiet;
     let stop = msgs::lifecycle::install_stop_flag();
-    let session_thread = std::thread::spawn(move || launcher::run(&opts));
+    let session_thread = std::thread::spawn(move || {
+        let report = launcher::run(&opts);
+        if report.is_err() {
+            // The session is gone (or never started): the cases must not wait for it.
+            stop.store(true, std::sync::atomic::Ordering::SeqCst);
+        }
+        report
+    });
     let mut progress = |line: &str| println!("{line}");
     let result = training::train(&request, &launch, operator, &mut db, stop, &mut progress);
     // The cases are done (or failed): end the session.

@@ -200,6 +200,42 @@ fn recorder_killed_mid_session_loses_nothing_and_sighup_stops_in_order() {
         left.is_empty(),
         "a refused run left session folders {left:?}"
     );
+    // Training under a live session's name is refused before it touches anything: it would
+    // drive that session's probe and store its cases as the trainee's.
+    let db = twin_cwd.join("training.sqlite");
+    let train = Command::new(&bin)
+        .args([
+            "train",
+            "--trainee",
+            "twin",
+            "--cases",
+            "1",
+            "--session",
+            &session,
+        ])
+        .arg("--db")
+        .arg(&db)
+        .current_dir(&twin_cwd)
+        .stdin(Stdio::null())
+        .output()
+        .expect("start arthrosim train");
+    let train_text = String::from_utf8_lossy(&train.stderr);
+    assert!(
+        !train.status.success() && train_text.contains("already running"),
+        "training under a live session's name was not refused:\n{train_text}"
+    );
+    assert!(
+        !db.exists(),
+        "a refused training run wrote {}",
+        db.display()
+    );
+    let left: Vec<_> = std::fs::read_dir(twin_cwd.join("sessions"))
+        .map(|d| d.filter_map(|e| e.ok()).map(|e| e.file_name()).collect())
+        .unwrap_or_default();
+    assert!(
+        left.is_empty(),
+        "a refused training run left session folders {left:?}"
+    );
 
     // Snapshot of the first part, then SIGKILL the recorder.
     let snapshot = tmp.join("before_kill.mcap");

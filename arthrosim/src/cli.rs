@@ -179,6 +179,10 @@ pub struct GapArgs {
     /// Print the verdict as one JSON line.
     #[arg(long)]
     pub json: bool,
+    /// Do not fit the global stiffness nuisance (judge effects against the replay as it is,
+    /// as before issue 15; for comparison).
+    #[arg(long)]
+    pub no_nuisance: bool,
     /// Also write a launch file whose scene carries the verdict as physics (modulus →
     /// modulus_scale, support → support_stiffness, friction → friction, …; see the README).
     /// A force–displacement table is then fitted in the base scene (mid-body press,
@@ -217,6 +221,10 @@ pub enum GapCommand {
         /// Last line: one JSON object (cases, correct, accuracy, heldout_shrink_mean).
         #[arg(long)]
         json: bool,
+        /// The old self-consistent mode: no systematic stiffness offset in the truth (by
+        /// default every case has one, uniform within ±15%). A fast check of the statistics.
+        #[arg(long)]
+        exact: bool,
     },
 }
 
@@ -235,6 +243,10 @@ pub struct RealityArgs {
     /// Truth file (must be outside the experiment folder).
     #[arg(long, value_name = "FILE")]
     pub truth: PathBuf,
+    /// No systematic stiffness offset (by default the truth's modulus and support are scaled
+    /// by a factor drawn from the seed within ±15%; the truth file records it).
+    #[arg(long)]
+    pub exact: bool,
 }
 
 #[derive(Debug, Args)]

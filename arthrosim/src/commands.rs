@@ -333,6 +333,7 @@ fn gap_command(args: GapArgs) -> Result<i32> {
         keep,
         verbose,
         json,
+        exact,
     }) = args.command
     {
         if !(1..=gap::selftest::MAX_SELFTEST_CASES).contains(&cases) {
@@ -348,6 +349,11 @@ fn gap_command(args: GapArgs) -> Result<i32> {
                 progress: !json,
                 ..gap::Options::default()
             },
+            stiffness_offset: if exact {
+                0.0
+            } else {
+                gap::reality::STIFFNESS_OFFSET
+            },
             ..gap::selftest::SelftestOptions::default()
         };
         let result = gap::selftest::selftest(cases, seed, &opts)?;
@@ -362,6 +368,7 @@ fn gap_command(args: GapArgs) -> Result<i32> {
         dt: args.dt,
         progress: !args.json,
         pairs: !args.no_pairs,
+        nuisance: !args.no_nuisance,
         ..gap::Options::default()
     };
     // checked before anything is read: a bad flag fails before minutes of replays
@@ -486,14 +493,18 @@ fn reality(args: RealityArgs) -> Result<i32> {
         );
     }
     let effects: Vec<&str> = args.effects.iter().map(String::as_str).collect();
-    let spec = gap::reality::RealitySpec::from_effects(&effects, args.seed)?;
+    let mut spec = gap::reality::RealitySpec::from_effects(&effects, args.seed)?;
+    if args.exact {
+        spec = spec.exact();
+    }
     let truth = gap::reality::write_experiment(&spec, &args.out, &args.truth)
         .with_context(|| format!("writing the experiment to {}", args.out.display()))?;
     println!(
-        "experiment {} written ({} trials); truth ({}) in {}",
+        "experiment {} written ({} trials); truth ({}, stiffness ×{:.3}) in {}",
         args.out.display(),
         spec.probings_per_region * spec.regions.len(),
         truth.label,
+        spec.stiffness_scale,
         args.truth.display()
     );
     Ok(0)

@@ -355,6 +355,9 @@ pub fn calibrate_report(
             })?;
             changes.extend(apply_effect(&mut out, e, &report.verdict.params));
         }
+        if let Some(s) = report.verdict.nuisance_scale {
+            changes.extend(apply_nuisance(&mut out, s));
+        }
     }
     let mut launch = base.clone();
     launch.scene = out;
@@ -369,6 +372,41 @@ pub fn calibrate_report(
         refined: Vec::new(),
         table_fit: None,
     })
+}
+
+/// The stiffness nuisance fitted with the verdict ([`crate::fit::Nuisance`]) as scene physics:
+/// the prediction scales the tissue's whole force by it, which is the modulus and the support
+/// scaled together (the replay is linear in both). Written so the scene renders what the
+/// report promises; a verdict of `none` writes nothing, nuisance included (the input scene
+/// within an unrelated offset is what `none` says).
+pub fn apply_nuisance(scene: &mut SceneConfig, s: f64) -> Vec<SceneChange> {
+    if s == 1.0 || !s.is_finite() || s <= 0.0 {
+        return Vec::new();
+    }
+    let set = |key: &str, before: f64, after: f64| SceneChange::Set {
+        effect: "nuisance".into(),
+        key: key.into(),
+        before: format!("{before}"),
+        after: format!("{after}"),
+        from: format!("stiffness_scale = {s:.4} (the global stiffness nuisance)"),
+    };
+    let before = scene.material.modulus_scale;
+    scene.material.modulus_scale = before * s;
+    let mut out = vec![set(
+        "scene.material.modulus_scale",
+        before,
+        scene.material.modulus_scale,
+    )];
+    let k = scene.meniscus.support_stiffness;
+    if k > 0.0 {
+        scene.meniscus.support_stiffness = k * s;
+        out.push(set(
+            "scene.meniscus.support_stiffness",
+            k,
+            scene.meniscus.support_stiffness,
+        ));
+    }
+    out
 }
 
 /// The embedded default launch file (the base when none is given).

@@ -245,6 +245,14 @@ impl Candidate {
     pub fn neutral(&self) -> Vec<f64> {
         self.params().iter().map(|(_, p)| p.neutral).collect()
     }
+    /// The candidate carries a global stiffness scale of its own (`modulus`, `hardening`'s
+    /// small-strain scale): the stiffness nuisance would be the same parameter twice, so it is
+    /// not fitted beside it and the candidate's scale is the total ([`crate::fit::Nuisance`]).
+    pub fn absorbs_stiffness(&self) -> bool {
+        self.0
+            .iter()
+            .any(|e| matches!(e, Effect::Modulus | Effect::Hardening))
+    }
 }
 
 fn axpy(dst: &mut [[f64; 3]], a: f64, x: &[[f64; 3]], y: Option<&[[f64; 3]]>) {
@@ -292,12 +300,21 @@ fn piecewise_knots(grid: &mut [[f64; 3]], td: &TrialData, e: Effect, x: f64, def
     }
 }
 
-/// Model force on the trial's grid and at its measurement times for candidate `c` at `theta`.
-/// `grid` and `out` are scratch buffers (resized here).
+/// Model force on the trial's grid and at its measurement times for candidate `c` at `theta`,
+/// with the tissue's whole force scaled by `stiffness` (the global stiffness nuisance,
+/// [`crate::fit::Nuisance`]; 1: none). `grid` and `out` are scratch buffers (resized here).
+///
+/// The scale acts on the tissue's force after the re-simulated effects (a stiffer specimen at
+/// the same friction, tilt or support scales the whole replayed force: the replay is
+/// displacement-driven and linear in the modulus and support together) and before a device's
+/// bias and tool inertia, which are not tissue. Everything after it is affine in the force, so
+/// the prediction is affine in `stiffness`: what lets the fits profile it out exactly
+/// ([`crate::fit::PhaseQuad`]).
 pub fn predict(
     c: &Candidate,
     theta: &[f64],
     td: &TrialData,
+    stiffness: f64,
     grid: &mut Vec<[f64; 3]>,
     out: &mut Vec<[f64; 3]>,
 ) {
@@ -305,10 +322,15 @@ pub fn predict(
     grid.extend_from_slice(&td.base);
     let mut k = 0;
     let mut delay = 0.0;
+    let mut scaled = false;
     for &e in &c.0 {
         let np = e.params().len();
         let th = &theta[k..k + np];
         k += np;
+        if e == Effect::Device && !scaled {
+            scale_grid(grid, stiffness);
+            scaled = true;
+        }
         match e {
             Effect::Friction => piecewise_knots(grid, td, Effect::Friction, th[0], FRICTION_KNOTS),
             Effect::Support => piecewise_knots(grid, td, Effect::Support, th[0], SUPPORT_KNOTS),
@@ -366,11 +388,20 @@ pub fn predict(
             }
         }
     }
+    if !scaled {
+        scale_grid(grid, stiffness);
+    }
     out.clear();
     out.extend(
         td.t.iter()
             .map(|&t| sample_uniform(td.path.t0, td.path.dt, grid, t - delay)),
     );
+}
+
+fn scale_grid(grid: &mut [[f64; 3]], s: f64) {
+    if s != 1.0 {
+        grid.iter_mut().for_each(|g| *g = g.map(|v| v * s));
+    }
 }
 
 /// Largest total Prony weight: the long-term modulus stays ≥ 5% of the instantaneous one.

@@ -168,6 +168,24 @@ impl PhaseSse {
             .map(|&(s, m)| m as f64 * effective / n as f64 * (s / m as f64).max(MSE_FLOOR).ln())
             .sum()
     }
+    /// Mean square per variance group as the likelihood sees it: a phase with too few values
+    /// gets the pooled mean square of all such phases ([`MIN_GROUP_VALUES`]); never below
+    /// [`MSE_FLOOR`]; 0 for a group without values.
+    pub fn group_mse(&self) -> [f64; VarGroup::COUNT] {
+        let (mut rs, mut rn) = (0.0, 0usize);
+        for g in 0..VarGroup::COUNT {
+            if self.n[g] < MIN_GROUP_VALUES {
+                rs += self.sse[g];
+                rn += self.n[g];
+            }
+        }
+        let pooled = (rs / rn.max(1) as f64).max(MSE_FLOOR);
+        std::array::from_fn(|g| match self.n[g] {
+            0 => 0.0,
+            n if n >= MIN_GROUP_VALUES => (self.sse[g] / n as f64).max(MSE_FLOOR),
+            _ => pooled,
+        })
+    }
     /// The phase-weighted RMSE: exp of the value-weighted mean of ln RMSE_g (what the plain
     /// RMSE is for one variance).
     pub fn weighted_rmse(&self) -> f64 {
@@ -179,18 +197,184 @@ impl PhaseSse {
     }
 }
 
-/// Residual sums of `c` at `theta` over the masked samples, per phase.
-pub fn phase_sse(c: &Candidate, theta: &[f64], data: &[TrialData], mask: &[Vec<bool>]) -> PhaseSse {
+/// Residual sums of `c` at `theta` and stiffness scale `stiffness` over the masked samples,
+/// per phase.
+pub fn phase_sse(
+    c: &Candidate,
+    theta: &[f64],
+    stiffness: f64,
+    data: &[TrialData],
+    mask: &[Vec<bool>],
+) -> PhaseSse {
     let (mut grid, mut out) = (Vec::new(), Vec::new());
     let mut acc = PhaseSse::default();
     for (d, m) in data.iter().zip(mask) {
         if !m.iter().any(|&b| b) {
             continue;
         }
-        predict(c, theta, d, &mut grid, &mut out);
+        predict(c, theta, d, stiffness, &mut grid, &mut out);
         for (j, (p, f)) in out.iter().zip(&d.f).enumerate() {
             if m[j] {
                 acc.push(d.var_group[j], sub(*p, *f));
+            }
+        }
+    }
+    acc
+}
+
+/// Largest factor of the global stiffness nuisance either way: the band is
+/// [1/`NUISANCE_MAX`, `NUISANCE_MAX`] (0.8…1.25), about the ±15% by which an independent
+/// discretisation of the same specimen differs from the replay (issue 15), with room to fit it.
+pub const NUISANCE_MAX: f64 = 1.25;
+
+/// The global stiffness nuisance: one scale of the tissue's whole force, fitted jointly with
+/// the baseline and with every candidate, in every fit (calibration folds and all trials).
+///
+/// No model is the specimen: another discretisation, contact formulation or a specimen a
+/// little stiffer than its nominal modulus gives a persistent offset of the whole response.
+/// Without a term for it, that offset is the largest residual there is, and it is read as
+/// whichever effect can scale the force (`support`, `modulus`), or it hides a small effect
+/// (friction in sliding) under its own error. Fitted in every model, it is explained by none
+/// of them: an effect must explain what remains after it.
+///
+/// How `modulus` coexists with it: `modulus` (and `hardening`, whose small-strain scale is
+/// the same parameter) is a global stiffness scale itself, so beside it the nuisance would be
+/// the same parameter twice. Those candidates do not fit the nuisance; their scale is the
+/// total (what they report, and what calibration writes). The baseline with the nuisance is
+/// then exactly `modulus` restricted to the band, and `modulus` can only gain on it where its
+/// fitted scale lies outside the band: `modulus` wins only when the data need a stiffness
+/// change beyond what an unrelated offset can be, by a significant held-out gain.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Nuisance {
+    pub lo: f64,
+    pub hi: f64,
+}
+
+impl Nuisance {
+    /// No nuisance: the scale is held at 1 (the diagnosis before issue 15).
+    pub const OFF: Nuisance = Nuisance { lo: 1.0, hi: 1.0 };
+    /// The band [1/[`NUISANCE_MAX`], [`NUISANCE_MAX`]].
+    pub const STIFFNESS: Nuisance = Nuisance {
+        lo: 1.0 / NUISANCE_MAX,
+        hi: NUISANCE_MAX,
+    };
+    /// The nuisance as fitted beside `c` (held at 1 where `c` carries its own scale).
+    pub fn for_candidate(self, c: &Candidate) -> Nuisance {
+        if c.absorbs_stiffness() {
+            Nuisance::OFF
+        } else {
+            self
+        }
+    }
+    /// The scale is a free parameter (it counts in the parameter penalties).
+    pub fn fitted(self) -> bool {
+        self.lo < self.hi
+    }
+}
+
+/// Per variance group, the residual sums of a prediction affine in the stiffness scale s:
+/// residual r(s) = s·a + b, so SSE_g(s) = s² Σa·a + 2s Σa·b + Σb·b.
+///
+/// The prediction is affine in s ([`predict`]), so one prediction (two with a device term)
+/// gives the residual sums at every s: the nuisance is profiled out exactly in each objective
+/// evaluation without adding a dimension to the Nelder–Mead search.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct PhaseQuad {
+    aa: [f64; VarGroup::COUNT],
+    ab: [f64; VarGroup::COUNT],
+    bb: [f64; VarGroup::COUNT],
+    n: [usize; VarGroup::COUNT],
+}
+
+/// Golden-section iterations of the nuisance profile: the bracket shrinks to 0.618^40 of the
+/// band's log width (1e-9), far below what moves a likelihood.
+const PROFILE_ITERS: usize = 40;
+/// Grid points over the band before the golden section (the profile of a sum of logarithms of
+/// quadratics can have more than one minimum).
+const PROFILE_GRID: usize = 12;
+
+impl PhaseQuad {
+    fn push(&mut self, group: VarGroup, a: [f64; 3], b: [f64; 3]) {
+        let g = group as usize;
+        self.aa[g] += dot(a, a);
+        self.ab[g] += dot(a, b);
+        self.bb[g] += dot(b, b);
+        self.n[g] += 3;
+    }
+    /// Residual sums at stiffness scale `s`.
+    pub fn at(&self, s: f64) -> PhaseSse {
+        let mut acc = PhaseSse::default();
+        for g in 0..VarGroup::COUNT {
+            acc.sse[g] = (s * s * self.aa[g] + 2.0 * s * self.ab[g] + self.bb[g]).max(0.0);
+            acc.n[g] = self.n[g];
+        }
+        acc
+    }
+    /// The scale in `band` of largest likelihood (the phase-variance one, [`PhaseSse`]) and
+    /// the residual sums there.
+    pub fn profile(&self, band: Nuisance) -> (f64, PhaseSse) {
+        if !band.fitted() {
+            return (band.lo, self.at(band.lo));
+        }
+        let n = self.n.iter().sum::<usize>() as f64;
+        let obj = |x: f64| self.at(x.exp()).log_mse_sum(n);
+        let (a, b) = (band.lo.ln(), band.hi.ln());
+        let step = (b - a) / PROFILE_GRID as f64;
+        let best = (0..=PROFILE_GRID)
+            .map(|i| a + i as f64 * step)
+            .min_by(|x, y| obj(*x).total_cmp(&obj(*y)))
+            .unwrap_or(0.0);
+        let (mut lo, mut hi) = ((best - step).max(a), (best + step).min(b));
+        let r = 0.5 * (5f64.sqrt() - 1.0);
+        let (mut x1, mut x2) = (hi - r * (hi - lo), lo + r * (hi - lo));
+        let (mut f1, mut f2) = (obj(x1), obj(x2));
+        for _ in 0..PROFILE_ITERS {
+            if f1 <= f2 {
+                hi = x2;
+                (x2, f2) = (x1, f1);
+                x1 = hi - r * (hi - lo);
+                f1 = obj(x1);
+            } else {
+                lo = x1;
+                (x1, f1) = (x2, f2);
+                x2 = lo + r * (hi - lo);
+                f2 = obj(x2);
+            }
+        }
+        // the grid point itself when the section found nothing better (a minimum on the edge)
+        let x = [(best, obj(best)), (x1, f1), (x2, f2)]
+            .into_iter()
+            .min_by(|p, q| p.1.total_cmp(&q.1))
+            .map(|p| p.0)
+            .unwrap_or(0.0);
+        let s = x.exp().clamp(band.lo, band.hi);
+        (s, self.at(s))
+    }
+}
+
+/// [`PhaseQuad`] of `c` at `theta` over the masked samples.
+pub fn phase_quad(
+    c: &Candidate,
+    theta: &[f64],
+    data: &[TrialData],
+    mask: &[Vec<bool>],
+) -> PhaseQuad {
+    let (mut grid, mut one, mut zero) = (Vec::new(), Vec::new(), Vec::new());
+    // without a device term the prediction is linear in the scale: the part at 0 is 0
+    let affine = c.0.contains(&Effect::Device);
+    let mut acc = PhaseQuad::default();
+    for (d, m) in data.iter().zip(mask) {
+        if !m.iter().any(|&b| b) {
+            continue;
+        }
+        predict(c, theta, d, 1.0, &mut grid, &mut one);
+        if affine {
+            predict(c, theta, d, 0.0, &mut grid, &mut zero);
+        }
+        for j in 0..d.t.len() {
+            if m[j] {
+                let z = if affine { zero[j] } else { [0.0; 3] };
+                acc.push(d.var_group[j], sub(one[j], z), sub(z, d.f[j]));
             }
         }
     }
@@ -224,15 +408,21 @@ impl Baseline {
     }
 }
 
-/// Sum of squared residuals over the masked samples.
-pub fn sse(c: &Candidate, theta: &[f64], data: &[TrialData], mask: &[Vec<bool>]) -> (f64, usize) {
+/// Sum of squared residuals over the masked samples at stiffness scale `stiffness`.
+pub fn sse(
+    c: &Candidate,
+    theta: &[f64],
+    stiffness: f64,
+    data: &[TrialData],
+    mask: &[Vec<bool>],
+) -> (f64, usize) {
     let (mut grid, mut out) = (Vec::new(), Vec::new());
     let (mut s, mut n) = (0.0, 0usize);
     for (d, m) in data.iter().zip(mask) {
         if !m.iter().any(|&b| b) {
             continue;
         }
-        predict(c, theta, d, &mut grid, &mut out);
+        predict(c, theta, d, stiffness, &mut grid, &mut out);
         for ((p, f), &b) in out.iter().zip(&d.f).zip(m) {
             if b {
                 let r = sub(*p, *f);
@@ -346,17 +536,27 @@ pub fn default_free(c: &Candidate) -> Vec<bool> {
 /// Grid intervals per parameter of the hardening start search.
 const HARDENING_GRID: usize = 24;
 
+/// A fit: the candidate's parameters, the stiffness scale fitted with them (1 when the
+/// nuisance is off), and their plain sum of squared residuals.
+#[derive(Debug, Clone)]
+pub struct Fitted {
+    pub theta: Vec<f64>,
+    pub stiffness: f64,
+    pub sse: f64,
+}
+
 /// Maximum-likelihood fit of `c` on the masked samples (one residual variance per phase,
 /// see [`PhaseSse`]); multi-start Nelder–Mead in unit space over the `free` parameters (the
-/// others stay at their neutral value). Returns the parameters and their plain sum of
-/// squared residuals.
+/// others stay at their neutral value), the stiffness nuisance profiled out at every
+/// evaluation within `nuisance` ([`PhaseQuad::profile`]).
 pub fn fit(
     c: &Candidate,
     data: &[TrialData],
     mask: &[Vec<bool>],
     inits: &[Vec<f64>],
     free: &[bool],
-) -> (Vec<f64>, f64) {
+    nuisance: Nuisance,
+) -> Fitted {
     let specs: Vec<ParamSpec> = c.params().into_iter().map(|(_, p)| p).collect();
     let idx: Vec<usize> = (0..specs.len()).filter(|&i| free[i]).collect();
     let k = idx.len();
@@ -368,15 +568,29 @@ pub fn fit(
         }
         to_theta(&specs, &x)
     };
-    // the phase-variance likelihood (see `PhaseSse`)
+    // the phase-variance likelihood (see `PhaseSse`), the nuisance profiled out
+    let profiled = |th: &[f64]| -> (f64, PhaseSse) {
+        if nuisance.fitted() {
+            phase_quad(c, th, data, mask).profile(nuisance)
+        } else {
+            (nuisance.lo, phase_sse(c, th, nuisance.lo, data, mask))
+        }
+    };
     let obj = |u: &[f64]| {
-        let acc = phase_sse(c, &full(u), data, mask);
+        let acc = profiled(&full(u)).1;
         acc.log_mse_sum(acc.total().1 as f64)
     };
+    let done = |theta: Vec<f64>| -> Fitted {
+        let stiffness = profiled(&theta).0;
+        let plain = sse(c, &theta, stiffness, data, mask).0;
+        Fitted {
+            theta,
+            stiffness,
+            sse: plain,
+        }
+    };
     if k == 0 {
-        let theta = full(&[]);
-        let plain = sse(c, &theta, data, mask).0;
-        return (theta, plain);
+        return done(full(&[]));
     }
     let sub_unit = |th: &[f64]| -> Vec<f64> {
         let u = to_unit(&specs, th);
@@ -421,14 +635,20 @@ pub fn fit(
     if v < best.1 {
         best = (u, v);
     }
-    let theta = full(&best.0);
-    let plain = sse(c, &theta, data, mask).0;
-    (theta, plain)
+    done(full(&best.0))
 }
 
 /// Standard errors from the Gauss–Newton covariance s²(JᵀJ)⁻¹ at the optimum, for the
-/// `free` parameters (the others are held: 0).
-pub fn uncertainty(c: &Candidate, theta: &[f64], data: &[TrialData], free: &[bool]) -> Vec<f64> {
+/// `free` parameters (the others are held: 0), with the stiffness scale held at its fitted
+/// value (conditional on it: an effect's parameter that trades against the scale reads a
+/// little more certain than it is).
+pub fn uncertainty(
+    c: &Candidate,
+    theta: &[f64],
+    stiffness: f64,
+    data: &[TrialData],
+    free: &[bool],
+) -> Vec<f64> {
     let specs: Vec<ParamSpec> = c.params().into_iter().map(|(_, p)| p).collect();
     let idx: Vec<usize> = (0..specs.len()).filter(|&i| free[i]).collect();
     let k = idx.len();
@@ -439,7 +659,7 @@ pub fn uncertainty(c: &Candidate, theta: &[f64], data: &[TrialData], free: &[boo
         let (mut grid, mut out) = (Vec::new(), Vec::new());
         let mut r = Vec::new();
         for d in data {
-            predict(c, th, d, &mut grid, &mut out);
+            predict(c, th, d, stiffness, &mut grid, &mut out);
             for (p, f) in out.iter().zip(&d.f) {
                 r.extend_from_slice(&sub(*p, *f));
             }
@@ -507,8 +727,22 @@ pub struct CandidateScore {
     /// held-out, N.
     pub heldout_study_error: f64,
     /// Ranking score: held-out phase-variance log-likelihood (effective values) with a
-    /// BIC-style parameter penalty.
+    /// BIC-style parameter penalty (the stiffness nuisance counts as a parameter where fitted).
     pub score: f64,
+    /// The stiffness nuisance fitted with the candidate on all trials ([`Nuisance`]); absent
+    /// where the candidate's own scale is the total (`modulus`, `hardening`) or the nuisance
+    /// is off.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub nuisance_scale: Option<f64>,
+    /// Held-out shrink against the nuisance floor (the baseline with the stiffness nuisance
+    /// fitted per fold): the larger of the phase-weighted and plain shrinks. What the verdict
+    /// requires of an effect, beside its significance ([`CandidateScore::floor_gain_z`]).
+    #[serde(default)]
+    pub floor_shrink: f64,
+    /// Paired held-out gain over the nuisance floor, trial by trial, in standard errors of
+    /// its mean over trials ([`crate::separability::gain_over`]); 0 with too few trials.
+    #[serde(default)]
+    pub floor_gain_z: f64,
     #[serde(skip)]
     pub theta: Vec<f64>,
     /// Held-out prediction at every measurement time, per trial.
@@ -533,14 +767,19 @@ pub fn study_metric(d: &TrialData, pred: &[[f64; 3]]) -> (f64, f64) {
     (m, p)
 }
 
-/// Fit `c` per fold (held-out score) and on everything (parameters, BIC).
+/// Fit `c` per fold (held-out score) and on everything (parameters, BIC), with the stiffness
+/// nuisance `nuisance` fitted jointly wherever `c` does not carry its own scale
+/// ([`Nuisance::for_candidate`]). The empty candidate is the nuisance floor (named `none`).
 pub fn score_candidate(
     c: &Candidate,
     data: &[TrialData],
     folds: &[Fold],
     baseline: &Baseline,
     inits: &[Vec<f64>],
+    nuisance: Nuisance,
 ) -> CandidateScore {
+    let nuisance = nuisance.for_candidate(c);
+    let extra = usize::from(nuisance.fitted());
     let all: Vec<Vec<bool>> = data.iter().map(|d| vec![true; d.t.len()]).collect();
     let n_all = data.iter().map(|d| 3 * d.t.len()).sum::<usize>();
     let ne_all = effective_n(n_all);
@@ -550,10 +789,14 @@ pub fn score_candidate(
         |acc: &PhaseSse, k: usize| acc.log_mse_sum(n_all as f64) + k as f64 * (n_all as f64).ln();
     let crit = |acc: &PhaseSse, k: usize| acc.log_mse_sum(ne_all) + k as f64 * ne_all.ln();
     let mut free = default_free(c);
-    let (mut theta, mut sse_all) = fit(c, data, &all, inits, &free);
+    let Fitted {
+        mut theta,
+        mut stiffness,
+        sse: mut sse_all,
+    } = fit(c, data, &all, inits, &free, nuisance);
     let mut k = free.iter().filter(|&&f| f).count();
-    let mut acc_all = phase_sse(c, &theta, data, &all);
-    let mut bic = bic_of(&acc_all, k);
+    let mut acc_all = phase_sse(c, &theta, stiffness, data, &all);
+    let mut bic = bic_of(&acc_all, k + extra);
     if free.iter().any(|f| !f) {
         // the optional parameters (second Prony term) are kept only when they lower the
         // penalised fit clearly: nested models, so the richer fit starts from the simpler
@@ -569,16 +812,17 @@ pub fn score_candidate(
         let mut fi = inits.to_vec();
         fi.push(theta.clone());
         fi.push(seeded);
-        let (theta2, sse2) = fit(c, data, &all, &fi, &all_free);
+        let f2 = fit(c, data, &all, &fi, &all_free, nuisance);
         let k2 = all_free.len();
-        let acc2 = phase_sse(c, &theta2, data, &all);
+        let acc2 = phase_sse(c, &f2.theta, f2.stiffness, data, &all);
         // and the extra term must remove a quarter of what the simpler fit leaves: a few
         // percent is what it absorbs of other effects' model error (a tilt, a coarse mesh)
         if crit(&acc2, k2) < crit(&acc_all, k) - 10.0
             && acc2.weighted_rmse().powi(2) < 0.75 * acc_all.weighted_rmse().powi(2)
         {
-            bic = bic_of(&acc2, k2);
-            (theta, sse_all, k, acc_all, free) = (theta2, sse2, k2, acc2, all_free);
+            bic = bic_of(&acc2, k2 + extra);
+            (theta, stiffness, sse_all, k, acc_all, free) =
+                (f2.theta, f2.stiffness, f2.sse, k2, acc2, all_free);
         }
     }
     let _ = acc_all;
@@ -589,12 +833,12 @@ pub fn score_candidate(
     for f in folds {
         let mut fi = inits.to_vec();
         fi.push(theta.clone());
-        let (th, _) = fit(c, data, &f.calib, &fi, &free);
+        let ff = fit(c, data, &f.calib, &fi, &free, nuisance);
         for (i, d) in data.iter().enumerate() {
             if !f.held[i].iter().any(|&b| b) {
                 continue;
             }
-            predict(c, &th, d, &mut grid, &mut out);
+            predict(c, &ff.theta, d, ff.stiffness, &mut grid, &mut out);
             for j in 0..d.t.len() {
                 if f.held[i][j] {
                     held_pred[i][j] = out[j];
@@ -605,7 +849,7 @@ pub fn score_candidate(
     }
     let heldout_rmse = held.rmse();
     let heldout_weighted_rmse = held.weighted_rmse();
-    let se = uncertainty(c, &theta, data, &free);
+    let se = uncertainty(c, &theta, stiffness, data, &free);
     let params = c
         .params()
         .into_iter()
@@ -630,10 +874,13 @@ pub fn score_candidate(
         .sum::<f64>()
         / data.len().max(1) as f64;
     let ne = effective_n(held.total().1);
-    let score = held.log_mse_sum(ne) + k as f64 * ne.ln();
-    let shrink = |x: f64, x0: f64| if x0 > 0.0 { 1.0 - x / x0 } else { 0.0 };
+    let score = held.log_mse_sum(ne) + (k + extra) as f64 * ne.ln();
     CandidateScore {
-        effect: c.name(),
+        effect: if c.0.is_empty() {
+            "none".into()
+        } else {
+            c.name()
+        },
         n_params: k,
         params,
         fit_rmse: (sse_all / n_all.max(1) as f64).sqrt(),
@@ -645,8 +892,20 @@ pub fn score_candidate(
         heldout_weighted_shrink: shrink(heldout_weighted_rmse, baseline.weighted_rmse),
         heldout_study_error: study,
         score,
+        nuisance_scale: nuisance.fitted().then_some(stiffness),
+        floor_shrink: 0.0,
+        floor_gain_z: 0.0,
         theta,
         heldout_pred: held_pred,
+    }
+}
+
+/// Held-out shrink of `x` against `x0` (fraction; 0 when `x0` is 0).
+pub fn shrink(x: f64, x0: f64) -> f64 {
+    if x0 > 0.0 {
+        1.0 - x / x0
+    } else {
+        0.0
     }
 }
 
@@ -670,6 +929,43 @@ pub fn pair_allowed(a: Effect, b: Effect) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The profiled nuisance is the scale that fits: exactly inside the band, the band's edge
+    /// outside it, and 1 when the nuisance is off.
+    #[test]
+    fn the_stiffness_nuisance_profile_finds_the_scale_within_its_band() {
+        let model = [
+            [0.0, 0.0, 2.0],
+            [0.1, 0.0, 5.0],
+            [0.0, -0.2, 9.0],
+            [0.0, 0.0, 0.0],
+        ];
+        let quad_for = |truth: f64| {
+            let mut q = PhaseQuad::default();
+            for (i, m) in model.iter().enumerate() {
+                let group = if i == 3 {
+                    VarGroup::Free
+                } else {
+                    VarGroup::Hold
+                };
+                // residual s·m − truth·m: a = m, b = −truth·m
+                q.push(group, *m, m.map(|v| -truth * v));
+            }
+            q
+        };
+        // noise-free: the likelihood is flat once a phase's mean square is under MSE_FLOOR
+        // (here within ~3e-6 of the scale)
+        let (s, acc) = quad_for(1.13).profile(Nuisance::STIFFNESS);
+        assert!((s - 1.13).abs() < 1e-4, "fitted {s}");
+        assert!(acc.total().0 < 1e-6);
+        let (s, _) = quad_for(1.6).profile(Nuisance::STIFFNESS);
+        assert!((s - NUISANCE_MAX).abs() < 1e-9, "fitted {s}");
+        let (s, _) = quad_for(0.5).profile(Nuisance::STIFFNESS);
+        assert!((s - 1.0 / NUISANCE_MAX).abs() < 1e-9, "fitted {s}");
+        let (s, acc) = quad_for(1.13).profile(Nuisance::OFF);
+        assert_eq!(s, 1.0);
+        assert!(acc.total().0 > 0.1);
+    }
 
     #[test]
     fn nelder_mead_finds_quadratic_minimum() {

@@ -424,6 +424,28 @@ fn rendering_section(g: &super::session::RenderingGap) -> String {
     h
 }
 
+/// What the stiffness nuisance is, and what it was fitted to here.
+fn nuisance_paragraph(r: &Report) -> String {
+    match r.heldout.nuisance_scale {
+        Some(s) => format!(
+            "<p><b>Stiffness nuisance.</b> No model is the specimen: every candidate, and the \
+             baseline, is fitted with one more parameter, a scale of the tissue's whole force \
+             (modulus and support together) within {:.2}–{:.2}, which no effect is needed for. \
+             Fitted to the baseline: <b>×{s:.3}</b>, leaving a held-out RMSE of {} N (the \
+             <i>nuisance floor</i>). An effect is named only when it shrinks that floor by at \
+             least the minimum shrink, with a per-trial held-out gain of at least two standard \
+             errors. <code>modulus</code> and <code>hardening</code> carry their own scale: \
+             their fitted scale is the total, and they win only beyond the band.</p>",
+            crate::fit::Nuisance::STIFFNESS.lo,
+            crate::fit::Nuisance::STIFFNESS.hi,
+            fmt(r.heldout.nuisance_rmse)
+        ),
+        None => "<p><b>Stiffness nuisance:</b> off (effects are judged against the replay \
+                 as it is).</p>"
+            .to_string(),
+    }
+}
+
 pub fn render(r: &Report) -> String {
     let mut h = String::new();
     h.push_str("<!DOCTYPE html><html><head><meta charset=\"utf-8\"><title>arthrosim gap diagnosis</title><style>");
@@ -435,6 +457,7 @@ pub fn render(r: &Report) -> String {
     let _ = write!(h, "<div class=\"verdict\"><h2>Verdict: {}</h2><p>held-out RMSE shrink <b>{:.1}%</b> ({} → {} N, {}); study metric error (mean normal force in contact) {} → {} N</p><p>{}</p>",
         esc(&r.verdict.effect), 100.0 * r.verdict.heldout_shrink, fmt(r.heldout.baseline_rmse), fmt(r.heldout.winner_rmse), esc(&r.heldout.scheme),
         fmt(r.heldout.baseline_study_error), fmt(r.heldout.winner_study_error), esc(&r.verdict.reason));
+    h.push_str(&nuisance_paragraph(r));
     if r.verdict.indistinguishable.len() > 1 {
         let _ = write!(
             h,
@@ -480,15 +503,18 @@ pub fn render(r: &Report) -> String {
     h.push_str(&group_table("by depth band", &r.localisation.by_depth_band));
     h.push_str("<h2>Which</h2>");
     h.push_str(&ranking_chart(r));
-    h.push_str("<table><tr><th>candidate</th><th>params</th><th>fit RMSE N</th><th>held-out RMSE N</th><th>shrink</th><th>ΔBIC</th><th>study-metric error N</th><th>fitted (± s.e.)</th></tr>");
+    h.push_str("<table><tr><th>candidate</th><th>params</th><th>fit RMSE N</th><th>held-out RMSE N</th><th>shrink</th><th>shrink over the nuisance floor</th><th>paired gain, SE</th><th>ΔBIC</th><th>study-metric error N</th><th>stiffness nuisance</th><th>fitted (± s.e.)</th></tr>");
     for c in &r.ranking {
         let ps: Vec<String> = c
             .params
             .iter()
             .map(|p| format!("{}={}±{} {}", p.name, fmt(p.value), fmt(p.std), p.unit))
             .collect();
-        let _ = write!(h, "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.1}%</td><td>{:.1}</td><td>{}</td><td style=\"text-align:left\">{}</td></tr>",
-            esc(&c.effect), c.n_params, fmt(c.fit_rmse), fmt(c.heldout_rmse), 100.0 * c.heldout_shrink, c.delta_bic, fmt(c.heldout_study_error), esc(&ps.join(", ")));
+        let nuisance = c
+            .nuisance_scale
+            .map_or("– (own scale)".to_string(), |s| format!("×{s:.3}"));
+        let _ = write!(h, "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.1}%</td><td>{:.1}%</td><td>{:.1}</td><td>{:.1}</td><td>{}</td><td>{}</td><td style=\"text-align:left\">{}</td></tr>",
+            esc(&c.effect), c.n_params, fmt(c.fit_rmse), fmt(c.heldout_rmse), 100.0 * c.heldout_shrink, 100.0 * c.floor_shrink, c.floor_gain_z, c.delta_bic, fmt(c.heldout_study_error), esc(&nuisance), esc(&ps.join(", ")));
     }
     h.push_str("</table>");
     if let Some(g) = &r.rendering_gap {

@@ -64,7 +64,7 @@ pub use fd::diagnose_force_displacement;
 pub use model::{ForceModel, ProbePath, Variant};
 
 use dataset::{BuildOptions, TrialData};
-use fit::{make_folds, score_candidate, Baseline, CandidateScore};
+use fit::{make_folds, score_candidate, shrink, Baseline, CandidateScore, Nuisance};
 use metrics::{
     band_label, band_of, region_label, trial_metrics, Acc, GroupResidual, Phase, TrialMetrics,
 };
@@ -122,8 +122,12 @@ pub struct Options {
     pub effects: Vec<Effect>,
     /// Consider pairs of effects.
     pub pairs: bool,
-    /// Minimum held-out shrink for an effect to count as identified.
+    /// Minimum held-out shrink, against the nuisance floor, for an effect to count as
+    /// identified.
     pub min_shrink: f64,
+    /// Fit the global stiffness nuisance ([`fit::Nuisance`]) with the baseline and every
+    /// candidate (default). Off: the scale is held at 1, as before issue 15 (for comparison).
+    pub nuisance: bool,
 }
 
 impl Options {
@@ -160,6 +164,7 @@ impl Default for Options {
             effects: Effect::ALL.to_vec(),
             pairs: true,
             min_shrink: 0.08,
+            nuisance: true,
         }
     }
 }
@@ -215,11 +220,25 @@ pub struct TrialReport {
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Heldout {
     pub scheme: String,
+    /// The replay as it is (no parameter fitted), N.
     pub baseline_rmse: f64,
     pub winner_rmse: f64,
+    /// Shrink of `winner_rmse` against `baseline_rmse`.
     pub shrink: f64,
     pub baseline_study_error: f64,
     pub winner_study_error: f64,
+    /// The global stiffness nuisance ([`fit::Nuisance`]) fitted to the baseline on all trials:
+    /// how much stiffer (> 1) or softer the measured tissue answers than the replay, within
+    /// the band no effect is needed for. Absent when the nuisance is off.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub nuisance_scale: Option<f64>,
+    /// The nuisance floor: held-out RMSE of the baseline with the nuisance fitted per fold, N.
+    /// An effect must shrink this, significantly, to be named.
+    #[serde(default)]
+    pub nuisance_rmse: f64,
+    /// Shrink of `winner_rmse` against `nuisance_rmse` (0 for `none`).
+    #[serde(default)]
+    pub shrink_over_nuisance: f64,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -238,6 +257,11 @@ pub struct Verdict {
     /// Per rival (`indistinguishable[1..]`): what kind of trial would separate it from `effect`.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub separate_by: Vec<String>,
+    /// The stiffness nuisance fitted with `effect` (for `none`: with the baseline). Absent
+    /// where the effect's own scale is the total (`modulus`, `hardening`) or the nuisance is
+    /// off. Calibration writes it as a scale of the whole tissue (modulus and support).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub nuisance_scale: Option<f64>,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -412,6 +436,13 @@ pub fn diagnose_data(
     let (scheme, folds) = make_folds(data);
     let base = Baseline::of(data);
     let (r0, study0) = (base.rmse, baseline_study_error(data));
+    let nuisance = if opts.nuisance {
+        Nuisance::STIFFNESS
+    } else {
+        Nuisance::OFF
+    };
+    // the floor every effect must beat: the baseline with only the nuisance fitted
+    let floor = score_candidate(&Candidate(Vec::new()), data, &folds, &base, &[], nuisance);
 
     let usable: Vec<Effect> = effects
         .iter()
@@ -422,7 +453,7 @@ pub fn diagnose_data(
     let mut singles: Vec<CandidateScore> = usable
         .par_iter()
         .map(|&e| {
-            let s = score_candidate(&Candidate::single(e), data, &folds, &base, &[]);
+            let s = score_candidate(&Candidate::single(e), data, &folds, &base, &[], nuisance);
             if let Some(b) = &bar {
                 b.inc(1);
             }
@@ -432,6 +463,9 @@ pub fn diagnose_data(
     if let Some(b) = bar {
         b.finish_and_clear();
     }
+    singles
+        .iter_mut()
+        .for_each(|c| against_floor(c, &floor, data));
     singles.sort_by(|a, b| a.score.total_cmp(&b.score));
     let mut ranking = singles.clone();
     if opts.pairs {
@@ -466,7 +500,8 @@ pub fn diagnose_data(
         let scored: Vec<CandidateScore> = pairs
             .par_iter()
             .map(|(c, init)| {
-                let s = score_candidate(c, data, &folds, &base, std::slice::from_ref(init));
+                let s =
+                    score_candidate(c, data, &folds, &base, std::slice::from_ref(init), nuisance);
                 if let Some(b) = &bar {
                     b.inc(1);
                 }
@@ -476,7 +511,10 @@ pub fn diagnose_data(
         if let Some(b) = bar {
             b.finish_and_clear();
         }
-        ranking.extend(scored);
+        ranking.extend(scored.into_iter().map(|mut c| {
+            against_floor(&mut c, &floor, data);
+            c
+        }));
     }
     ranking.sort_by(|a, b| a.score.total_cmp(&b.score));
 
@@ -484,10 +522,11 @@ pub fn diagnose_data(
     let mut verdict = decide(
         &singles,
         &ranking,
-        r0,
+        &floor,
         noise,
         opts.min_shrink,
         data.len() >= 3,
+        data.len() >= separability::MIN_TRIALS,
     );
     if let Some(set) = separability::indistinguishable(&verdict.effect, &ranking, data) {
         let rivals: Vec<String> = set.candidates[1..]
@@ -504,6 +543,10 @@ pub fn diagnose_data(
         verdict.separate_by = set.separate_by;
     }
     let winner = ranking.iter().find(|c| c.effect == verdict.effect);
+    verdict.nuisance_scale = match winner {
+        Some(w) => w.nuisance_scale,
+        None => floor.nuisance_scale,
+    };
     let heldout = Heldout {
         scheme,
         baseline_rmse: r0,
@@ -511,6 +554,11 @@ pub fn diagnose_data(
         shrink: winner.map(|w| w.heldout_shrink).unwrap_or(0.0),
         baseline_study_error: study0,
         winner_study_error: winner.map(|w| w.heldout_study_error).unwrap_or(study0),
+        nuisance_scale: floor.nuisance_scale,
+        nuisance_rmse: floor.heldout_rmse,
+        shrink_over_nuisance: winner
+            .map(|w| shrink(w.heldout_rmse, floor.heldout_rmse))
+            .unwrap_or(0.0),
     };
     let trial_reports = data
         .iter()
@@ -554,8 +602,55 @@ pub fn diagnose_data(
     })
 }
 
-/// The verdict: the best-ranked candidate if it beats the baseline beyond noise; a pair only
+/// Sets `c`'s standing against the nuisance floor: its held-out shrink and the significance
+/// of its paired per-trial gain ([`separability::gain_over`]).
+fn against_floor(c: &mut CandidateScore, floor: &CandidateScore, data: &[TrialData]) {
+    c.floor_shrink = shrink(c.heldout_weighted_rmse, floor.heldout_weighted_rmse)
+        .max(shrink(c.heldout_rmse, floor.heldout_rmse));
+    c.floor_gain_z = separability::gain_over(floor, c, data)
+        .map(|(mean, se)| z_score(mean, se))
+        .unwrap_or(0.0);
+}
+
+/// Evidence (in −2 log-likelihood, penalised) an effect must add over the nuisance floor,
+/// in-sample (BIC) and held-out (score): "very strong" on the usual BIC scale.
+const STRONG_EVIDENCE: f64 = 10.0;
+
+/// Largest |z| reported: a gain identical on every trial has no scatter (se 0).
+const MAX_Z: f64 = 1.0e6;
+
+fn z_score(mean: f64, se: f64) -> f64 {
+    if se > 0.0 {
+        (mean / se).clamp(-MAX_Z, MAX_Z)
+    } else if mean > 0.0 {
+        MAX_Z
+    } else if mean < 0.0 {
+        -MAX_Z
+    } else {
+        0.0
+    }
+}
+
+/// The verdict: the best-ranked candidate if it beats the nuisance floor (the baseline with
+/// the stiffness nuisance fitted, [`fit::Nuisance`]) clearly and significantly; a pair only
 /// when the best single leaves a residual well above noise and the pair removes much of it.
+///
+/// An effect is identified when, against the floor, (a) its held-out shrink is at least
+/// `min_shrink`, phase-weighted or plain; (b) its penalised fit on all trials is better by
+/// [`STRONG_EVIDENCE`] in BIC; (c) its held-out score (the phase-variance likelihood of the
+/// held-out residuals on effective values, with the parameter penalty: a held-out likelihood
+/// ratio) is better by [`STRONG_EVIDENCE`] too; and (d) with `paired` (enough trials), its
+/// per-trial held-out gain ([`separability::gain_over`]) is positive on average: the gain
+/// holds across the trials the effect acts on, not on a few against the rest. Without the
+/// floor a persistent stiffness offset, which every model has against a real specimen, was
+/// read as `support` or `modulus`.
+///
+/// Why (d) asks for a positive mean and not two standard errors: an effect acts on a few
+/// trials only (friction on the slides, a mesh near some sites), and on the generated
+/// stand-in cases effects that removed 80% of the held-out error reached 1.2–1.9 standard
+/// errors over the 3–9 trials they changed (seed 3; README, "A stiffness nuisance in every
+/// fit"). The held-out likelihood ratio (c) is the significance; (d) guards it against a gain
+/// carried by the largest trials' model error.
 ///
 /// Shrinks and gains are weighed on the phase-weighted RMSE (one residual variance per phase,
 /// see [`fit::PhaseSse`]): a sensor bias of tenths of a newton is invisible in the plain RMSE
@@ -564,10 +659,11 @@ pub fn diagnose_data(
 fn decide(
     singles: &[CandidateScore],
     ranking: &[CandidateScore],
-    r0: f64,
+    floor: &CandidateScore,
     noise: f64,
     min_shrink: f64,
     pairs_allowed: bool,
+    paired: bool,
 ) -> Verdict {
     let none = |reason: String| Verdict {
         effect: "none".into(),
@@ -576,82 +672,91 @@ fn decide(
         reason,
         indistinguishable: Vec::new(),
         separate_by: Vec::new(),
+        nuisance_scale: None,
     };
+    let nuisance_note = floor
+        .nuisance_scale
+        .map(|s| format!(" after a stiffness nuisance ×{s:.3}"))
+        .unwrap_or_default();
+    let r0 = floor.heldout_rmse;
     if r0 <= 1.15 * noise {
         return none(format!(
-            "baseline residual {r0:.4} N is within noise ({noise:.4} N)"
+            "held-out residual {r0:.4} N{nuisance_note} is within noise ({noise:.4} N)"
         ));
     }
     let best = match singles.first() {
         Some(b) => b,
         None => return none("no candidate could be assessed".into()),
     };
-    // identified: a clear held-out shrink, phase-weighted or plain, with positive evidence
-    let shrink = best.heldout_weighted_shrink.max(best.heldout_shrink);
-    if !(shrink >= min_shrink && best.delta_bic <= -10.0) {
-        // two effects that hide each other: the best pair, identified on its own and well
-        // ahead of every single
-        let pair = ranking
+    let identified = |c: &CandidateScore| {
+        c.floor_shrink >= min_shrink
+            && c.bic - floor.bic <= -STRONG_EVIDENCE
+            && c.score - floor.score <= -STRONG_EVIDENCE
+            && (!paired || c.floor_gain_z > 0.0)
+    };
+    let evidence = |c: &CandidateScore| {
+        format!(
+            "{:.1}% against the floor{nuisance_note}, held-out score {:+.1}, paired gain {:.1} SE, \
+             ΔBIC {:.1}",
+            100.0 * c.floor_shrink,
+            c.score - floor.score,
+            c.floor_gain_z,
+            c.bic - floor.bic
+        )
+    };
+    let best_pair = || {
+        ranking
             .iter()
             .filter(|c| c.effect.contains('+'))
-            .min_by(|a, b| a.score.total_cmp(&b.score));
-        if let Some(pair) = pair.filter(|_| pairs_allowed) {
-            let pair_shrink = pair.heldout_weighted_shrink.max(pair.heldout_shrink);
-            let gain = (1.0 - pair.heldout_weighted_rmse / best.heldout_weighted_rmse)
-                .max(1.0 - pair.heldout_rmse / best.heldout_rmse);
-            if pair_shrink >= min_shrink
-                && pair.delta_bic <= -10.0
-                && gain > 0.2
-                && pair.score < best.score
-            {
+            .min_by(|a, b| a.score.total_cmp(&b.score))
+    };
+    // what a pair removes of the best single's residual, phase-weighted or plain
+    let gain_over_best = |pair: &CandidateScore| {
+        shrink(pair.heldout_weighted_rmse, best.heldout_weighted_rmse)
+            .max(shrink(pair.heldout_rmse, best.heldout_rmse))
+    };
+    if !identified(best) {
+        // two effects that hide each other: the best pair, identified on its own and well
+        // ahead of every single
+        if let Some(pair) = best_pair().filter(|_| pairs_allowed) {
+            if identified(pair) && gain_over_best(pair) > 0.2 && pair.score < best.score {
                 return Verdict {
                     effect: pair.effect.clone(),
                     heldout_shrink: pair.heldout_shrink,
                     params: pair.params.clone(),
                     reason: format!(
-                        "no single effect shrinks the held-out RMSE clearly (best {} {:.1}%); \
-                         the pair {} does: {:.4} → {:.4} N ({:.1}%; {:.1}% phase-weighted), ΔBIC {:.1}",
+                        "no single effect shrinks the held-out RMSE clearly (best {}: {}); \
+                         the pair {} does: {:.4} → {:.4} N ({})",
                         best.effect,
-                        100.0 * best.heldout_shrink,
+                        evidence(best),
                         pair.effect,
                         r0,
                         pair.heldout_rmse,
-                        100.0 * pair.heldout_shrink,
-                        100.0 * pair.heldout_weighted_shrink,
-                        pair.delta_bic
+                        evidence(pair)
                     ),
                     indistinguishable: Vec::new(),
                     separate_by: Vec::new(),
+                    nuisance_scale: None,
                 };
             }
         }
         return none(format!(
-            "best candidate {} shrinks held-out RMSE by only {:.1}% ({:.1}% phase-weighted, ΔBIC {:.1})",
+            "best candidate {} does not beat the nuisance floor {r0:.4} N: {}",
             best.effect,
-            100.0 * best.heldout_shrink,
-            100.0 * best.heldout_weighted_shrink,
-            best.delta_bic
+            evidence(best)
         ));
     }
     let mut win = best;
     let mut reason = format!(
-        "{} shrinks held-out RMSE {:.4} → {:.4} N ({:.1}%; {:.1}% phase-weighted), ΔBIC {:.1}",
+        "{} shrinks held-out RMSE {:.4} → {:.4} N ({})",
         best.effect,
         r0,
         best.heldout_rmse,
-        100.0 * best.heldout_shrink,
-        100.0 * best.heldout_weighted_shrink,
-        best.delta_bic
+        evidence(best)
     );
     if pairs_allowed && best.heldout_rmse > 1.3 * noise {
-        if let Some(pair) = ranking
-            .iter()
-            .filter(|c| c.effect.contains('+'))
-            .min_by(|a, b| a.score.total_cmp(&b.score))
-        {
-            // what the pair removes of the single's residual, phase-weighted or plain
-            let gain = (1.0 - pair.heldout_weighted_rmse / best.heldout_weighted_rmse)
-                .max(1.0 - pair.heldout_rmse / best.heldout_rmse);
+        if let Some(pair) = best_pair() {
+            let gain = gain_over_best(pair);
             if gain > 0.2 && pair.score < best.score {
                 reason = format!(
                     "{} leaves {:.4} N phase-weighted ({:.4} N plain, noise {:.4} N); the pair {} \
@@ -676,6 +781,7 @@ fn decide(
         reason,
         indistinguishable: Vec::new(),
         separate_by: Vec::new(),
+        nuisance_scale: None,
     }
 }
 

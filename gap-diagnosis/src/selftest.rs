@@ -1,7 +1,9 @@
 //! `gap selftest`: generated cases (each effect alone, some pairs, none) diagnosed blind.
 use super::experiment::load_experiment;
 use super::model::ForceModel;
-use super::reality::{write_experiment_with, RealitySpec, Site};
+use super::reality::{
+    stiffness_offset, write_experiment_with, RealitySpec, Site, STIFFNESS_OFFSET,
+};
 use super::sim_model::SimForceModel;
 use super::{diagnose, GapError, Options};
 use serde::{Deserialize, Serialize};
@@ -37,6 +39,11 @@ pub struct SelftestOptions {
     pub verbose: bool,
     /// Restrict the case cycle (labels as in [`CASES`]).
     pub cases: Option<Vec<String>>,
+    /// Largest systematic stiffness offset of a case's truth, either way (uniform, drawn per
+    /// case from the seed; [`crate::reality::stiffness_offset`]). Default ±15%, in every case:
+    /// no model is the specimen. 0 is the old self-consistent mode (the truth is the replay
+    /// model itself), kept as a fast check of the statistics.
+    pub stiffness_offset: f64,
 }
 
 impl Default for SelftestOptions {
@@ -48,6 +55,7 @@ impl Default for SelftestOptions {
             keep_dir: None,
             verbose: false,
             cases: None,
+            stiffness_offset: STIFFNESS_OFFSET,
         }
     }
 }
@@ -58,6 +66,13 @@ pub struct CaseResult {
     pub truth: String,
     pub found: String,
     pub correct: bool,
+    /// The truth's systematic stiffness offset (1: none).
+    #[serde(default = "one")]
+    pub stiffness_scale: f64,
+    /// The stiffness nuisance the diagnosis fitted with its verdict (absent for `modulus`,
+    /// `hardening`, whose scale is the total, and with the nuisance off).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub nuisance_scale: Option<f64>,
     /// Held-out shrink the diagnosis reports for its verdict.
     pub heldout_shrink: f64,
     /// Held-out shrink of the true candidate (None for `none` or when not ranked).
@@ -65,9 +80,16 @@ pub struct CaseResult {
     pub elapsed_s: f64,
 }
 
+fn one() -> f64 {
+    1.0
+}
+
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct SelftestResult {
     pub seed: u64,
+    /// [`SelftestOptions::stiffness_offset`] of the run (0: the exact mode).
+    #[serde(default)]
+    pub stiffness_offset: f64,
     pub cases: Vec<CaseResult>,
 }
 
@@ -79,6 +101,9 @@ pub struct SelftestSummary {
     /// Mean held-out shrink of the verdicts over cases with an injected effect.
     pub heldout_shrink_mean: f64,
     pub seed: u64,
+    /// [`SelftestOptions::stiffness_offset`] of the run (0: the exact mode).
+    #[serde(default)]
+    pub stiffness_offset: f64,
     pub elapsed_s: f64,
 }
 
@@ -93,6 +118,7 @@ impl SelftestResult {
             heldout_shrink_mean: eff.iter().map(|c| c.heldout_shrink).sum::<f64>()
                 / eff.len().max(1) as f64,
             seed: self.seed,
+            stiffness_offset: self.stiffness_offset,
             elapsed_s: self.cases.iter().map(|c| c.elapsed_s).sum(),
         }
     }
@@ -104,12 +130,16 @@ impl SelftestResult {
         for c in &self.cases {
             let _ = writeln!(
                 s,
-                "case {:3}  truth {:20} found {:20} {}  held-out shrink {:5.1}%  ({:.1} s)",
+                "case {:3}  truth {:20} found {:20} {}  held-out shrink {:5.1}%  stiffness ×{:.3} \
+                 (fitted {})  ({:.1} s)",
                 c.case,
                 c.truth,
                 c.found,
                 if c.correct { "ok " } else { "MISS" },
                 100.0 * c.heldout_shrink,
+                c.stiffness_scale,
+                c.nuisance_scale
+                    .map_or("–".to_string(), |v| format!("×{v:.3}")),
                 c.elapsed_s
             );
         }
@@ -146,11 +176,12 @@ impl SelftestResult {
         let sm = self.summary();
         let _ = writeln!(
             s,
-            "\n{}/{} correct ({:.0}%), mean held-out shrink {:.1}%",
+            "\n{}/{} correct ({:.0}%), mean held-out shrink {:.1}%, stiffness offset ±{:.0}%",
             sm.correct,
             sm.cases,
             100.0 * sm.accuracy,
-            100.0 * sm.heldout_shrink_mean
+            100.0 * sm.heldout_shrink_mean,
+            100.0 * sm.stiffness_offset
         );
         s
     }
@@ -188,6 +219,10 @@ type ModelFor<'a> = dyn Fn(&super::Experiment) -> Result<Box<dyn ForceModel>, Ga
 /// front, and an unbounded count panicked on a capacity overflow or aborted out of memory.
 pub const MAX_SELFTEST_CASES: usize = 1000;
 
+/// Upper bound (exclusive) of [`SelftestOptions::stiffness_offset`]: at 1 the softest truth
+/// would have no stiffness at all.
+pub const MAX_STIFFNESS_OFFSET: f64 = 0.5;
+
 /// Self-test with a given truth model and a factory for the diagnosis model of a folder.
 pub fn selftest_with(
     cases: usize,
@@ -200,6 +235,12 @@ pub fn selftest_with(
     if !(1..=MAX_SELFTEST_CASES).contains(&cases) {
         return Err(GapError::Other(format!(
             "self-test of {cases} cases: from 1 to {MAX_SELFTEST_CASES}"
+        )));
+    }
+    if !(0.0..MAX_STIFFNESS_OFFSET).contains(&opts.stiffness_offset) {
+        return Err(GapError::Other(format!(
+            "stiffness offset {}: from 0 to below {MAX_STIFFNESS_OFFSET} (a fraction either way)",
+            opts.stiffness_offset
         )));
     }
     let root = match &opts.keep_dir {
@@ -216,6 +257,7 @@ pub fn selftest_with(
         let effects: Vec<&str> = label.split('+').collect();
         let case_seed = seed.wrapping_mul(1_000_003).wrapping_add(i as u64);
         let mut spec = RealitySpec::from_effects(&effects, case_seed)?;
+        spec.stiffness_scale = stiffness_offset(case_seed, opts.stiffness_offset);
         spec.probings_per_region = opts.probings_per_region;
         spec.noise_sigma = opts.noise_sigma;
         let dir = root.join(format!("case{i:03}"));
@@ -233,6 +275,8 @@ pub fn selftest_with(
         let r = CaseResult {
             case: i,
             correct: found == truth.label,
+            stiffness_scale: spec.stiffness_scale,
+            nuisance_scale: report.verdict.nuisance_scale,
             truth: truth.label,
             found,
             heldout_shrink: report.verdict.heldout_shrink,
@@ -241,21 +285,32 @@ pub fn selftest_with(
         };
         if opts.verbose {
             eprintln!(
-                "case {:3}  truth {:20} found {:20} {} shrink {:5.1}%  ({:.1} s)  {}",
+                "case {:3}  truth {:20} found {:20} {} shrink {:5.1}%  stiffness ×{:.3}  ({:.1} s)  {}",
                 r.case,
                 r.truth,
                 r.found,
                 if r.correct { "ok " } else { "MISS" },
                 100.0 * r.heldout_shrink,
+                r.stiffness_scale,
                 r.elapsed_s,
                 report.verdict.reason
             );
+            eprintln!(
+                "           floor (nuisance {}) held {:.4}",
+                report
+                    .heldout
+                    .nuisance_scale
+                    .map_or("off".to_string(), |v| format!("×{v:.3}")),
+                report.heldout.nuisance_rmse
+            );
             for c in report.ranking.iter().take(6) {
                 eprintln!(
-                    "           {:24} held {:.4} shrink {:5.1}% score {:10.1}",
+                    "           {:24} held {:.4} shrink {:5.1}% over floor {:5.1}% z {:6.1} score {:10.1}",
                     c.effect,
                     c.heldout_rmse,
                     100.0 * c.heldout_shrink,
+                    100.0 * c.floor_shrink,
+                    c.floor_gain_z,
                     c.score
                 );
             }
@@ -265,7 +320,11 @@ pub fn selftest_with(
     if opts.keep_dir.is_none() {
         let _ = std::fs::remove_dir_all(&root);
     }
-    Ok(SelftestResult { seed, cases: out })
+    Ok(SelftestResult {
+        seed,
+        stiffness_offset: opts.stiffness_offset,
+        cases: out,
+    })
 }
 
 /// Benchmark: a generated 15-trial experiment (the study protocol) diagnosed end to end with

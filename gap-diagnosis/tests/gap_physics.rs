@@ -91,7 +91,8 @@ fn cadaver_table_names_hardening() {
     let _ = std::fs::remove_dir_all(&out);
 }
 
-/// A small blind self-test through the physics model (CI-sized: 3 cases, 2 probings/region).
+/// A small blind self-test through the physics model (CI-sized: 3 cases, 1 probing/region),
+/// in the default mode: each truth with its own stiffness offset within ±15%.
 #[test]
 fn small_selftest_identifies_effects() {
     let opts = SelftestOptions {
@@ -103,7 +104,8 @@ fn small_selftest_identifies_effects() {
     let r = selftest(3, 11, &opts).unwrap();
     eprintln!("{}", r.table());
     let s = r.summary();
-    // reached: 3/3, mean held-out shrink 99%
+    // reached: 3/3, mean held-out shrink 97% (offsets ×1.089, ×1.128, ×1.119; the nuisance
+    // fitted ×1.089 for none and ×1.120 beside friction)
     assert_eq!(s.correct, 3, "accuracy {}", s.accuracy);
     assert!(
         s.heldout_shrink_mean >= 0.9,

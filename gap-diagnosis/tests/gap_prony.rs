@@ -3,7 +3,7 @@
 //! only when, the data need it.
 use gap_diagnosis::dataset::{prepare, TrialData};
 use gap_diagnosis::effects::qlv_in_place;
-use gap_diagnosis::fit::{make_folds, score_candidate, Baseline, CandidateScore};
+use gap_diagnosis::fit::{make_folds, score_candidate, Baseline, CandidateScore, Nuisance};
 use gap_diagnosis::model::ProbePath;
 use gap_diagnosis::{Candidate, Effect, Region, Trial};
 use msgs::Pose;
@@ -114,6 +114,7 @@ fn score(terms: &[(f64, f64)]) -> CandidateScore {
         &folds,
         &Baseline::of(&data),
         &[],
+        Nuisance::STIFFNESS,
     )
 }
 
@@ -160,11 +161,11 @@ fn two_prony_terms_when_relaxation_has_two_time_scales() {
 /// RMSE of the best one-term QLV (second term held at 0) fitted on all of the two-term
 /// data: in-sample, so it flatters the one-term model.
 fn score_one_term(terms: &[(f64, f64)]) -> f64 {
-    use gap_diagnosis::fit::{default_free, fit};
+    use gap_diagnosis::fit::{default_free, fit, Nuisance};
     let data = dataset(terms);
     let c = Candidate::single(Effect::Viscoelastic);
     let all: Vec<Vec<bool>> = data.iter().map(|d| vec![true; d.t.len()]).collect();
-    let (_, sse) = fit(&c, &data, &all, &[], &default_free(&c));
+    let sse = fit(&c, &data, &all, &[], &default_free(&c), Nuisance::STIFFNESS).sse;
     let n: usize = data.iter().map(|d| 3 * d.t.len()).sum();
     (sse / n as f64).sqrt()
 }

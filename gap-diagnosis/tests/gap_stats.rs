@@ -3,8 +3,14 @@
 //! fitting, cross-validation and the verdict independently of the FE model.
 use gap_diagnosis::model::{ForceModel, ProbePath, Variant};
 use gap_diagnosis::reality::Site;
+use gap_diagnosis::reality::{write_experiment_with, RealitySpec};
 use gap_diagnosis::selftest::{selftest_with, SelftestOptions};
-use gap_diagnosis::{Experiment, GapError, Region};
+use gap_diagnosis::{diagnose, load_experiment, Experiment, GapError, Options, Region};
+
+/// What the offset self-test reaches (seed 3, 14 cases): 11/14 (0.79), mean held-out shrink
+/// 75%; with the nuisance off on the same cases, see the README.
+const ACCURACY_REACHED: f64 = 0.78;
+const SHRINK_REACHED: f64 = 0.7;
 
 struct Hertz {
     sites: Vec<Site>,
@@ -114,37 +120,88 @@ impl ForceModel for Hertz {
     }
 }
 
-fn run(cases: usize, seed: u64, verbose: bool) -> gap_diagnosis::selftest::SelftestResult {
-    let model = Hertz {
+fn stand_in() -> Hertz {
+    Hertz {
         sites: sites(),
         e: 3.5e6,
-    };
+    }
+}
+
+fn run(cases: usize, seed: u64, stiffness_offset: f64) -> gap_diagnosis::selftest::SelftestResult {
+    let model = stand_in();
     let opts = SelftestOptions {
-        verbose,
+        verbose: true,
+        stiffness_offset,
         ..Default::default()
     };
     let s = model.sites.clone();
-    let factory = |_: &Experiment| -> Result<Box<dyn ForceModel>, GapError> {
-        Ok(Box::new(Hertz {
-            sites: sites(),
-            e: 3.5e6,
-        }))
-    };
+    let factory =
+        |_: &Experiment| -> Result<Box<dyn ForceModel>, GapError> { Ok(Box::new(stand_in())) };
     selftest_with(cases, seed, &opts, &model, &s, &factory).unwrap()
 }
 
+/// The self-test as issue 15 asks for it: every case's truth carries a systematic stiffness
+/// offset (uniform within ±15%, modulus and support together), which the diagnosis must not
+/// read as an effect nor let hide one.
 #[test]
-fn statistics_identify_effects_on_analytic_stand_in() {
-    let r = run(14, 3, true);
+fn statistics_identify_effects_through_a_stiffness_offset() {
+    let r = run(14, 3, gap_diagnosis::reality::STIFFNESS_OFFSET);
     eprintln!("{}", r.table());
     let s = r.summary();
-    // reached: 12/14 (viscoelastic+tilt and hardening+friction are taken for tilt and
-    // modulus+friction: the stand-in's tilt interpolation error hides the relaxation, its
-    // weak hardening is a modulus), mean held-out shrink 75%
-    assert!(s.accuracy >= 0.85, "accuracy {}", s.accuracy);
+    // reached: see the README ("A stiffness nuisance in every fit")
+    assert!(s.accuracy >= ACCURACY_REACHED, "accuracy {}", s.accuracy);
     assert!(
-        s.heldout_shrink_mean >= 0.7,
+        s.heldout_shrink_mean >= SHRINK_REACHED,
         "shrink {}",
         s.heldout_shrink_mean
     );
+    let none = r.cases.iter().find(|c| c.truth == "none").unwrap();
+    assert_eq!(none.found, "none", "an offset alone is no effect");
+}
+
+/// A persistent stiffness offset of ±14% alone (what another discretisation of the same
+/// specimen gives) is `none` with the nuisance fitted, and its fitted scale is the offset;
+/// without the nuisance the same data name an effect (what made this test necessary).
+#[test]
+fn a_persistent_stiffness_offset_is_not_an_effect() {
+    let model = stand_in();
+    let sites = model.sites.clone();
+    for (k, scale) in [0.86, 1.14].into_iter().enumerate() {
+        let dir = std::env::temp_dir().join(format!("gap_stats_offset_{}_{k}", std::process::id()));
+        let mut spec = RealitySpec::from_effects(&["none"], 21 + k as u64).unwrap();
+        spec.stiffness_scale = scale;
+        spec.probings_per_region = 3;
+        write_experiment_with(
+            &spec,
+            &model,
+            &sites,
+            &dir.join("exp"),
+            &dir.join("truth.json"),
+        )
+        .unwrap();
+        let exp = load_experiment(&dir.join("exp"), &gap_diagnosis::data_dir()).unwrap();
+        let with = diagnose(&exp, &model, &Options::default()).unwrap();
+        let without = diagnose(
+            &exp,
+            &model,
+            &Options {
+                nuisance: false,
+                ..Options::default()
+            },
+        )
+        .unwrap();
+        let _ = std::fs::remove_dir_all(&dir);
+        eprintln!(
+            "offset ×{scale}: with the nuisance {} (×{:?}; {}), without {} ({})",
+            with.verdict.effect,
+            with.heldout.nuisance_scale,
+            with.verdict.reason,
+            without.verdict.effect,
+            without.verdict.reason
+        );
+        assert_eq!(with.verdict.effect, "none", "{}", with.verdict.reason);
+        let fitted = with.heldout.nuisance_scale.unwrap();
+        assert!((fitted / scale - 1.0).abs() < 0.01, "fitted ×{fitted}");
+        assert_ne!(without.verdict.effect, "none", "{}", without.verdict.reason);
+    }
 }

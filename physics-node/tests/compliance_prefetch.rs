@@ -144,41 +144,38 @@ fn steps_never_wait_for_the_prefetcher_and_flag_what_they_approximate() {
     let data = launch_config::data_dir();
     let fresh = || Simulation::with_compliance(&scene, &data, Filling::Prefetch, SMALL_BUDGET);
     let poses = trajectory(&fresh().unwrap(), &scene);
-    // Straight into contact with an empty cache: the first steps cannot have the columns.
-    // The worker starts filling as soon as the simulation exists, so on a loaded machine it
-    // had sometimes cached the contact's columns before the first step (failed once in the
-    // full suite): the premise is checked, with a fresh simulation when it does not hold.
-    let mut part = fresh().unwrap();
-    part.teleport_probe(&poses[40]);
+    // Straight into contact with an empty cache: the first step cannot have the columns. The
+    // worker fills the cache while the step runs its free motion, so on a loaded machine
+    // (the step's thread descheduled, the worker not) it had sometimes cached the contact's
+    // columns before the contact solve (failed twice in the full suite): the premise is
+    // retried with a fresh simulation, and must hold in one of eight.
+    let mut part = None;
     for _ in 0..8 {
-        if part.compliance_cached_nodes() == 0 {
+        let mut sim = fresh().unwrap();
+        sim.teleport_probe(&poses[40]);
+        sim.set_proxy_pose(&poses[40]);
+        ARMED.with(|a| a.set(true));
+        let res = sim.step();
+        ARMED.with(|a| a.set(false));
+        res.unwrap();
+        if sim.compliance_approximations() > 0 {
+            part = Some(sim);
             break;
         }
-        part = fresh().unwrap();
-        part.teleport_probe(&poses[40]);
     }
-    assert_eq!(
-        part.compliance_cached_nodes(),
-        0,
-        "the worker filled the cache before the first step in 9 fresh simulations"
+    let mut part = part.expect(
+        "in 8 fresh simulations the first step in contact never flagged an approximation, \
+         though it started with nothing cached",
     );
-    let mut approximated_early = 0;
-    for (k, pose) in poses[40..].iter().enumerate() {
+    for (k, pose) in poses[41..].iter().enumerate() {
         part.set_proxy_pose(pose);
         ARMED.with(|a| a.set(true));
         let res = part.step();
         ARMED.with(|a| a.set(false));
         res.unwrap();
-        if k == 0 {
-            approximated_early = part.compliance_approximations();
-        }
         let f = part.contact_force();
         assert!(f.iter().all(|v| v.is_finite()), "step {k}: force {f:?}");
     }
-    assert!(
-        approximated_early > 0,
-        "the first step in contact had nothing cached, so it must be flagged approximated"
-    );
     assert!(
         part.compliance_cached_nodes() > 0,
         "the worker cached nothing"

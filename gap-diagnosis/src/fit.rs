@@ -139,18 +139,20 @@ impl PhaseSse {
         let (s, n) = self.total();
         (s / n.max(1) as f64).sqrt()
     }
+    /// (SSE, values) of the phases with fewer than [`MIN_GROUP_VALUES`] values, pooled into
+    /// one variance group: the one place that rule is written.
+    fn pooled_small(&self) -> (f64, usize) {
+        (0..VarGroup::COUNT)
+            .filter(|&g| self.n[g] < MIN_GROUP_VALUES)
+            .fold((0.0, 0), |(s, n), g| (s + self.sse[g], n + self.n[g]))
+    }
     /// (SSE, values) per variance group: each phase with enough values, the rest pooled.
     fn groups(&self) -> Vec<(f64, usize)> {
-        let mut out = Vec::with_capacity(VarGroup::COUNT);
-        let (mut rs, mut rn) = (0.0, 0usize);
-        for g in 0..VarGroup::COUNT {
-            if self.n[g] >= MIN_GROUP_VALUES {
-                out.push((self.sse[g], self.n[g]));
-            } else {
-                rs += self.sse[g];
-                rn += self.n[g];
-            }
-        }
+        let mut out: Vec<(f64, usize)> = (0..VarGroup::COUNT)
+            .filter(|&g| self.n[g] >= MIN_GROUP_VALUES)
+            .map(|g| (self.sse[g], self.n[g]))
+            .collect();
+        let (rs, rn) = self.pooled_small();
         if rn > 0 {
             out.push((rs, rn));
         }
@@ -172,13 +174,7 @@ impl PhaseSse {
     /// gets the pooled mean square of all such phases ([`MIN_GROUP_VALUES`]); never below
     /// [`MSE_FLOOR`]; 0 for a group without values.
     pub fn group_mse(&self) -> [f64; VarGroup::COUNT] {
-        let (mut rs, mut rn) = (0.0, 0usize);
-        for g in 0..VarGroup::COUNT {
-            if self.n[g] < MIN_GROUP_VALUES {
-                rs += self.sse[g];
-                rn += self.n[g];
-            }
-        }
+        let (rs, rn) = self.pooled_small();
         let pooled = (rs / rn.max(1) as f64).max(MSE_FLOOR);
         std::array::from_fn(|g| match self.n[g] {
             0 => 0.0,

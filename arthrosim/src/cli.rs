@@ -162,6 +162,11 @@ pub struct GapArgs {
     /// A force–displacement table (like the cadaver one) instead of an experiment folder.
     #[arg(long, value_name = "FILE.csv", conflicts_with = "experiment")]
     pub force_displacement: Option<PathBuf>,
+    /// Region whose middle protocol site presses the table (`--force-displacement` only).
+    /// The mid body by default, where the cadaver table was measured; another region where
+    /// the scene's mid body cannot hold the press (the study mesh slopes 45–52° there).
+    #[arg(long, value_parser = ["posterior", "mid", "anterior"])]
+    pub site: Option<String>,
     /// A haptic session recording (MCAP) of the same trajectories: adds the rendering gap
     /// (device-rendered vs model force) to the report. Implied when EXPERIMENT_DIR is a
     /// recording.
@@ -185,7 +190,7 @@ pub struct GapArgs {
     pub no_nuisance: bool,
     /// Also write a launch file whose scene carries the verdict as physics (modulus →
     /// modulus_scale, support → support_stiffness, friction → friction, …; see the README).
-    /// A force–displacement table is then fitted in the base scene (mid-body press,
+    /// A force–displacement table is then fitted in the base scene (press at `--site`,
     /// displacement as measured, first row as offset, tissue keys reset), not the study's.
     #[arg(long, value_name = "OUT.toml")]
     pub calibrate: Option<PathBuf>,

@@ -373,6 +373,13 @@ fn gap_command(args: GapArgs) -> Result<i32> {
     };
     // checked before anything is read: a bad flag fails before minutes of replays
     opts.check().context("--dt")?;
+    // (clap's `requires` did not hold against the positional EXPERIMENT_DIR)
+    if let (Some(s), None) = (&args.site, &args.force_displacement) {
+        bail!(
+            "--site {s} chooses where a force–displacement table is pressed: it needs \
+             --force-displacement FILE.csv (an experiment's trials carry their own sites)"
+        );
+    }
     // the session is read first: a bad recording fails before minutes of replays
     let rendering = match &args.session {
         Some(session) => Some(
@@ -393,13 +400,24 @@ fn gap_command(args: GapArgs) -> Result<i32> {
         }
         None => None,
     };
+    let site = match &args.site {
+        Some(s) => {
+            gap::Region::parse(s).ok_or_else(|| anyhow::anyhow!("--site {s}: not a region"))?
+        }
+        None => gap::Region::Mid,
+    };
     let input = match (&args.experiment, &args.force_displacement) {
-        (_, Some(table)) => gap::calibrate::Input::Table(table.clone()),
+        (_, Some(table)) => gap::calibrate::Input::Table {
+            file: table.clone(),
+            site,
+        },
         (Some(dir), None) => gap::calibrate::Input::Path(dir.clone()),
         (None, None) => bail!("give an EXPERIMENT_DIR or --force-displacement FILE.csv"),
     };
     let input_name = match &input {
-        gap::calibrate::Input::Table(p) | gap::calibrate::Input::Path(p) => p.display().to_string(),
+        gap::calibrate::Input::Table { file: p, .. } | gap::calibrate::Input::Path(p) => {
+            p.display().to_string()
+        }
     };
     let (mut report, calibration) = match (calibrate, &input) {
         (Some((out, base)), _) => {
@@ -407,8 +425,8 @@ fn gap_command(args: GapArgs) -> Result<i32> {
                 .with_context(|| format!("diagnosing {input_name}"))?;
             (report, Some((out, cal)))
         }
-        (None, gap::calibrate::Input::Table(table)) => (
-            gap::diagnose_force_displacement(table, &opts)
+        (None, gap::calibrate::Input::Table { file, site }) => (
+            gap::diagnose_force_displacement_at(file, *site, &opts)
                 .with_context(|| format!("diagnosing {input_name}"))?,
             None,
         ),

@@ -152,22 +152,27 @@ fn close(a: f64, b: f64) -> bool {
     (a - b).abs() <= PIN_TOLERANCE * b.abs().max(1e-12)
 }
 
-#[test]
-fn the_default_scene_tissue_keys_come_from_the_cadaver_table() {
-    let Some(table) = cadaver_table() else {
-        return;
-    };
-    let dir = scratch("table");
+/// Runs `gap --force-displacement TABLE --calibrate` with `extra` arguments; returns the
+/// command's output and the written (validated) launch file.
+fn calibrate_table(
+    table: &std::path::Path,
+    name: &str,
+    extra: &[&str],
+) -> (String, launch_config::LaunchFile) {
+    let dir = scratch(name);
     let out = dir.join("calibrated.toml");
-    let o = arthrosim(&[
+    let report = dir.join("report");
+    let mut args = vec![
         "gap",
         "--force-displacement",
         table.to_str().unwrap(),
         "--out",
-        dir.join("report").to_str().unwrap(),
+        report.to_str().unwrap(),
         "--calibrate",
         out.to_str().unwrap(),
-    ]);
+    ];
+    args.extend_from_slice(extra);
+    let o = arthrosim(&args);
     let msg = text(&o);
     assert!(o.status.success(), "{msg}");
     assert!(msg.contains("calibrated launch file"), "{msg}");
@@ -175,44 +180,110 @@ fn the_default_scene_tissue_keys_come_from_the_cadaver_table() {
     let v = arthrosim(&["validate", out.to_str().unwrap()]);
     assert!(v.status.success(), "{}", text(&v));
     let written = launch_config::load(&out).unwrap();
-    let default = launch_config::load_str(
-        launch_config::DEFAULT_LAUNCH,
-        launch_config::DEFAULT_LAUNCH_ORIGIN,
-    )
-    .unwrap();
-    let (m, k, r) = (
-        written.scene.material.modulus_scale,
-        written.scene.meniscus.support_stiffness,
-        written.scene.material.strain_stiffening,
-    );
-    eprintln!("{msg}\ncalibrated: modulus_scale {m}, support_stiffness {k}, strain_stiffening {r}");
-    let d = &default.scene;
-    // The embedded default's tissue keys are this command's output (issue 13, point 2).
+    let header = std::fs::read_to_string(&out).unwrap();
+    // What the written scene renders is the table fit's error, not the diagnosis' held-out
+    // RMSE of its replay (the header promised 0.56 N before).
     assert!(
-        close(m, d.material.modulus_scale)
-            && close(k, d.meniscus.support_stiffness)
-            && close(r, d.material.strain_stiffening),
-        "the default launch file's tissue keys (modulus_scale {}, support_stiffness {}, \
-         strain_stiffening {}) are not what the command produces from the table ({m}, {k}, {r})",
-        d.material.modulus_scale,
-        d.meniscus.support_stiffness,
-        d.material.strain_stiffening
+        msg.contains("table fit: largest error") && header.contains("fitted to the table"),
+        "{msg}\n{header}"
     );
     assert!(
         msg.contains("scene.meniscus.support_stiffness") && msg.contains("% of the table's peak"),
         "the command says what it set and how well the scene meets the table: {msg}"
     );
-    // What the written scene renders is the table fit's error, not the diagnosis' held-out
-    // RMSE of its replay (the header promised 0.56 N before).
-    let header = std::fs::read_to_string(&out).unwrap();
-    assert!(
-        msg.contains("table fit: largest error") && header.contains("fitted to the table"),
-        "{msg}\n{header}"
+    (msg, written)
+}
+
+/// The tissue keys of `shipped` are those of `written` (the command's output), within
+/// [`PIN_TOLERANCE`].
+fn assert_tissue_keys_pinned(
+    written: &launch_config::SceneConfig,
+    shipped: &launch_config::SceneConfig,
+    what: &str,
+) {
+    let (w, d) = (written, shipped);
+    eprintln!(
+        "calibrated: modulus_scale {}, support_stiffness {}, strain_stiffening {}",
+        w.material.modulus_scale, w.meniscus.support_stiffness, w.material.strain_stiffening
     );
+    assert!(
+        close(w.material.modulus_scale, d.material.modulus_scale)
+            && close(w.meniscus.support_stiffness, d.meniscus.support_stiffness)
+            && close(w.material.strain_stiffening, d.material.strain_stiffening),
+        "{what}'s tissue keys (modulus_scale {}, support_stiffness {}, strain_stiffening {}) \
+         are not what the command produces from the table ({}, {}, {})",
+        d.material.modulus_scale,
+        d.meniscus.support_stiffness,
+        d.material.strain_stiffening,
+        w.material.modulus_scale,
+        w.meniscus.support_stiffness,
+        w.material.strain_stiffening
+    );
+}
+
+#[test]
+fn the_default_scene_tissue_keys_come_from_the_cadaver_table() {
+    let Some(table) = cadaver_table() else {
+        return;
+    };
+    let (msg, written) = calibrate_table(&table, "table", &[]);
+    eprintln!("{msg}");
+    let default = launch_config::load_str(
+        launch_config::DEFAULT_LAUNCH,
+        launch_config::DEFAULT_LAUNCH_ORIGIN,
+    )
+    .unwrap();
+    let d = &default.scene;
+    // The embedded default's tissue keys are this command's output (issue 13, point 2).
+    assert_tissue_keys_pinned(&written.scene, d, "the default launch file");
     // everything but the tissue keys is the default launch file's
     let mut same = written.clone();
     same.scene.material.modulus_scale = d.material.modulus_scale;
     same.scene.meniscus.support_stiffness = d.meniscus.support_stiffness;
     same.scene.material.strain_stiffening = d.material.strain_stiffening;
     assert_eq!(same, default);
+}
+
+/// Issue 13: the study scene's calibration option. Its tissue keys are this command's output
+/// on the study mesh, pressed at the posterior site (`--site posterior`), from the shipped
+/// file itself (the calibration resets the tissue keys first, so it is its own base).
+#[test]
+fn the_study_scene_tissue_keys_come_from_the_cadaver_table_at_posterior() {
+    let Some(table) = cadaver_table() else {
+        return;
+    };
+    let shipped = PathBuf::from(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../launch-config/launch/study_lateral_calibrated.toml"
+    ));
+    let (msg, written) = calibrate_table(
+        &table,
+        "study-table",
+        &["--launch", shipped.to_str().unwrap(), "--site", "posterior"],
+    );
+    eprintln!("{msg}");
+    assert!(msg.contains("at the posterior site"), "{msg}");
+    let expected = launch_config::load(&shipped).unwrap();
+    assert_tissue_keys_pinned(
+        &written.scene,
+        &expected.scene,
+        "study_lateral_calibrated.toml",
+    );
+    // --site belongs to a table, and is refused before anything is read
+    let dir = scratch("site-without-table");
+    let o = arthrosim(&[
+        "gap",
+        "/nonexistent/experiment",
+        "--out",
+        dir.join("report").to_str().unwrap(),
+        "--site",
+        "posterior",
+    ]);
+    let msg = text(&o);
+    assert_eq!(o.status.code(), Some(1), "{msg}");
+    assert!(
+        msg.contains("--site posterior") && msg.contains("--force-displacement"),
+        "{msg}"
+    );
+    assert!(!msg.contains("/nonexistent/experiment"), "{msg}");
 }

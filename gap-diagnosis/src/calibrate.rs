@@ -17,7 +17,7 @@ use super::effects::Effect;
 use super::fit::FittedParam;
 use super::model::{replay_checked, ForceModel};
 use super::sim_model::{refined_spec, SimForceModel};
-use super::{GapError, Options, Report};
+use super::{GapError, Options, Region, Report};
 use launch_config::{LaunchFile, SceneConfig};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -431,8 +431,8 @@ pub fn load_base(path: &Path) -> Result<LaunchFile, GapError> {
 pub enum Input {
     /// An experiment folder, a session recording, or a folder holding one.
     Path(PathBuf),
-    /// A force–displacement table (CSV).
-    Table(PathBuf),
+    /// A force–displacement table (CSV), pressed at the middle protocol site of `site`.
+    Table { file: PathBuf, site: Region },
 }
 
 /// Relative spacing of the knots [`refine`] adds either side of a settled fit.
@@ -451,7 +451,7 @@ pub const MAX_REFINE_ROUNDS: usize = 8;
 /// - Session recording: the recorded scene; the base is the recorded launch file unless one
 ///   is given.
 /// - Force–displacement table: the base's scene with [`TISSUE_KEYS`] reset, pressed at the
-///   mid-body site, displacement as measured, first row's force as the offset
+///   middle protocol site of the input's region (the mid body by default), displacement as measured, first row's force as the offset
 ///   ([`super::fd::TableConvention::as_measured`]).
 ///
 /// The diagnosis is the plain one, then [`refine`]d: a re-simulated effect in the verdict is
@@ -465,13 +465,16 @@ pub fn calibrate_input(
 ) -> Result<(Report, Calibration), GapError> {
     let data_dir = super::data_dir();
     let (exp, model, label, base, rendering) = match input {
-        Input::Table(file) => {
+        Input::Table { file, site } => {
             let base = match base {
                 Some(b) => b,
                 None => default_launch()?,
             };
             let scene = neutral_tissue(&base.scene);
-            let conv = super::fd::TableConvention::as_measured(&scene.meniscus.mesh);
+            let conv = super::fd::TableConvention {
+                region: *site,
+                ..super::fd::TableConvention::as_measured(&scene.meniscus.mesh)
+            };
             let model = SimForceModel::from_scene(scene, &data_dir);
             let site = super::fd::mid_site(file, &conv, &model)?;
             let (exp, label) =
@@ -535,32 +538,40 @@ pub fn calibrate_input(
     report.rendering_gap = rendering;
     let mut cal = calibrate_report(&report, &model.scene, &base)?;
     cal.refined = refined;
-    if let Input::Table(file) = input {
-        apply_table_fit(&mut cal, file, &data_dir)?;
+    if let Input::Table { file, site } = input {
+        apply_table_fit(&mut cal, file, *site, &data_dir)?;
     }
     Ok((report, cal))
 }
 
 /// A force–displacement table carries the tissue's normal response alone, and the scene can
 /// render it as physics: the support stiffness and stiffening rate are fitted to the table
-/// by probe curves of the scene itself (`physics_node::tissue_fit`, the mid-body site,
-/// displacement as measured, first row the offset), and replace what the verdict's effects
-/// set for the tissue keys. The diagnosis' `hardening` is a force × exp(rate · depth) fit in
+/// by probe curves of the scene itself (`physics_node::tissue_fit` at `site`, the mid body
+/// unless the user chose another region; displacement as measured, first row the offset),
+/// and replace what the verdict's effects set for the tissue keys. The diagnosis' `hardening` is a force × exp(rate · depth) fit in
 /// the replay, not a scene key; the fit is what makes the written scene reproduce the table.
-fn apply_table_fit(cal: &mut Calibration, file: &Path, data_dir: &Path) -> Result<(), GapError> {
-    use physics_node::probe_curve::{ForceTable, Region};
+fn apply_table_fit(
+    cal: &mut Calibration,
+    file: &Path,
+    site: Region,
+    data_dir: &Path,
+) -> Result<(), GapError> {
+    use physics_node::probe_curve::ForceTable;
     let bad = |msg: String| GapError::Input {
         file: file.to_path_buf(),
         msg,
     };
     let table = ForceTable::load(file).map_err(|e| bad(e.to_string()))?;
     let scene = neutral_tissue(&cal.launch.scene);
-    let fit = physics_node::tissue_fit::fit_table(&scene, data_dir, &table, Region::Mid)
+    let fit = physics_node::tissue_fit::fit_table(&scene, data_dir, &table, site)
         .map_err(|e| bad(format!("fitting the scene's tissue to the table: {e}")))?;
     let from = format!(
-        "probe curves of the scene fitted to the table at the mid site: largest error {:.3} N \
+        "probe curves of the scene fitted to the table at the {} site: largest error {:.3} N \
          = {:.1}% of the table's peak ({} curves)",
-        fit.max_error_n, fit.max_error_percent_of_peak, fit.evaluations
+        site.name(),
+        fit.max_error_n,
+        fit.max_error_percent_of_peak,
+        fit.evaluations
     );
     cal.table_fit = Some(TableFitError {
         max_error_n: fit.max_error_n,

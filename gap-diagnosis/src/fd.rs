@@ -42,10 +42,23 @@ impl Default for TableConvention {
     }
 }
 
-/// Diagnose a force–displacement table with the physics model.
+/// Diagnose a force–displacement table with the physics model (the study's convention, at
+/// the mid-body site).
 pub fn diagnose_force_displacement(file: &Path, opts: &Options) -> Result<Report, GapError> {
+    diagnose_force_displacement_at(file, Region::Mid, opts)
+}
+
+/// Same at the middle protocol site of another region.
+pub fn diagnose_force_displacement_at(
+    file: &Path,
+    region: Region,
+    opts: &Options,
+) -> Result<Report, GapError> {
     let data = super::data_dir();
-    let conv = TableConvention::default();
+    let conv = TableConvention {
+        region,
+        ..TableConvention::default()
+    };
     let mut scene = launch_config::SceneConfig::default();
     scene.meniscus.mesh = conv.mesh.clone();
     let model = SimForceModel::from_scene(scene, &data);

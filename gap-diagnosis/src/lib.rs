@@ -60,7 +60,7 @@ pub use effects::{Candidate, Effect};
 pub use experiment::{
     load_experiment, read_force_displacement, Experiment, ExperimentSpec, Region, Trial,
 };
-pub use fd::diagnose_force_displacement;
+pub use fd::{diagnose_force_displacement, diagnose_force_displacement_at};
 pub use model::{ForceModel, ProbePath, Variant};
 
 use dataset::{BuildOptions, TrialData};

@@ -14,6 +14,7 @@ fn seeds() -> Vec<&'static str> {
     vec![
         launch_config::DEFAULT_LAUNCH,
         include_str!("../launch/study_lateral.toml"),
+        include_str!("../launch/study_lateral_calibrated.toml"),
         include_str!("../launch/replay.toml"),
         include_str!("../launch/remote_viewer.toml"),
     ]

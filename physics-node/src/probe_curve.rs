@@ -10,7 +10,7 @@
 //! depend on the rate (see the `probe_curve` tests).
 
 use crate::error::PhysicsError;
-use crate::geometry::{ProbingSite, REGION_ANTERIOR, REGION_MID, REGION_POSTERIOR};
+use crate::geometry::ProbingSite;
 use crate::sim::Simulation;
 use launch_config::SceneConfig;
 use nalgebra::{Point3, UnitQuaternion, Vector3};
@@ -45,41 +45,15 @@ pub enum ProbeCurveError {
     },
 }
 
-/// The protocol's regions, as probing sites are tagged.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Region {
-    Posterior,
-    Mid,
-    Anterior,
-}
+/// The protocol's regions, as probing sites are tagged (one definition, the wire's).
+pub use msgs::protocol::Region;
 
-impl Region {
-    pub fn parse(s: &str) -> Option<Region> {
-        match s.trim().to_ascii_lowercase().as_str() {
-            "posterior" => Some(Region::Posterior),
-            "mid" | "body" => Some(Region::Mid),
-            "anterior" => Some(Region::Anterior),
-            _ => None,
-        }
-    }
-
-    pub fn code(self) -> u32 {
-        match self {
-            Region::Posterior => REGION_POSTERIOR,
-            Region::Mid => REGION_MID,
-            Region::Anterior => REGION_ANTERIOR,
-        }
-    }
-
-    pub fn name(self) -> &'static str {
-        match self {
-            Region::Posterior => "posterior",
-            Region::Mid => "mid",
-            Region::Anterior => "anterior",
-        }
-    }
-}
+// Probing sites carry the mesh crate's region codes; they are the wire's.
+const _: () = assert!(
+    crate::geometry::REGION_POSTERIOR == Region::Posterior as u32
+        && crate::geometry::REGION_MID == Region::Mid as u32
+        && crate::geometry::REGION_ANTERIOR == Region::Anterior as u32
+);
 
 /// What to press and how far.
 #[derive(Debug, Clone, PartialEq)]

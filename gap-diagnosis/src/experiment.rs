@@ -357,12 +357,13 @@ fn check_probe_model(probe: &ProbeSpec, dir: &Path) -> Result<(), String> {
 pub fn check_mesh(s: &SpecimenSpec, dir: &Path, data_dir: &Path) -> Result<(), String> {
     let m = s.mesh.as_str();
     if let Some(rest) = m.strip_prefix("default:") {
-        let ok = matches!(rest, "lateral" | "medial" | "coarse" | "fine" | "finest")
+        let ok = matches!(rest, "lateral" | "medial")
+            || launch_config::scene::is_mesh_resolution(rest)
             || rest
                 .split_once(':')
                 .map(|(side, lvl)| {
                     matches!(side, "lateral" | "medial")
-                        && matches!(lvl, "coarse" | "fine" | "finest")
+                        && launch_config::scene::is_mesh_resolution(lvl)
                 })
                 .unwrap_or(false);
         if !ok {
@@ -547,4 +548,42 @@ pub fn read_force_displacement(path: &Path) -> Result<ForceDisplacement, GapErro
         displacement_mm: d,
         force_n: f,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn specimen(mesh: &str) -> SpecimenSpec {
+        SpecimenSpec {
+            mesh: mesh.into(),
+            fixed: default_fixed(),
+            transform: None,
+        }
+    }
+
+    /// The gap bench's ~1,400-node specimen (`default:lateral:40x6x4`) was refused as an
+    /// unknown built-in mesh while launch files took it: one rule for both now.
+    #[test]
+    fn chosen_divisions_are_a_specimen_mesh_as_in_launch_files() {
+        let here = Path::new(".");
+        for ok in [
+            "default:lateral:coarse",
+            "default:medial:fine",
+            "default:lateral:40x6x4",
+            "default:44x3x2",
+            "default:lateral",
+        ] {
+            assert!(check_mesh(&specimen(ok), here, here).is_ok(), "{ok}");
+        }
+        for bad in [
+            "default:lateral:40x6",
+            "default:lateral:0x6x4",
+            "default:dorsal:coarse",
+            "default:lateral:coarse:x",
+        ] {
+            let e = check_mesh(&specimen(bad), here, here).unwrap_err();
+            assert!(e.contains(bad), "{bad}: {e}");
+        }
+    }
 }

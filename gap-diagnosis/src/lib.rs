@@ -26,7 +26,7 @@
 //!     print!("{}", r.table());                          // per-case lines + confusion matrix
 //!     if json { println!("{}", serde_json::to_string(&r.summary())?) }  // cases, correct, accuracy, heldout_shrink_mean
 //! arthrosim gap bench [--effect NAME] [--seed S]       // one JSON line with diagnose_s
-//!     println!("{}", gap_diagnosis::selftest::bench("hardening", seed, &gap_diagnosis::Options::default())?);
+//!     println!("{}", gap_diagnosis::selftest::bench("hardening", seed, None, &gap_diagnosis::Options::default())?);
 //! arthrosim gap INPUT … --out REPORT_DIR --calibrate OUT.toml [--launch BASE.toml]
 //!     calibrate::check_out_path(out)?;                  // before the replays
 //!     let (report, cal) = calibrate::calibrate_input(&input, base, &opts)?;

@@ -1,6 +1,6 @@
 //! `gap selftest`: generated cases (each effect alone, some pairs, none) diagnosed blind.
 use super::experiment::load_experiment;
-use super::model::ForceModel;
+use super::model::{ForceModel, Variant};
 use super::reality::{
     stiffness_offset, write_experiment_with, RealitySpec, Site, STIFFNESS_OFFSET,
 };
@@ -329,25 +329,44 @@ pub fn selftest_with(
 
 /// Benchmark: a generated 15-trial experiment (the study protocol) diagnosed end to end with
 /// the physics model; returns the JSON line (`trials`, `diagnose_s`, `generate_s`, `verdict`).
-pub fn bench(effect: &str, seed: u64, opts: &Options) -> Result<serde_json::Value, GapError> {
+///
+/// `mesh`: the specimen (a mesh spec; None: the generated experiments' default, the coarse
+/// parametric mesh). Issue 15's speed target is for a ~1,400-node specimen
+/// (`default:lateral:40x6x4`, 1,435 nodes).
+pub fn bench(
+    effect: &str,
+    seed: u64,
+    mesh: Option<&str>,
+    opts: &Options,
+) -> Result<serde_json::Value, GapError> {
     let root = std::env::temp_dir().join(format!(
         "arthrosim_gap_bench_{}_{}",
         std::process::id(),
         seed
     ));
-    let spec = RealitySpec::from_effects(&[effect], seed)?;
+    let mut spec = RealitySpec::from_effects(&[effect], seed)?;
+    if let Some(m) = mesh {
+        spec.mesh = m.to_string();
+    }
     let t0 = std::time::Instant::now();
     super::reality::write_experiment(&spec, &root.join("exp"), &root.join("truth.json"))?;
     let generate_s = t0.elapsed().as_secs_f64();
     let t1 = std::time::Instant::now();
     let report = super::diagnose_dir(&root.join("exp"), opts)?;
     let diagnose_s = t1.elapsed().as_secs_f64();
+    let data_dir = super::data_dir();
+    let nodes =
+        SimForceModel::for_experiment(&load_experiment(&root.join("exp"), &data_dir)?, &data_dir)?
+            .simulation(&Variant::default(), opts.dt)?
+            .node_count();
     let _ = std::fs::remove_dir_all(&root);
     Ok(serde_json::json!({
         "bench": "gap_diagnose",
         "trials": report.trials,
         "samples": report.samples,
         "threads": rayon::current_num_threads(),
+        "specimen": spec.mesh,
+        "specimen_nodes": nodes,
         "generate_s": generate_s,
         "diagnose_s": diagnose_s,
         "truth": spec.label(),

@@ -17,6 +17,12 @@ pub const RESOLUTIONS: &str = "coarse | fine | finest, or divisions ARCxRADIALxV
 /// beyond what a scene can step; without a bound `400x400x400` would ask for 64 M nodes.
 pub const MAX_DIVISION_NODES: usize = 100_000;
 
+/// Whether `s` is a parametric mesh resolution ([`RESOLUTIONS`]): a named one or chosen
+/// divisions. The one rule for launch files and experiment folders.
+pub fn is_mesh_resolution(s: &str) -> bool {
+    matches!(s, "coarse" | "fine" | "finest") || parse_mesh_divisions(s).is_some()
+}
+
 /// Chosen divisions of the parametric meniscus, `ARCxRADIALxVERTICAL` (arc, radial and
 /// vertical element counts, each ≥ 1, at most [`MAX_DIVISION_NODES`] nodes), as a mesh
 /// spec's resolution (`default:lateral:44x3x2`), for mesh convergence studies: the one

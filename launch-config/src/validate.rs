@@ -598,8 +598,7 @@ fn check_mesh_spec(v: &mut Checks, key: &str, spec: &str) {
         let parts: Vec<&str> = rest.split(':').collect();
         let ok = parts.len() == 2
             && matches!(parts[0], "lateral" | "medial")
-            && (matches!(parts[1], "coarse" | "fine" | "finest")
-                || crate::scene::parse_mesh_divisions(parts[1]).is_some());
+            && crate::scene::is_mesh_resolution(parts[1]);
         if !ok {
             v.push(key, format!("{spec:?} is not a mesh spec; {ALLOWED}"));
         }

@@ -157,8 +157,8 @@ pub struct RefinedTruth {
     /// case (splitting the finer mesh once more is ~7× the nodes again).
     specimen: SimForceModel,
     /// Support stiffness per node of the refined mesh for 1 N/m per node of the specimen's. The
-    /// support is one spring on each held node, and the refined mesh holds about four times as
-    /// many, so the same total support is spread over them.
+    /// support is one spring on each held node, and the refined mesh holds several times as
+    /// many (3.4× on the coarse default mesh), so the same total support is spread over them.
     support_per_node: f64,
     nodes: [usize; 2],
     /// Holds the refined mesh and its held-node list: every replay builds its simulation
@@ -173,6 +173,8 @@ impl Drop for RefinedTruth {
 }
 
 impl RefinedTruth {
+    /// Refines the mesh of `specimen`'s scene and writes it, with its held-node list, into a
+    /// temporary folder of its own.
     pub fn new(specimen: &SimForceModel) -> Result<RefinedTruth, GapError> {
         // a folder of this truth's own: truths of one process may be generated at once
         static MADE: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);

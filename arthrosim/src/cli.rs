@@ -226,8 +226,9 @@ pub enum GapCommand {
         /// Last line: one JSON object (cases, correct, accuracy, heldout_shrink_mean).
         #[arg(long)]
         json: bool,
-        /// The old self-consistent mode: no systematic stiffness offset in the truth (by
-        /// default every case has one, uniform within ±15%). A fast check of the statistics.
+        /// The old self-consistent mode: the truth is the replay model itself (by default it
+        /// is the specimen mesh refined once, solved directly, with a systematic stiffness
+        /// offset uniform within ±15% in every case). A fast check of the statistics.
         #[arg(long)]
         exact: bool,
     },
@@ -248,8 +249,9 @@ pub struct RealityArgs {
     /// Truth file (must be outside the experiment folder).
     #[arg(long, value_name = "FILE")]
     pub truth: PathBuf,
-    /// No systematic stiffness offset (by default the truth's modulus and support are scaled
-    /// by a factor drawn from the seed within ±15%; the truth file records it).
+    /// The truth is the replay model itself (by default it is the specimen mesh refined once,
+    /// solved directly, its modulus and support scaled by a factor drawn from the seed within
+    /// ±15%; the truth file records both).
     #[arg(long)]
     pub exact: bool,
 }

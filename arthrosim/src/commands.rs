@@ -342,20 +342,18 @@ fn gap_command(args: GapArgs) -> Result<i32> {
                 gap::selftest::MAX_SELFTEST_CASES
             );
         }
-        let opts = gap::selftest::SelftestOptions {
+        let mut opts = gap::selftest::SelftestOptions {
             keep_dir: keep,
             verbose,
             diagnose: gap::Options {
                 progress: !json,
                 ..gap::Options::default()
             },
-            stiffness_offset: if exact {
-                0.0
-            } else {
-                gap::reality::STIFFNESS_OFFSET
-            },
             ..gap::selftest::SelftestOptions::default()
         };
+        if exact {
+            opts = opts.exact();
+        }
         let result = gap::selftest::selftest(cases, seed, &opts)?;
         print!("{}", result.table());
         if json {
@@ -518,11 +516,12 @@ fn reality(args: RealityArgs) -> Result<i32> {
     let truth = gap::reality::write_experiment(&spec, &args.out, &args.truth)
         .with_context(|| format!("writing the experiment to {}", args.out.display()))?;
     println!(
-        "experiment {} written ({} trials); truth ({}, stiffness ×{:.3}) in {}",
+        "experiment {} written ({} trials); truth ({}, stiffness ×{:.3}; {}) in {}",
         args.out.display(),
         spec.probings_per_region * spec.regions.len(),
         truth.label,
         spec.stiffness_scale,
+        truth.model,
         args.truth.display()
     );
     Ok(0)

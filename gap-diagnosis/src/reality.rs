@@ -1,14 +1,16 @@
 //! A digital reality: experiment folders generated from a higher-fidelity truth with chosen
 //! effects injected, the truth written to a separate file outside the folder.
 //!
-//! The truth replays the study protocol (five probings in each of three regions: approach,
-//! loading, hold, a tangential slide on two of the five, unloading) through the physics
-//! model (step `truth_dt`, default the diagnosis' 0.02 s: the contact force of the current
-//! physics depends strongly on the step, which would swamp every injected effect); re-simulated effects are
-//! simulated exactly (friction μ, the tilted specimen, elastic support, the fine mesh,
-//! neo-Hookean material for hardening), the rest applied to the truth's own force
-//! (stiffening, QLV, device bias and tool inertia, sensor delay and low-pass); then sensor
-//! noise and ~38 Hz irregular sampling.
+//! The truth replays the study protocol (five probings in each of three regions, pressed
+//! 0.5–1.2 mm: approach, loading, hold, a tangential slide on two of the five, unloading)
+//! through the physics model on another discretisation of the specimen than the replay's (its
+//! mesh refined once, [`TruthMesh::RefinedOnce`]; step `truth_dt`, default the diagnosis' 0.02 s:
+//! the contact force of the current physics depends strongly on the step, which would swamp
+//! every injected effect), with a systematic stiffness offset drawn per case
+//! ([`stiffness_offset`]); re-simulated effects are simulated exactly (friction μ, the tilted
+//! specimen, elastic support, the fine mesh, neo-Hookean material for hardening), the rest
+//! applied to the truth's own force (stiffening, QLV, device bias and tool inertia, sensor delay
+//! and low-pass); then sensor noise and ~38 Hz irregular sampling.
 use super::dataset::prepare;
 use super::effects::{predict, Candidate, Effect};
 use super::experiment::{
@@ -17,7 +19,7 @@ use super::experiment::{
 };
 use super::model::{replay, ForceModel, ProbePath, Variant};
 use super::signal::{add, interp, nlerp, norm, scale, sub};
-use super::sim_model::SimForceModel;
+use super::sim_model::{RefinedTruth, SimForceModel};
 use super::GapError;
 use launch_config::SceneConfig;
 use msgs::Pose;
@@ -88,7 +90,43 @@ pub struct RealitySpec {
     /// the exact mode ([`RealitySpec::exact`]) and in truth files written before it existed.
     #[serde(default = "unit_scale")]
     pub stiffness_scale: f64,
+    /// How the truth discretises the specimen ([`write_experiment`] builds its truth model
+    /// from it; [`write_experiment_with`] takes the caller's model and records this as said).
+    /// Truth files written before it existed were [`TruthMesh::Replay`].
+    #[serde(default)]
+    pub truth_mesh: TruthMesh,
 }
+
+/// The truth's discretisation of the specimen.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TruthMesh {
+    /// The replay's own mesh and solve: the truth is the diagnosis' model (the exact mode).
+    #[default]
+    Replay,
+    /// The specimen mesh refined once, solved directly ([`RefinedTruth`]): another
+    /// discretisation and a contact surface with four times the facets, as an independent FE
+    /// code of the same specimen would differ from the replay.
+    RefinedOnce,
+}
+
+impl TruthMesh {
+    /// The truth model of the specimen as `replay` discretises it.
+    pub fn model(self, replay: &SimForceModel) -> Result<Box<dyn ForceModel>, GapError> {
+        Ok(match self {
+            TruthMesh::Replay => Box::new(replay.clone()),
+            TruthMesh::RefinedOnce => Box::new(RefinedTruth::new(replay)?),
+        })
+    }
+}
+
+/// Range of the press depths, m: the study's protocol presses 0.5–1.2 mm (what the hidden
+/// cases of issue 15 follow). Each region's five probings are stratified over it.
+pub const STUDY_PRESS_DEPTHS: [f64; 2] = [0.5e-3, 1.2e-3];
+
+/// Stratum of probing `j % 5` within [`STUDY_PRESS_DEPTHS`] (fifths, shallow to deep): the
+/// sliding probings (2 and 4) press mid-range, as the study's slides do.
+const PRESS_STRATUM: [usize; 5] = [0, 2, 4, 1, 3];
 
 fn unit_scale() -> f64 {
     1.0
@@ -150,14 +188,16 @@ impl RealitySpec {
             mesh: "default:lateral:coarse".into(),
             truth_dt: 0.02,
             stiffness_scale: stiffness_offset(seed, STIFFNESS_OFFSET),
+            truth_mesh: TruthMesh::RefinedOnce,
         })
     }
 
     /// The self-consistent mode: no stiffness offset, the truth is the replay model itself
-    /// with the effects (a fast check of the statistics, not of the diagnosis on data it was
-    /// not built with).
+    /// (its mesh and solve) with the effects (a fast check of the statistics, not of the
+    /// diagnosis on data it was not built with).
     pub fn exact(mut self) -> RealitySpec {
         self.stiffness_scale = 1.0;
+        self.truth_mesh = TruthMesh::Replay;
         self
     }
 
@@ -377,7 +417,8 @@ fn truth_variant(spec: &RealitySpec) -> Variant {
     v
 }
 
-/// Generate the experiment folder `dir` (experiment.toml + 15 CSVs) and the truth file.
+/// Generate the experiment folder `dir` (experiment.toml + 15 CSVs) and the truth file, the
+/// truth discretised as `spec.truth_mesh` says.
 pub fn write_experiment(
     spec: &RealitySpec,
     dir: &Path,
@@ -387,8 +428,11 @@ pub fn write_experiment(
     let mut scene = SceneConfig::default();
     scene.meniscus.mesh = spec.mesh.clone();
     let model = SimForceModel::from_scene(scene, &data_dir);
+    // the probing sites are the specimen's as the replay meshes it (the refined mesh has the
+    // same surface)
     let sites = model.sites()?;
-    write_experiment_with(spec, &model, &sites, dir, truth_path)
+    let truth = spec.truth_mesh.model(&model)?;
+    write_experiment_with(spec, truth.as_ref(), &sites, dir, truth_path)
 }
 
 /// A probing site: region, surface point and outward normal (world, m).
@@ -433,9 +477,9 @@ pub fn write_experiment_with(
         for j in 0..spec.probings_per_region {
             let s = rs[j % rs.len()];
             let (n, p) = (s.normal, s.point);
-            // Indentations of 1–1.8 mm (the cadaver table spans 0–5 mm; forces on the coarse
-            // default mesh are then tens of newtons, see physics-node's force–depth test).
-            let depth = [1.0e-3, 1.4e-3, 1.8e-3, 1.2e-3, 1.6e-3][j % 5] * rng.range(0.9, 1.1);
+            // The study's indentations, one in each fifth of its range per region.
+            let [lo, hi] = STUDY_PRESS_DEPTHS;
+            let depth = lo + (hi - lo) * (PRESS_STRATUM[j % 5] as f64 + rng.uniform()) / 5.0;
             // slide on probings 2 and 4: along the surface, perpendicular to n
             let slide = if j % 5 == 1 || j % 5 == 3 {
                 let a = if n[2].abs() < 0.9 {
@@ -583,6 +627,81 @@ mod strength_tests {
             "support=1500",
         ] {
             assert!(RealitySpec::from_effects(&[good], 1).is_ok(), "{good}");
+        }
+    }
+}
+
+#[cfg(test)]
+mod protocol_tests {
+    use super::*;
+    use crate::experiment::load_experiment;
+
+    /// A truth that never touches: the protocol's poses are what is tested.
+    struct NoContact;
+    impl ForceModel for NoContact {
+        fn replay_untilted(&self, _: &Variant, p: &ProbePath) -> Result<Vec<[f64; 3]>, GapError> {
+            Ok(vec![[0.0; 3]; p.poses.len()])
+        }
+        fn describe(&self) -> String {
+            "no contact".into()
+        }
+    }
+
+    /// The generated probings press the study's depths (the hidden cases of issue 15 press
+    /// 0.5–1.2 mm; the generator pressed 1.0–1.8 mm), each region once in every fifth of the
+    /// range.
+    #[test]
+    fn probings_press_the_study_depths() {
+        let sites: Vec<Site> = Region::ALL
+            .into_iter()
+            .enumerate()
+            .map(|(i, region)| Site {
+                region,
+                point: [0.01 * i as f64, 0.0, 0.005],
+                normal: [0.0, 0.0, 1.0],
+            })
+            .collect();
+        let dir = std::env::temp_dir().join(format!("reality_depths_{}", std::process::id()));
+        let spec = RealitySpec::from_effects(&["none"], 4).unwrap();
+        write_experiment_with(
+            &spec,
+            &NoContact,
+            &sites,
+            &dir.join("exp"),
+            &dir.join("truth.json"),
+        )
+        .unwrap();
+        let exp = load_experiment(&dir.join("exp"), &crate::data_dir()).unwrap();
+        let _ = std::fs::remove_dir_all(&dir);
+        let standoff = SceneConfig::default().probe.tip_radius;
+        let [lo, hi] = STUDY_PRESS_DEPTHS;
+        let fifth = (hi - lo) / 5.0;
+        for site in &sites {
+            // the deepest sample of a probing lies in its 1 s hold (~38 samples)
+            let mut depths: Vec<f64> = exp
+                .trials
+                .iter()
+                .filter(|t| t.region == Some(site.region))
+                .map(|t| {
+                    t.pose
+                        .iter()
+                        .map(|p| standoff - (p.position[2] - site.point[2]))
+                        .fold(f64::MIN, f64::max)
+                })
+                .collect();
+            assert_eq!(depths.len(), 5, "{:?}", site.region);
+            depths.sort_by(f64::total_cmp);
+            for (k, d) in depths.iter().enumerate() {
+                let stratum = lo + k as f64 * fifth - 1e-12..=lo + (k + 1) as f64 * fifth + 1e-12;
+                assert!(
+                    stratum.contains(d),
+                    "{:?}, press {k}: {:.4} mm outside {:.3}–{:.3} mm",
+                    site.region,
+                    d * 1e3,
+                    stratum.start() * 1e3,
+                    stratum.end() * 1e3
+                );
+            }
         }
     }
 }

@@ -2,7 +2,7 @@
 use super::experiment::load_experiment;
 use super::model::{ForceModel, Variant};
 use super::reality::{
-    stiffness_offset, write_experiment_with, RealitySpec, Site, STIFFNESS_OFFSET,
+    stiffness_offset, write_experiment_with, RealitySpec, Site, TruthMesh, STIFFNESS_OFFSET,
 };
 use super::sim_model::SimForceModel;
 use super::{diagnose, GapError, Options};
@@ -44,6 +44,23 @@ pub struct SelftestOptions {
     /// no model is the specimen. 0 is the old self-consistent mode (the truth is the replay
     /// model itself), kept as a fast check of the statistics.
     pub stiffness_offset: f64,
+    /// How the truth discretises the specimen: by default its mesh refined once
+    /// ([`TruthMesh::RefinedOnce`], what [`selftest`] builds); [`TruthMesh::Replay`] with no
+    /// offset is the exact mode. [`selftest_with`] takes the caller's truth model and records
+    /// this in each case's truth file.
+    pub truth_mesh: TruthMesh,
+}
+
+impl SelftestOptions {
+    /// The old self-consistent mode: the truth is the replay model itself, no stiffness
+    /// offset (a fast check of the statistics).
+    pub fn exact(self) -> SelftestOptions {
+        SelftestOptions {
+            stiffness_offset: 0.0,
+            truth_mesh: TruthMesh::Replay,
+            ..self
+        }
+    }
 }
 
 impl Default for SelftestOptions {
@@ -56,6 +73,7 @@ impl Default for SelftestOptions {
             verbose: false,
             cases: None,
             stiffness_offset: STIFFNESS_OFFSET,
+            truth_mesh: TruthMesh::RefinedOnce,
         }
     }
 }
@@ -90,6 +108,9 @@ pub struct SelftestResult {
     /// [`SelftestOptions::stiffness_offset`] of the run (0: the exact mode).
     #[serde(default)]
     pub stiffness_offset: f64,
+    /// [`SelftestOptions::truth_mesh`] of the run.
+    #[serde(default)]
+    pub truth_mesh: TruthMesh,
     pub cases: Vec<CaseResult>,
 }
 
@@ -104,6 +125,9 @@ pub struct SelftestSummary {
     /// [`SelftestOptions::stiffness_offset`] of the run (0: the exact mode).
     #[serde(default)]
     pub stiffness_offset: f64,
+    /// [`SelftestOptions::truth_mesh`] of the run.
+    #[serde(default)]
+    pub truth_mesh: TruthMesh,
     pub elapsed_s: f64,
 }
 
@@ -119,6 +143,7 @@ impl SelftestResult {
                 / eff.len().max(1) as f64,
             seed: self.seed,
             stiffness_offset: self.stiffness_offset,
+            truth_mesh: self.truth_mesh,
             elapsed_s: self.cases.iter().map(|c| c.elapsed_s).sum(),
         }
     }
@@ -176,12 +201,17 @@ impl SelftestResult {
         let sm = self.summary();
         let _ = writeln!(
             s,
-            "\n{}/{} correct ({:.0}%), mean held-out shrink {:.1}%, stiffness offset ±{:.0}%",
+            "\n{}/{} correct ({:.0}%), mean held-out shrink {:.1}%, stiffness offset ±{:.0}%, \
+             truth mesh {}",
             sm.correct,
             sm.cases,
             100.0 * sm.accuracy,
             100.0 * sm.heldout_shrink_mean,
-            100.0 * sm.stiffness_offset
+            100.0 * sm.stiffness_offset,
+            match sm.truth_mesh {
+                TruthMesh::Replay => "the replay's",
+                TruthMesh::RefinedOnce => "refined once",
+            }
         );
         s
     }
@@ -196,7 +226,8 @@ pub fn case_labels(n: usize, opts: &SelftestOptions) -> Vec<String> {
     (0..n).map(|i| cycle[i % cycle.len()].clone()).collect()
 }
 
-/// The shipped self-test: truth and diagnosis through the physics model.
+/// The shipped self-test: truth and diagnosis through the physics model, the truth on the
+/// mesh `opts.truth_mesh` says.
 pub fn selftest(
     cases: usize,
     seed: u64,
@@ -207,9 +238,11 @@ pub fn selftest(
     scene.meniscus.mesh = "default:lateral:coarse".into();
     let model = SimForceModel::from_scene(scene, &data);
     let sites = model.sites()?;
-    selftest_with(cases, seed, opts, &model, &sites, &|exp| {
+    let model_for = |exp: &super::Experiment| {
         SimForceModel::for_experiment(exp, &data).map(|m| Box::new(m) as Box<dyn ForceModel>)
-    })
+    };
+    let truth = opts.truth_mesh.model(&model)?;
+    selftest_with(cases, seed, opts, truth.as_ref(), &sites, &model_for)
 }
 
 type ModelFor<'a> = dyn Fn(&super::Experiment) -> Result<Box<dyn ForceModel>, GapError> + 'a;
@@ -258,6 +291,7 @@ pub fn selftest_with(
         let case_seed = seed.wrapping_mul(1_000_003).wrapping_add(i as u64);
         let mut spec = RealitySpec::from_effects(&effects, case_seed)?;
         spec.stiffness_scale = stiffness_offset(case_seed, opts.stiffness_offset);
+        spec.truth_mesh = opts.truth_mesh;
         spec.probings_per_region = opts.probings_per_region;
         spec.noise_sigma = opts.noise_sigma;
         let dir = root.join(format!("case{i:03}"));
@@ -323,6 +357,7 @@ pub fn selftest_with(
     Ok(SelftestResult {
         seed,
         stiffness_offset: opts.stiffness_offset,
+        truth_mesh: opts.truth_mesh,
         cases: out,
     })
 }

@@ -2,7 +2,9 @@
 use super::experiment::Experiment;
 use super::model::{ForceModel, ProbePath, Replayed, Variant};
 use super::GapError;
+use launch_config::scene::OfflineSolver;
 use launch_config::SceneConfig;
+use physics_node::fem::test_meshes::write_refined_once;
 use physics_node::sim::Simulation;
 use std::path::{Path, PathBuf};
 
@@ -137,6 +139,121 @@ impl SimForceModel {
     pub fn simulation(&self, v: &Variant, dt: f64) -> Result<Simulation, GapError> {
         Simulation::new(&self.scene_for(v, dt)?, &self.data_dir)
             .map_err(|e| GapError::Sim(e.to_string()))
+    }
+}
+
+/// The truth of a generated experiment on another discretisation of the specimen than the
+/// replay's (issue 15: the hidden cases come from an independent FE code of the same mesh): the
+/// specimen mesh refined once (every tet split into eight at its edge midpoints,
+/// [`physics_node::fem::test_meshes::refine_once`]; a midpoint held where both ends of its edge
+/// are), so four times the contact facets under the probe, solved directly every step. Its
+/// surface is the specimen's (the midpoints lie on its facets), so the probing sites and the
+/// protocol are the same. The mesh files live in a folder of its own, removed when it is
+/// dropped.
+#[derive(Debug)]
+pub struct RefinedTruth {
+    refined: SimForceModel,
+    /// The specimen as the replay discretises it: its `fine_mesh` is the truth of a `mesh`
+    /// case (splitting the finer mesh once more is ~7× the nodes again).
+    specimen: SimForceModel,
+    /// Support stiffness per node of the refined mesh for 1 N/m per node of the specimen's. The
+    /// support is one spring on each held node, and the refined mesh holds several times as
+    /// many (3.4× on the coarse default mesh), so the same total support is spread over them.
+    support_per_node: f64,
+    nodes: [usize; 2],
+    /// Holds the refined mesh and its held-node list: every replay builds its simulation
+    /// from the files.
+    dir: PathBuf,
+}
+
+impl Drop for RefinedTruth {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}
+
+impl RefinedTruth {
+    /// Refines the mesh of `specimen`'s scene and writes it, with its held-node list, into a
+    /// temporary folder of its own.
+    pub fn new(specimen: &SimForceModel) -> Result<RefinedTruth, GapError> {
+        // a folder of this truth's own: truths of one process may be generated at once
+        static MADE: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+        let dir = std::env::temp_dir().join(format!(
+            "arthrosim_truth_mesh_{}_{}",
+            std::process::id(),
+            MADE.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
+        ));
+        let remove = |e: GapError| {
+            let _ = std::fs::remove_dir_all(&dir);
+            e
+        };
+        let load = |m: &launch_config::scene::MeniscusConfig| {
+            physics_node::mesh::load_scene_mesh(m, &specimen.data_dir)
+                .map_err(|e| GapError::Sim(format!("specimen {}: {e}", m.mesh)))
+        };
+        let loaded = load(&specimen.scene.meniscus)?;
+        let (_, msh, list) = write_refined_once(&loaded.mesh, &loaded.fixed_nodes, &dir)
+            .map_err(|e| remove(GapError::Io(dir.clone(), e)))?;
+        let mut scene = specimen.scene.clone();
+        scene.meniscus.mesh = msh.display().to_string();
+        scene.meniscus.fixed = if loaded.fixed_nodes.is_empty() {
+            "none".into()
+        } else {
+            list.display().to_string()
+        };
+        // the refined nodes are written in the world frame, where the specimen's transform
+        // already put them
+        scene.meniscus.transform = Default::default();
+        scene.solver.offline = OfflineSolver::Direct;
+        let fine = load(&scene.meniscus).map_err(remove)?;
+        let support_per_node = if fine.fixed_nodes.is_empty() {
+            1.0
+        } else {
+            loaded.fixed_nodes.len() as f64 / fine.fixed_nodes.len() as f64
+        };
+        scene.meniscus.support_stiffness *= support_per_node;
+        // a mesh file has no finer spec: a `mesh` case goes to the specimen's
+        let refined = SimForceModel::from_scene(scene, &specimen.data_dir);
+        Ok(RefinedTruth {
+            refined,
+            specimen: specimen.clone(),
+            support_per_node,
+            nodes: [loaded.mesh.nodes.len(), fine.mesh.nodes.len()],
+            dir,
+        })
+    }
+}
+
+impl ForceModel for RefinedTruth {
+    fn replay_untilted(&self, v: &Variant, path: &ProbePath) -> Result<Vec<[f64; 3]>, GapError> {
+        self.replay_untilted_checked(v, path).map(|r| r.forces)
+    }
+    fn replay_untilted_checked(&self, v: &Variant, path: &ProbePath) -> Result<Replayed, GapError> {
+        if v.fine_mesh {
+            return self.specimen.replay_untilted_checked(v, path);
+        }
+        let v = Variant {
+            support_stiffness: v.support_stiffness * self.support_per_node,
+            ..v.clone()
+        };
+        self.refined.replay_untilted_checked(&v, path)
+    }
+    fn describe(&self) -> String {
+        format!(
+            "{} refined once ({} nodes from {}; support ×{:.3} per node), direct solve; \
+             `mesh`: {}",
+            self.specimen.scene.meniscus.mesh,
+            self.nodes[1],
+            self.nodes[0],
+            self.support_per_node,
+            self.specimen
+                .fine_mesh
+                .as_deref()
+                .unwrap_or("no finer mesh")
+        )
+    }
+    fn has_refinement(&self) -> bool {
+        self.specimen.has_refinement()
     }
 }
 

@@ -1,0 +1,109 @@
+//! The self-test as issue 15 (point 4) asks for it: every case's truth differs from the replay
+//! as an independent FE code of the same specimen would. The truth is the specimen mesh
+//! refined once (four times the contact facets, a direct solve; `RefinedTruth`), its
+//! modulus and support scaled by a stiffness offset drawn within ±15%, pressed at the study's
+//! 0.5–1.2 mm; the diagnosis replays the coarse mesh as it would a real experiment. This test
+//! reports what the diagnosis reaches on such data (the confusion matrix is printed) and
+//! fails when it gets worse; the reached numbers are in the README ("A self-test on another
+//! discretisation").
+//!
+//! CI-sized: five cases of seed 1 (no effect, three single effects, one pair), two probings
+//! per region (one pressed, one pressed and slid), the default diagnosis.
+use gap_diagnosis::model::{replay, ForceModel, Variant};
+use gap_diagnosis::reality::{protocol_path, TruthMesh, STUDY_PRESS_DEPTHS};
+use gap_diagnosis::selftest::{selftest, SelftestOptions};
+use gap_diagnosis::sim_model::RefinedTruth;
+use gap_diagnosis::{Region, SimForceModel};
+
+/// The cases, chosen before any was run: no effect, the three the hidden cases of issue 15
+/// missed or confused (an offset read as `support` or `modulus`, friction never found), and a
+/// pair.
+const CASES: [&str; 5] = ["none", "modulus", "friction", "support", "modulus+sensor"];
+
+/// What the diagnosis reaches on these cases (README): 1 of 5 right, mean held-out shrink of
+/// its verdicts 66.2%.
+const CORRECT_REACHED: usize = 1;
+const SHRINK_REACHED: f64 = 0.6;
+
+/// The refined truth's mean normal force over the replay's, no effect: measured ×0.411 (×0.363,
+/// ×0.452, ×0.405 by region), held to ±10%.
+const RATIO_REACHED: [f64; 2] = [0.37, 0.45];
+
+#[test]
+fn selftest_on_a_refined_truth() {
+    let opts = SelftestOptions {
+        probings_per_region: 2,
+        verbose: true,
+        cases: Some(CASES.iter().map(|c| c.to_string()).collect()),
+        ..Default::default()
+    };
+    assert_eq!(opts.truth_mesh, TruthMesh::RefinedOnce, "the default truth");
+    let start = std::time::Instant::now();
+    let r = selftest(CASES.len(), 1, &opts).unwrap();
+    eprintln!("{}", r.table());
+    eprintln!("{:.0} s", start.elapsed().as_secs_f64());
+    let s = r.summary();
+    assert_eq!(s.truth_mesh, TruthMesh::RefinedOnce);
+    assert!(
+        s.correct >= CORRECT_REACHED,
+        "{} of {} right (reached {CORRECT_REACHED})",
+        s.correct,
+        s.cases
+    );
+    assert!(
+        s.heldout_shrink_mean >= SHRINK_REACHED,
+        "mean held-out shrink {:.3} (reached 0.662)",
+        s.heldout_shrink_mean
+    );
+}
+
+/// How far the refined truth is from the replay with no effect and no offset: the mean normal
+/// force of one probing per region at the study's depths (shallowest, middle, deepest), the
+/// coarse mesh as the diagnosis replays it against the same specimen refined once. This is
+/// the floor every case of the self-test above stands on.
+#[test]
+fn refined_truth_against_the_replay() {
+    let data = gap_diagnosis::data_dir();
+    let mut scene = launch_config::SceneConfig::default();
+    scene.meniscus.mesh = "default:lateral:coarse".into();
+    let replay_model = SimForceModel::from_scene(scene.clone(), &data);
+    let truth = RefinedTruth::new(&replay_model).unwrap();
+    let sites = replay_model.sites().unwrap();
+    let [lo, hi] = STUDY_PRESS_DEPTHS;
+    let (mut sum_replay, mut sum_truth) = (0.0, 0.0);
+    for (region, depth) in [
+        (Region::Posterior, lo),
+        (Region::Mid, 0.5 * (lo + hi)),
+        (Region::Anterior, hi),
+    ] {
+        let site = sites.iter().find(|s| s.region == region).unwrap();
+        let n = site.normal;
+        let path = protocol_path(site.point, n, depth, scene.probe.tip_radius, None, 0.02);
+        let normal_mean = |f: Vec<[f64; 3]>| {
+            f.iter()
+                .map(|v| v[0] * n[0] + v[1] * n[1] + v[2] * n[2])
+                .sum::<f64>()
+                / f.len() as f64
+        };
+        let fr = normal_mean(replay(&replay_model, &Variant::default(), &path).unwrap());
+        let ft = normal_mean(replay(&truth, &Variant::default(), &path).unwrap());
+        eprintln!(
+            "{:9} {:.2} mm: mean normal force {fr:.3} N (replay) vs {ft:.3} N (refined truth), \
+             ×{:.3}",
+            region.name(),
+            depth * 1e3,
+            ft / fr
+        );
+        assert!(ft > 0.05, "{}: no contact in the truth", region.name());
+        sum_replay += fr;
+        sum_truth += ft;
+    }
+    let ratio = sum_truth / sum_replay;
+    eprintln!("{}: truth / replay ×{ratio:.3}", truth.describe());
+    assert!(
+        (RATIO_REACHED[0]..=RATIO_REACHED[1]).contains(&ratio),
+        "the refined truth's force is ×{ratio:.3} the replay's (measured ×{:.3}…×{:.3})",
+        RATIO_REACHED[0],
+        RATIO_REACHED[1]
+    );
+}

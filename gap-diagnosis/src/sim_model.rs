@@ -265,6 +265,7 @@ pub fn no_effect_force_ratio(
 ) -> Result<f64, GapError> {
     use super::experiment::Region;
     use super::reality::{protocol_path, STUDY_PRESS_DEPTHS};
+    use super::signal::dot;
     let sites = replay.sites()?;
     let [lo, hi] = STUDY_PRESS_DEPTHS;
     let (mut sum_replay, mut sum_truth) = (0.0, 0.0);
@@ -285,11 +286,7 @@ pub fn no_effect_force_ratio(
             None,
             0.02,
         );
-        let normal_sum = |f: Vec<[f64; 3]>| {
-            f.iter()
-                .map(|v| v[0] * n[0] + v[1] * n[1] + v[2] * n[2])
-                .sum::<f64>()
-        };
+        let normal_sum = |f: Vec<[f64; 3]>| f.iter().map(|&v| dot(v, n)).sum::<f64>();
         sum_replay += normal_sum(super::model::replay(replay, &Variant::default(), &path)?);
         sum_truth += normal_sum(super::model::replay(truth, &Variant::default(), &path)?);
     }

@@ -12,8 +12,14 @@ use launch_config::scene::OfflineSolver;
 use launch_config::SceneConfig;
 use physics_node::fem::test_meshes::write_refined_once;
 
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+use gap_diagnosis::signal::dot;
+
+/// The study's lateral mesh probed with the ball tip, as the floor tests replay it.
+fn study_ball_scene() -> SceneConfig {
+    let mut scene = SceneConfig::default();
+    scene.meniscus.mesh = "study:lateral".into();
+    scene.probe.model = "sphere".into();
+    scene
 }
 
 /// Agreement of one trial: mean normal force of each, and the RMSE of the force vector over
@@ -132,9 +138,7 @@ fn replay_model_against_the_refined_study_mesh() {
     let Some(data) = physics_node::fem::test_meshes::study_data("gap_floor") else {
         return;
     };
-    let mut scene = SceneConfig::default();
-    scene.meniscus.mesh = "study:lateral".into();
-    scene.probe.model = "sphere".into();
+    let scene = study_ball_scene();
     // the replay model as the diagnosis runs it (default offline solve)
     assert_eq!(scene.solver.offline, OfflineSolver::Cg);
     let model = SimForceModel::from_scene(scene.clone(), &data);
@@ -191,9 +195,7 @@ fn refined_once_against_refined_twice() {
     let Some(data) = physics_node::fem::test_meshes::study_data("gap_floor") else {
         return;
     };
-    let mut scene = SceneConfig::default();
-    scene.meniscus.mesh = "study:lateral".into();
-    scene.probe.model = "sphere".into();
+    let scene = study_ball_scene();
     let loaded = physics_node::mesh::load_scene_mesh(&scene.meniscus, &data).unwrap();
     let dir = std::env::temp_dir().join(format!("gap_floor_twice_{}", std::process::id()));
     let on = |msh: &std::path::Path, list: &std::path::Path| {

@@ -12,6 +12,7 @@
 use gap_diagnosis::model::{replay, ForceModel, Variant};
 use gap_diagnosis::reality::{protocol_path, TruthMesh, STUDY_PRESS_DEPTHS};
 use gap_diagnosis::selftest::{selftest, SelftestOptions};
+use gap_diagnosis::signal::dot;
 use gap_diagnosis::sim_model::{no_effect_force_ratio, RefinedTruth};
 use gap_diagnosis::{Region, SimForceModel};
 
@@ -103,12 +104,7 @@ fn refined_truth_against_the_replay() {
         None,
         0.02,
     );
-    let mean = |f: Vec<[f64; 3]>| {
-        f.iter()
-            .map(|v| v[0] * n[0] + v[1] * n[1] + v[2] * n[2])
-            .sum::<f64>()
-            / f.len() as f64
-    };
+    let mean = |f: Vec<[f64; 3]>| f.iter().map(|&v| dot(v, n)).sum::<f64>() / f.len() as f64;
     let fr = mean(replay(&replay_model, &Variant::default(), &path).unwrap());
     let ft = mean(replay(&truth, &Variant::default(), &path).unwrap());
     eprintln!(

@@ -185,17 +185,42 @@ fn touch_renders_the_contact_force_through_libhd_and_leaves_it_at_zero() {
     assert!(steady.len() > 500, "{} steady writes", steady.len());
     // One steady value for the whole window, within the play of k·depth in series with the
     // coupling.
-    let expect = steady[0][1];
+    // (A fade on a late frame only lowers it, so the steady value is the largest.)
+    let expect = steady
+        .iter()
+        .map(|f| f[1])
+        .fold(f64::NEG_INFINITY, f64::max);
     assert!(
         expect >= felt_after_play() - 1e-6 && expect <= felt() + 1e-6,
         "steady force {expect} N, expected {} … {} N",
         felt_after_play(),
         felt()
     );
+    // Every write is that value, except where the stand-in physics was late (a starved
+    // machine: CI saw a 22 ms gap) and the node faded the force by design. A fade only ever
+    // lowers the force along the same axis, is flagged on the node's states, and stays rare.
+    let mut faded = 0;
     for f in &steady {
         assert!(
-            f[0].abs() < 1e-9 && (f[1] - expect).abs() < 1e-6 && f[2].abs() < 1e-9,
-            "device force {f:?}, expected (0, {expect}, 0)"
+            f[0].abs() < 1e-9 && f[2].abs() < 1e-9 && f[1] >= -1e-9 && f[1] <= expect + 1e-6,
+            "device force {f:?}, expected (0, {expect}, 0) or a fade of it"
+        );
+        faded += usize::from((f[1] - expect).abs() >= 1e-6);
+    }
+    if faded > 0 {
+        let stale = w
+            .seen_states
+            .iter()
+            .filter(|s| s.faults & msgs::haptic_to_physics::fault::STALE_FRAME != 0)
+            .count();
+        assert!(
+            stale > 0,
+            "{faded} writes left the steady {expect} N without a stale frame flagged"
+        );
+        assert!(
+            faded * 5 <= steady.len(),
+            "{faded} of {} steady writes faded",
+            steady.len()
         );
     }
     // The node's published state agrees: the proxy where the stylus is, the same force.

@@ -69,7 +69,7 @@ impl SimForceModel {
         scene.probe.tip_radius = s.probe.tip_radius;
         scene.probe.mass = s.probe.mass;
         // check the scene builds now, so a bad mesh is reported before any replay
-        Simulation::new(&scene, data_dir).map_err(|e| GapError::Input {
+        Simulation::offline(&scene, data_dir).map_err(|e| GapError::Input {
             file: exp.dir.join("experiment.toml"),
             msg: format!("specimen: {e}"),
         })?;
@@ -81,7 +81,7 @@ impl SimForceModel {
         rec: &super::session::SessionRecording,
         data_dir: &Path,
     ) -> Result<SimForceModel, GapError> {
-        Simulation::new(&rec.scene, data_dir).map_err(|e| GapError::Input {
+        Simulation::offline(&rec.scene, data_dir).map_err(|e| GapError::Input {
             file: rec.path.clone(),
             msg: format!(
                 "specimen of the {} attachment: {e}",
@@ -137,7 +137,7 @@ impl SimForceModel {
 
     /// A simulation of this scene (for reality generation: probing sites, surface).
     pub fn simulation(&self, v: &Variant, dt: f64) -> Result<Simulation, GapError> {
-        Simulation::new(&self.scene_for(v, dt)?, &self.data_dir)
+        Simulation::offline(&self.scene_for(v, dt)?, &self.data_dir)
             .map_err(|e| GapError::Sim(e.to_string()))
     }
 }

@@ -59,6 +59,10 @@ pub enum Filling {
     Prefetch,
 }
 
+/// The smallest cache, nodes: more than a probe's contacts touch at once (32 slots), with
+/// room for the nodes it passes on a slide.
+pub const MIN_SLOTS: usize = 96;
+
 /// Columns of one node: 3 columns of length `dim`, column-major.
 type Columns = Box<[f64]>;
 
@@ -155,7 +159,7 @@ impl ComplianceCache {
             .filter(|&n| free_index[n] != NONE)
             .collect();
         let per_slot = 3 * dim * std::mem::size_of::<f64>();
-        let max_slots = (budget_bytes / per_slot.max(1)).max(96);
+        let max_slots = (budget_bytes / per_slot.max(1)).max(MIN_SLOTS);
         let complete = touchable.len() <= max_slots;
         let slots = if complete { touchable.len() } else { max_slots };
         let n_nodes = free_index.len();

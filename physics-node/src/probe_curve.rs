@@ -181,7 +181,7 @@ pub fn run(
         }
         scene.material.degeneration_grade = g;
     }
-    let mut sim = Simulation::new(&scene, data_dir)?;
+    let mut sim = Simulation::offline(&scene, data_dir)?;
     press(&mut sim, &scene, opts)
 }
 

@@ -82,17 +82,38 @@ impl FemModel {
     /// iteration cap binding (always, at tolerance 1e-9) that made plain 25-iteration CG
     /// unstable under contact on the study's medial mesh and 10-iteration CG on the
     /// 2,560-node default; from zero, a truncated solve only under-resolves (dissipates).
+    /// The offline lagged-factor CG does start warm: it runs to its tolerance under a cap
+    /// that does not bind (and from zero after a solve that stopped at it), so the start only
+    /// changes how many iterations it takes (19% fewer,
+    /// and 14% fewer refactors, over 15 replays on a 1,435-node specimen; forces within
+    /// 3 mN of a cold start, the solve's own tolerance).
     /// Products read the upper triangle: packed in f32 (`self.upper32`) or in `self.a`.
     pub(super) fn cg(&mut self, max_iter: usize, tol: f64, pc: Preconditioner) -> SolveStats {
         let packed = self.packed_cg_matrix();
-        self.dv.fill(0.0);
         let b_norm = dot(&self.rhs, &self.rhs).sqrt();
         if b_norm == 0.0 {
+            self.dv.fill(0.0);
             return SolveStats::default();
         }
-        // r = b − A·0
-        self.r.copy_from_slice(&self.rhs);
-        let mut r_norm = b_norm;
+        // Warm only from a converged last solve: a capped one is what went unstable.
+        let warm = pc == Preconditioner::LaggedFactor && self.last_stats.relative_residual <= tol;
+        let mut r_norm = if warm {
+            // r = b − A·Δv_prev
+            if packed {
+                self.upper32.mul_dot(&self.dv, &mut self.q, true);
+            } else {
+                self.pattern.mul_dot_upper(&self.a, &self.dv, &mut self.q);
+            }
+            for ((r, b), q) in self.r.iter_mut().zip(&self.rhs).zip(&self.q) {
+                *r = b - q;
+            }
+            dot(&self.r, &self.r).sqrt()
+        } else {
+            self.dv.fill(0.0);
+            // r = b − A·0
+            self.r.copy_from_slice(&self.rhs);
+            b_norm
+        };
         let mut iterations = 0;
         if r_norm / b_norm <= tol {
             return SolveStats {

@@ -387,12 +387,14 @@ pub fn bench(
     // a refined truth of a ~1,400-node specimen is ~10,000 nodes solved directly, minutes of
     // generation for nothing measured.
     spec.truth_mesh = TruthMesh::Replay;
+    let host = msgs::host_load::HostLoad::start();
     let t0 = std::time::Instant::now();
     super::reality::write_experiment(&spec, &root.join("exp"), &root.join("truth.json"))?;
     let generate_s = t0.elapsed().as_secs_f64();
     let t1 = std::time::Instant::now();
     let report = super::diagnose_dir(&root.join("exp"), opts)?;
     let diagnose_s = t1.elapsed().as_secs_f64();
+    let host = host.finish();
     let data_dir = super::data_dir();
     let nodes =
         SimForceModel::for_experiment(&load_experiment(&root.join("exp"), &data_dir)?, &data_dir)?
@@ -411,5 +413,8 @@ pub fn bench(
         "truth": spec.label(),
         "verdict": report.verdict.effect,
         "heldout_shrink": report.verdict.heldout_shrink,
+        "loadavg_1m_before": host.loadavg_1m_before,
+        "loadavg_1m_after": host.loadavg_1m_after,
+        "host_steal_fraction": host.host_steal_fraction,
     }))
 }

@@ -9,12 +9,15 @@
 //! Data flows physics → haptic (`physics_to_haptic`: contact frames), haptic → physics
 //! (`haptic_to_physics`: device states), physics → viewers (`physics_to_viz`: the deformed
 //! surface) and haptic → monitor (`haptic_to_monitor`: loop statistics); [`protocol`] defines
-//! the probing protocol's region and phase codes; [`ros`] the ROS 2 messages.
+//! the probing protocol's region and phase codes; [`ros`] the ROS 2 messages. Beside them, the
+//! measurement definitions every process and benchmark shares: [`timing`] (the one latency
+//! histogram) and [`host_load`] (load and the hypervisor's steal over a measurement).
 //!
 //! Units: SI (m, s, N, kg), world frame z-up (REP-103). Quaternions are `[x, y, z, w]`.
 
 pub mod clock;
 pub mod csv_input;
+pub mod host_load;
 pub mod ipc;
 pub mod lifecycle;
 pub mod protocol;

@@ -67,13 +67,6 @@ fn start(exe: &Path, args: &[&str]) -> anyhow::Result<Killed> {
     Ok(child)
 }
 
-fn loadavg() -> f64 {
-    std::fs::read_to_string("/proc/loadavg")
-        .ok()
-        .and_then(|s| s.split_whitespace().next().and_then(|v| v.parse().ok()))
-        .unwrap_or(-1.0)
-}
-
 /// A frame holding the synthetic patch of `n` contacts (`contact_lcp::synthetic`, the
 /// problem the `patch-timing` example times too).
 fn synthetic_frame(n: usize, frame: &mut msgs::physics_to_haptic::ContactFrame) {
@@ -191,7 +184,7 @@ fn main() -> anyhow::Result<()> {
 
     let session = format!("bench-{}", std::process::id());
     let out = std::env::temp_dir().join(format!("haptic-bench-{}", std::process::id()));
-    let load_before = loadavg();
+    let host = msgs::host_load::HostLoad::start();
     let _physics = start(&physics, &["--session", &session])?;
     let seconds = cli.seconds.to_string();
     let mut haptic = start(
@@ -219,7 +212,7 @@ fn main() -> anyhow::Result<()> {
         }
         std::thread::sleep(Duration::from_millis(50));
     }
-    let load_after = loadavg();
+    let host = host.finish();
     let summary_path = out.join("haptic-stats.json");
     let text = std::fs::read_to_string(&summary_path)
         .with_context(|| format!("reading {}", summary_path.display()))?;
@@ -248,8 +241,9 @@ fn main() -> anyhow::Result<()> {
         "max_rendered_n": s["max_rendered_n"],
         "fault_ticks": s["fault_ticks"],
         "realtime": s["realtime"],
-        "loadavg_1m_before": load_before,
-        "loadavg_1m_after": load_after,
+        "loadavg_1m_before": host.loadavg_1m_before,
+        "loadavg_1m_after": host.loadavg_1m_after,
+        "host_steal_fraction": host.host_steal_fraction,
         "cpus": std::thread::available_parallelism().map(|n| n.get()).unwrap_or(0),
     });
     println!("{line}");

@@ -149,6 +149,7 @@ fn main() -> anyhow::Result<()> {
     let misses_before = sim.compliance_misses();
     let approximations_before = sim.compliance_approximations();
     let times_before = sim.phase_times();
+    let host = msgs::host_load::HostLoad::start();
     let t0 = Instant::now();
     let more = |done: u64| match args.steps {
         Some(n) => done < n as u64,
@@ -167,6 +168,7 @@ fn main() -> anyhow::Result<()> {
         force_sum += (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt();
     }
     let wall = t0.elapsed().as_secs_f64();
+    let host = host.finish();
     let steps = durations.count().max(1);
     let total_step_s = durations.mean_ns() * durations.count() as f64 * 1e-9;
     let (slots, complete) = sim.compliance_cache_info();
@@ -213,6 +215,9 @@ fn main() -> anyhow::Result<()> {
         "compliance_cached_nodes": sim.compliance_cached_nodes(),
         "build_s": build_s,
         "phase_mean_us": phases,
+        "loadavg_1m_before": host.loadavg_1m_before,
+        "loadavg_1m_after": host.loadavg_1m_after,
+        "host_steal_fraction": host.host_steal_fraction,
     });
     println!("{json}");
     Ok(())

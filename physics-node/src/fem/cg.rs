@@ -84,9 +84,9 @@ impl FemModel {
     /// 2,560-node default; from zero, a truncated solve only under-resolves (dissipates).
     /// The offline lagged-factor CG does start warm: it runs to its tolerance under a cap
     /// that does not bind (and from zero after a solve that stopped at it), so the start only
-    /// changes how many iterations it takes (19% fewer,
-    /// and 14% fewer refactors, over 15 replays on a 1,435-node specimen; forces within
-    /// 3 mN of a cold start, the solve's own tolerance).
+    /// changes how many iterations it takes (19% fewer, and 14% fewer refactors, over 15
+    /// replays on a 1,435-node specimen; forces within 3 mN of a cold start, the solve's own
+    /// tolerance).
     /// Products read the upper triangle: packed in f32 (`self.upper32`) or in `self.a`.
     pub(super) fn cg(&mut self, max_iter: usize, tol: f64, pc: Preconditioner) -> SolveStats {
         let packed = self.packed_cg_matrix();
@@ -98,12 +98,8 @@ impl FemModel {
         // Warm only from a converged last solve: a capped one is what went unstable.
         let warm = pc == Preconditioner::LaggedFactor && self.last_stats.relative_residual <= tol;
         let mut r_norm = if warm {
-            // r = b − A·Δv_prev
-            if packed {
-                self.upper32.mul_dot(&self.dv, &mut self.q, true);
-            } else {
-                self.pattern.mul_dot_upper(&self.a, &self.dv, &mut self.q);
-            }
+            // r = b − A·Δv_prev; a factored solver's system is the f64 one in `a`, never packed
+            self.pattern.mul_dot_upper(&self.a, &self.dv, &mut self.q);
             for ((r, b), q) in self.r.iter_mut().zip(&self.rhs).zip(&self.q) {
                 *r = b - q;
             }

@@ -104,9 +104,10 @@ pub enum TruthMesh {
     /// The replay's own mesh and solve: the truth is the diagnosis' model (the exact mode).
     #[default]
     Replay,
-    /// The specimen mesh refined once, solved directly ([`RefinedTruth`]): another
-    /// discretisation and a contact surface with four times the facets, as an independent FE
-    /// code of the same specimen would differ from the replay.
+    /// The specimen mesh refined once, solved directly, with a penalty contact
+    /// ([`RefinedTruth`]): another discretisation, a contact surface with four times the
+    /// facets and another contact formulation, as an independent FE code of the same specimen
+    /// would differ from the replay.
     RefinedOnce,
 }
 

@@ -338,6 +338,13 @@ pub struct ContactConfig {
     pub lcp_max_iterations: u32,
     /// At most this many contacts per step (≤ msgs::MAX_CONTACTS).
     pub max_contacts: u32,
+    /// Compliance of the contact interface itself, m/N: 0 is SOFA's hard contact (Lagrange
+    /// multipliers, no penetration once solved); > 0 a penalty contact of stiffness 1/this
+    /// per probe ball, in series with the tissue: a ball penetrates the surface by this ×
+    /// its normal force, however many contact points carry it. The gap self-test's truth
+    /// uses one, so that it differs from the replay in its contact formulation as an
+    /// independent FE code would.
+    pub interface_compliance: f64,
 }
 
 impl Default for ContactConfig {
@@ -349,6 +356,7 @@ impl Default for ContactConfig {
             lcp_tolerance: 1e-3,
             lcp_max_iterations: 1000,
             max_contacts: 32,
+            interface_compliance: 0.0,
         }
     }
 }

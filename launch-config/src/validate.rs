@@ -210,6 +210,11 @@ pub fn validate(file: &LaunchFile) -> Vec<Issue> {
         );
     }
     v.non_negative("scene.contact.friction", c.friction, "(Coulomb μ)");
+    v.non_negative(
+        "scene.contact.interface_compliance",
+        c.interface_compliance,
+        "m/N",
+    );
     v.positive("scene.contact.lcp_tolerance", c.lcp_tolerance, "");
     if c.lcp_max_iterations == 0 {
         v.push("scene.contact.lcp_max_iterations", "must be > 0");

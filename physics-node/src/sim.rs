@@ -28,6 +28,12 @@ use std::path::Path;
 const COMPLIANCE_BUDGET_BYTES: usize = 768 << 20;
 /// Widest block of columns solved at once when filling the cache.
 const BLOCK_COLUMNS: usize = 48;
+/// A tissue whose last step moved no node further than this, m, has settled (offline
+/// replays only, see [`Simulation::offline`]). At the implicit step's decay of ~0.7 per
+/// step, what is left to move is ~3× the last step: 30 nm, under which a tissue of even
+/// 10 N/mm changes its force by 0.3 mN, two orders below a probing sensor's noise (the
+/// study's: ~0.02 N).
+pub const SETTLED_MOTION_M: f64 = 1.0e-8;
 
 /// Adapter: the FEM's rest factorization on reduced (free-dof) vectors of length `dim`
 /// (the solver a [`ComplianceCache`] owns).
@@ -137,6 +143,16 @@ pub struct Simulation {
     warp: Vec<nalgebra::Matrix3<f64>>,
     /// Secant modulus factor of the loaded patch in the last step (1: linear or no contact).
     patch_stiffening: f64,
+    /// `[scene.contact] interface_compliance`, m/N (0: hard contact).
+    interface_compliance: f64,
+    /// Offline replays skip the work of a settled tissue ([`Self::offline`]).
+    settled_shortcuts: bool,
+    /// The kinematic probe target of the last stepped step (None: no step since a
+    /// teleport or a roll-back), and what that step reported to the checks.
+    last_target: Option<(Vector3<f64>, nalgebra::UnitQuaternion<f64>)>,
+    last_report: crate::faults::StepReport,
+    /// Steps the settled shortcuts took: [whole step repeated, free motion at rest].
+    settled_steps: [u64; 2],
 }
 
 impl Simulation {
@@ -150,11 +166,32 @@ impl Simulation {
     /// A simulation for offline replays (the gap diagnosis, its self-test and calibration):
     /// compliance columns are solved inline when a surface node is first touched, in a cache
     /// of the smallest size ([`crate::compliance::MIN_SLOTS`] nodes, least recently used
-    /// replaced), instead of for every surface node up front. A
-    /// replay touches a few dozen nodes; the up-front solve of all of them was 0.2 s of a
-    /// 1.1 s replay on a 1,435-node specimen (and ~90 MB), and a diagnosis builds ~135.
+    /// replaced), instead of for every surface node up front. A replay touches a few dozen
+    /// nodes; the up-front solve of all of them was 0.2 s of a 1.1 s replay on a 1,435-node
+    /// specimen (and ~90 MB), and a diagnosis builds ~135.
+    ///
+    /// It also skips the work of a settled tissue (its last step moved no node further than
+    /// [`SETTLED_MOTION_M`]), 40–60% of a probing's steps. While the probe is held still at
+    /// a kinematic target, a step repeats the last one and is not taken. While no contact
+    /// force acts on the tissue (the approach, and after release once it has recovered), its
+    /// free motion is no motion and is neither assembled nor solved. Forces stay within a
+    /// few tenths of a millinewton of the full step's. The live node keeps every step, since
+    /// `arthrosim replay` must reproduce its recording bit for bit.
     pub fn offline(scene: &SceneConfig, data_dir: &Path) -> Result<Simulation, PhysicsError> {
-        Self::with_compliance(scene, data_dir, Filling::Inline, 0)
+        let mut sim = Self::with_compliance(scene, data_dir, Filling::Inline, 0)?;
+        sim.settled_shortcuts = true;
+        Ok(sim)
+    }
+
+    /// Turns the settled shortcuts of [`Self::offline`] on or off (off: every step is
+    /// taken in full, as the live node takes it).
+    pub fn set_settled_shortcuts(&mut self, on: bool) {
+        self.settled_shortcuts = on;
+    }
+
+    /// Steps the settled shortcuts of [`Self::offline`] took: (repeated, free motion at rest).
+    pub fn settled_steps(&self) -> (u64, u64) {
+        (self.settled_steps[0], self.settled_steps[1])
     }
 
     /// [`Self::new`] with a choice of how a partial compliance cache is filled: the real-time
@@ -193,6 +230,12 @@ impl Simulation {
             return Err(PhysicsError::Config(format!(
                 "contact: need 0 ≤ contact_distance ({}) ≤ alarm_distance ({})",
                 c.contact_distance, c.alarm_distance
+            )));
+        }
+        if !(c.interface_compliance.is_finite() && c.interface_compliance >= 0.0) {
+            return Err(PhysicsError::Config(format!(
+                "contact: interface_compliance must be ≥ 0 m/N, got {}",
+                c.interface_compliance
             )));
         }
         if !(c.friction.is_finite() && c.friction >= 0.0) {
@@ -355,6 +398,11 @@ impl Simulation {
             times: PhaseTimes::default(),
             warp: vec![nalgebra::Matrix3::identity(); n_nodes],
             patch_stiffening: 1.0,
+            interface_compliance: c.interface_compliance,
+            settled_shortcuts: false,
+            last_target: None,
+            last_report: crate::faults::StepReport::default(),
+            settled_steps: [0; 2],
         })
     }
 
@@ -385,6 +433,7 @@ impl Simulation {
             self.probe.target_orientation = q;
             self.detector.reset_tracking();
             self.warm.iter_mut().for_each(|w| *w = [0.0; 3]);
+            self.last_target = None;
         }
     }
 
@@ -517,6 +566,7 @@ impl Simulation {
         self.monitor
             .roll_back(faults, self.time, &mut self.fem, &mut self.probe);
         self.warm.iter_mut().for_each(|w| *w = [0.0; 3]);
+        self.last_target = None;
         frame.drive |= drive::ROLLED_BACK;
         Ok(())
     }
@@ -524,6 +574,16 @@ impl Simulation {
     /// The unchecked step.
     fn advance(&mut self) -> Result<(), PhysicsError> {
         let dt = self.dt;
+        let settled = self.settled_shortcuts && self.fem.last_step_motion() < SETTLED_MOTION_M;
+        if settled
+            && self.probe.drive == crate::probe::ProbeDrive::Kinematic
+            && self.last_target == Some((self.probe.target_position, self.probe.target_orientation))
+        {
+            // Probe held where it was and the tissue settled around it: the step is its
+            // own fixed point (same contacts, same λ, same force).
+            self.repeat_settled_step(dt);
+            return Ok(());
+        }
         let clock = std::time::Instant::now();
         let lap = |acc: &mut u64, last: &mut std::time::Instant| {
             let now = std::time::Instant::now();
@@ -537,15 +597,21 @@ impl Simulation {
         self.cache.prefetch(&self.probe);
         lap(&mut self.times.prepare_ns, &mut last);
 
-        // 1. Free motion.
-        let cg = self
-            .fem
-            .free_motion(dt, &self.external)
-            .map_err(|e| PhysicsError::Numerical {
-                time: self.time,
-                detail: e.to_string(),
-            })?;
-        self.report.cg_residual = cg.relative_residual;
+        // 1. Free motion (none for a settled tissue that no contact force acts on: the
+        // external forces of an offline replay are zero).
+        if settled && self.contact_force == [0.0; 3] {
+            self.fem.free_motion_at_rest(dt);
+            self.settled_steps[1] += 1;
+        } else {
+            let cg =
+                self.fem
+                    .free_motion(dt, &self.external)
+                    .map_err(|e| PhysicsError::Numerical {
+                        time: self.time,
+                        detail: e.to_string(),
+                    })?;
+            self.report.cg_residual = cg.relative_residual;
+        }
         self.probe.free_motion(dt, &self.gravity);
         lap(&mut self.times.free_motion_ns, &mut last);
 
@@ -638,6 +704,22 @@ impl Simulation {
                 &mut frame.compliance,
                 MAX_ROWS,
             );
+            // A penalty interface in series with the tissue: each probe ball yields along a
+            // contact normal by the interface compliance times its contacts' total normal
+            // force along it (one layer per ball, however many points its touch was
+            // discretised into), so the LCP leaves that much penetration. λ is an impulse
+            // (force × dt), so the compliance enters W over dt.
+            let c = self.interface_compliance / dt;
+            if c > 0.0 {
+                for (k, a) in contacts.iter().enumerate() {
+                    for (l, b) in contacts.iter().enumerate() {
+                        if a.sphere == b.sphere {
+                            frame.compliance[3 * k * MAX_ROWS + 3 * l] +=
+                                c * a.normal.dot(&b.normal);
+                        }
+                    }
+                }
+            }
         }
         for (k, c) in contacts.iter().enumerate() {
             let arm = self.probe.arm_free(c.sphere);
@@ -704,6 +786,7 @@ impl Simulation {
         }
         let probe_free_pose = self.probe.free_pose();
         let proxy_pose = self.probe.target_pose();
+        let target = (self.probe.target_position, self.probe.target_orientation);
         self.probe.commit(dt, &impulse, &angular);
         if m > 0
             && self.correction.tissue_displacement(
@@ -741,6 +824,8 @@ impl Simulation {
         self.contact_torque = [torque.x, torque.y, torque.z];
         self.report.contacts = m;
         self.report.force = self.contact_force;
+        self.last_report = self.report;
+        self.last_target = Some(target);
 
         // Frame header and results.
         frame.instance_id = self.instance_id;
@@ -773,6 +858,22 @@ impl Simulation {
             }
         }
         Ok(())
+    }
+
+    /// A step of a settled tissue under a probe held at the last step's target: time and
+    /// the frame's header advance, everything else is the last step's.
+    fn repeat_settled_step(&mut self, dt: f64) {
+        self.time = (self.sequence + 1) as f64 * dt;
+        self.sequence += 1;
+        self.report = self.last_report;
+        let frame = &mut *self.frame;
+        frame.instance_id = self.instance_id;
+        frame.sequence = self.sequence;
+        frame.sim_time_s = self.time;
+        frame.dt_s = dt;
+        frame.device_sequence_used = self.device_sequence;
+        frame.device_instance_used = self.device_instance;
+        self.settled_steps[0] += 1;
     }
 
     /// Secant modulus factor the contact compliance of the last step was divided by (1 for

@@ -40,7 +40,10 @@ fn offline_compliance_is_solved_on_first_touch_and_gives_the_same_forces() {
     let scene = launch_config::SceneConfig::default();
     let data = launch_config::data_dir();
     let up_front = Simulation::new(&scene, &data).unwrap();
-    let offline = Simulation::offline(&scene, &data).unwrap();
+    let mut offline = Simulation::offline(&scene, &data).unwrap();
+    // the settled shortcuts are another concern (tests/settled_shortcuts.rs): off, the two
+    // take the same steps and differ only in when the columns were solved
+    offline.set_settled_shortcuts(false);
     assert!(up_front.compliance_cached_nodes() > 100);
     assert_eq!(
         offline.compliance_cached_nodes(),

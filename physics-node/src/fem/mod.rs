@@ -171,6 +171,10 @@ pub struct FemModel {
     refactor_lagged: bool,
     last_dt: f64,
     last_stats: SolveStats,
+    /// Largest node displacement of the last committed step, m: how far the tissue still
+    /// moves ([`FemModel::last_step_motion`]). Infinite until a step is committed, and again
+    /// whenever the state or the material is set from outside.
+    last_motion: f64,
     /// Strain-stiffening factors (all 1 with the linear law).
     stiffening: StiffeningState,
 }

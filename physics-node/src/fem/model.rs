@@ -126,6 +126,7 @@ impl FemModel {
             refactor_lagged: true,
             last_dt: settings.dt,
             last_stats: SolveStats::default(),
+            last_motion: f64::INFINITY,
             stiffening,
         };
         model.prepare_solver()?;
@@ -240,6 +241,7 @@ impl FemModel {
         self.mu = mu;
         self.lambda = lambda;
         self.upper32_k_scale = f64::NAN;
+        self.last_motion = f64::INFINITY;
         self.prepare_solver()
     }
 
@@ -260,6 +262,7 @@ impl FemModel {
         self.stiffening.support_factor = 1.0;
         self.stiffening.support_displacement = 0.0;
         self.upper32_k_scale = f64::NAN;
+        self.last_motion = f64::INFINITY;
         self.prepare_solver()
     }
 
@@ -271,6 +274,7 @@ impl FemModel {
         } else {
             0.0
         };
+        self.last_motion = f64::INFINITY;
     }
 
     /// Length over which a support displacement is a strain, m (0: not set).
@@ -294,6 +298,7 @@ impl FemModel {
         self.stiffening.reset();
         self.support.copy_from_slice(&self.support_rest);
         self.upper32_k_scale = f64::NAN;
+        self.last_motion = f64::INFINITY;
     }
 
     pub fn stiffening(&self) -> StrainStiffening {
@@ -320,6 +325,7 @@ impl FemModel {
         }
         self.x[node] = p;
         self.x_free[node] = p;
+        self.last_motion = f64::INFINITY;
         Ok(())
     }
 
@@ -334,6 +340,7 @@ impl FemModel {
             self.v[node] = v;
             self.v_free[node] = v;
         }
+        self.last_motion = f64::INFINITY;
         Ok(())
     }
 
@@ -351,6 +358,15 @@ impl FemModel {
         self.upper32_k_scale = f64::NAN;
         self.stiffening.reset();
         self.support.copy_from_slice(&self.support_rest);
+        self.last_motion = f64::INFINITY;
+    }
+
+    /// Largest node displacement of the last committed step, m (infinite before the first
+    /// one and after the state or the material was set from outside). A tissue that moved
+    /// less than a few nanometres in its last step has settled: its next free motion is
+    /// nothing but that step's decaying remainder.
+    pub fn last_step_motion(&self) -> f64 {
+        self.last_motion
     }
 
     // ---- assembly --------------------------------------------------------------------

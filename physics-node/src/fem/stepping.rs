@@ -143,8 +143,24 @@ impl FemModel {
 
     /// The free (and corrected) state becomes the committed state.
     pub fn commit(&mut self) {
+        let mut motion: f64 = 0.0;
+        for (to, from) in self.x_free.iter().zip(&self.x) {
+            motion = motion.max((to - from).norm_squared());
+        }
+        self.last_motion = motion.sqrt();
         self.x.copy_from_slice(&self.x_free);
         self.v.copy_from_slice(&self.v_free);
+    }
+
+    /// Free motion of a settled tissue (the offline replay's shortcut, see
+    /// `Simulation::offline`): at rest where it is. Its last step moved it less than a
+    /// few nanometres with no contact force on it, so the linearized step from an
+    /// equilibrium is that decaying remainder; assembling and solving it changes nothing a
+    /// force can show.
+    pub fn free_motion_at_rest(&mut self, dt: f64) {
+        self.last_dt = dt;
+        self.x_free.copy_from_slice(&self.x);
+        self.v_free.fill(Vector3::zeros());
     }
 
     /// `free_motion` then `commit` (no contact).
@@ -315,6 +331,7 @@ impl FemModel {
         self.v = saved_v;
         self.x_free.copy_from_slice(&self.x);
         self.v_free.copy_from_slice(&self.v);
+        self.last_motion = f64::INFINITY;
         result
     }
 }

@@ -79,7 +79,22 @@ struct Probing {
     region: u32,
     samples: Vec<([f64; 3], f64)>,
     hold_from: usize,
+    /// Press and hold ticks in contact left out because the envelope faded or zeroed their
+    /// force, and all of them.
+    faded: usize,
+    ticks: usize,
 }
+
+/// A tick whose force is the safety envelope's fade or quarantine, not the tissue's (stale or
+/// invalid frame, a physics fault, non-finite input): what the hand feels there is asserted
+/// by the safety tests, not here. A CI run once read 0 N at the last crossing of the press
+/// depth in one region at grade 2, where a rerun felt 0.094 N.
+const FADE: u32 = msgs::haptic_to_physics::fault::STALE_FRAME
+    | msgs::haptic_to_physics::fault::INVALID_FRAME
+    | msgs::haptic_to_physics::fault::FOREIGN_FRAME
+    | msgs::haptic_to_physics::fault::PHYSICS_FAULT
+    | msgs::haptic_to_physics::fault::NONFINITE_DEVICE
+    | msgs::haptic_to_physics::fault::NONFINITE_FORCE;
 
 /// The first probing of each region (1 posterior, 2 mid, 3 anterior).
 fn probings(session_dir: &Path) -> Vec<Probing> {
@@ -98,10 +113,17 @@ fn probings(session_dir: &Path) -> Vec<Probing> {
             region,
             samples: Vec::new(),
             hold_from: 0,
+            faded: 0,
+            ticks: 0,
         };
         for t in ticks.iter().filter(|t| {
             t.probing_index == first && (t.phase == PRESS || t.phase == HOLD) && t.contact_count > 0
         }) {
+            p.ticks += 1;
+            if t.faults & FADE != 0 {
+                p.faded += 1;
+                continue;
+            }
             if t.phase == HOLD && p.hold_from == 0 {
                 p.hold_from = p.samples.len();
             }
@@ -173,6 +195,16 @@ fn grade_2_is_felt_by_its_modulus_ratio_at_equal_stylus_depth() {
         let Some(p2) = g2.iter().find(|p| p.region == p0.region) else {
             continue;
         };
+        for p in [p0, p2] {
+            // a fade is the exception: the felt curve is the tissue's
+            assert!(
+                p.faded * 5 <= p.ticks,
+                "region {}: {} of {} press and hold ticks faded by the envelope",
+                p.region,
+                p.faded,
+                p.ticks
+            );
+        }
         // Depth along grade 0's press direction (first contact → mean hold position), at
         // grade 0's hold: the same stylus position for both grades.
         let origin = p0.samples[0].0;

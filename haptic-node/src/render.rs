@@ -106,21 +106,8 @@ impl ForceLimiter {
             Some(t) => now_ns.saturating_sub(t).min(self.period_ns),
             None => self.period_ns,
         };
-        let max_step = self.max_step_per_ns * elapsed as f64;
-        let step = [
-            f[0] - self.last[0],
-            f[1] - self.last[1],
-            f[2] - self.last[2],
-        ];
-        let sn = norm(step);
-        let mut f = f;
-        if sn > max_step {
-            let s = max_step / sn;
-            f = [
-                self.last[0] + step[0] * s,
-                self.last[1] + step[1] * s,
-                self.last[2] + step[2] * s,
-            ];
+        let (f, limited) = self.step_toward(f, self.max_step_per_ns * elapsed as f64);
+        if limited {
             faults |= fault::RATE_LIMITED;
         }
         let (f, clamped) = clamp_norm(f, budget_sq.sqrt());
@@ -146,6 +133,29 @@ impl ForceLimiter {
             budget
         };
         (allowed, budget)
+    }
+
+    /// `f`, or the point `max_step` from the last force toward it; and whether it was limited.
+    fn step_toward(&self, f: [f64; 3], max_step: f64) -> ([f64; 3], bool) {
+        let step = [
+            f[0] - self.last[0],
+            f[1] - self.last[1],
+            f[2] - self.last[2],
+        ];
+        let sn = norm(step);
+        // (a non-finite target passes through: `commit` zeroes it)
+        if !(sn > max_step) {
+            return (f, false);
+        }
+        let s = max_step / sn;
+        (
+            [
+                self.last[0] + step[0] * s,
+                self.last[1] + step[1] * s,
+                self.last[2] + step[2] * s,
+            ],
+            true,
+        )
     }
 
     fn commit(&mut self, now_ns: u64, f: [f64; 3]) {
@@ -179,21 +189,8 @@ impl ForceLimiter {
         // `limit`, which would slow the ramp on a slow loop); the default ramp's slope,
         // 3.3 N over 9 ms, is inside it, so only a shorter configured ramp is slowed.
         if let Some(last_ns) = self.last_ns {
-            let max_step = self.max_step_per_ns * now_ns.saturating_sub(last_ns) as f64;
-            let step = [
-                f[0] - self.last[0],
-                f[1] - self.last[1],
-                f[2] - self.last[2],
-            ];
-            let sn = norm(step);
-            if sn > max_step {
-                let k = max_step / sn;
-                f = [
-                    self.last[0] + step[0] * k,
-                    self.last[1] + step[1] * k,
-                    self.last[2] + step[2] * k,
-                ];
-            }
+            let elapsed = now_ns.saturating_sub(last_ns);
+            f = self.step_toward(f, self.max_step_per_ns * elapsed as f64).0;
         }
         self.commit(now_ns, f);
         // Keep the ramp state (commit does not touch it).

@@ -552,22 +552,15 @@ impl Simulation {
         if errored {
             // The step stopped midway: close it so time and sequence still advance, with no
             // contact problem a consumer could use.
-            self.time = (self.sequence + 1) as f64 * self.dt;
-            self.sequence += 1;
-            frame.instance_id = self.instance_id;
-            frame.sequence = self.sequence;
-            frame.sim_time_s = self.time;
-            frame.dt_s = self.dt;
             frame.contact_count = 0;
             frame.row_count = 0;
-            frame.device_sequence_used = self.device_sequence;
-            frame.device_instance_used = self.device_instance;
+            self.close_step_header();
         }
         self.monitor
             .roll_back(faults, self.time, &mut self.fem, &mut self.probe);
         self.warm.iter_mut().for_each(|w| *w = [0.0; 3]);
         self.last_target = None;
-        frame.drive |= drive::ROLLED_BACK;
+        self.frame.drive |= drive::ROLLED_BACK;
         Ok(())
     }
 
@@ -581,7 +574,7 @@ impl Simulation {
         {
             // Probe held where it was and the tissue settled around it: the step is its
             // own fixed point (same contacts, same λ, same force).
-            self.repeat_settled_step(dt);
+            self.repeat_settled_step();
             return Ok(());
         }
         let clock = std::time::Instant::now();
@@ -862,18 +855,24 @@ impl Simulation {
 
     /// A step of a settled tissue under a probe held at the last step's target: time and
     /// the frame's header advance, everything else is the last step's.
-    fn repeat_settled_step(&mut self, dt: f64) {
-        self.time = (self.sequence + 1) as f64 * dt;
-        self.sequence += 1;
+    fn repeat_settled_step(&mut self) {
         self.report = self.last_report;
+        self.close_step_header();
+        self.settled_steps[0] += 1;
+    }
+
+    /// Time and sequence advance by one step and the frame's header says so, for a step that
+    /// left the rest of the frame as it was (repeated) or emptied it (errored midway).
+    fn close_step_header(&mut self) {
+        self.time = (self.sequence + 1) as f64 * self.dt;
+        self.sequence += 1;
         let frame = &mut *self.frame;
         frame.instance_id = self.instance_id;
         frame.sequence = self.sequence;
         frame.sim_time_s = self.time;
-        frame.dt_s = dt;
+        frame.dt_s = self.dt;
         frame.device_sequence_used = self.device_sequence;
         frame.device_instance_used = self.device_instance;
-        self.settled_steps[0] += 1;
     }
 
     /// Secant modulus factor the contact compliance of the last step was divided by (1 for

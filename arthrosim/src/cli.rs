@@ -188,6 +188,10 @@ pub struct GapArgs {
     /// as before issue 15; for comparison).
     #[arg(long)]
     pub no_nuisance: bool,
+    /// Fit the stiffness nuisance without the contact nuisance (a compliance in series with
+    /// the tissue under the probe, up to 10 µm/N; saves one replay per trial; for comparison).
+    #[arg(long)]
+    pub no_contact_nuisance: bool,
     /// Also write a launch file whose scene carries the verdict as physics (modulus →
     /// modulus_scale, support → support_stiffness, friction → friction, …; see the README).
     /// A force–displacement table is then fitted in the base scene (press at `--site`,

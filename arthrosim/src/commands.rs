@@ -347,6 +347,8 @@ fn gap_command(args: GapArgs) -> Result<i32> {
             verbose,
             diagnose: gap::Options {
                 progress: !json,
+                nuisance: !args.no_nuisance,
+                contact_nuisance: !args.no_contact_nuisance,
                 ..gap::Options::default()
             },
             ..gap::selftest::SelftestOptions::default()
@@ -367,6 +369,7 @@ fn gap_command(args: GapArgs) -> Result<i32> {
         progress: !args.json,
         pairs: !args.no_pairs,
         nuisance: !args.no_nuisance,
+        contact_nuisance: !args.no_contact_nuisance,
         ..gap::Options::default()
     };
     // checked before anything is read: a bad flag fails before minutes of replays

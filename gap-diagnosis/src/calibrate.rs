@@ -358,6 +358,10 @@ pub fn calibrate_report(
         if let Some(s) = report.verdict.nuisance_scale {
             changes.extend(apply_nuisance(&mut out, s));
         }
+        if let Some(c) = report.verdict.contact_compliance {
+            let scaled = out.material.modulus_scale / scene.material.modulus_scale;
+            changes.extend(apply_contact_nuisance(&mut out, c, scaled));
+        }
     }
     let mut launch = base.clone();
     launch.scene = out;
@@ -407,6 +411,30 @@ pub fn apply_nuisance(scene: &mut SceneConfig, s: f64) -> Vec<SceneChange> {
         ));
     }
     out
+}
+
+/// The contact nuisance fitted with the verdict (`c`, m/N per probe ball, [`crate::fit`]'s
+/// `CONTACT_KNOT`) as scene physics: a penalty layer in series under the probe,
+/// `[scene.contact] interface_compliance`. The prediction scales the tissue with the layer by
+/// the calibrated modulus factor `scaled`; a penalty layer follows the modulus in the replay
+/// (`SimForceModel::scene_for`), so the scene gets the layer divided by that factor, which
+/// renders the same force. Like [`apply_nuisance`], written only with an effect.
+pub fn apply_contact_nuisance(scene: &mut SceneConfig, c: f64, scaled: f64) -> Vec<SceneChange> {
+    if !(c.is_finite() && c > 0.0 && scaled.is_finite() && scaled > 0.0) {
+        return Vec::new();
+    }
+    let before = scene.contact.interface_compliance;
+    scene.contact.interface_compliance = (before + c) / scaled;
+    vec![SceneChange::Set {
+        effect: "nuisance".into(),
+        key: "scene.contact.interface_compliance".into(),
+        before: format!("{before}"),
+        after: format!("{}", scene.contact.interface_compliance),
+        from: format!(
+            "contact_compliance = {:.2} µm/N (the contact nuisance), over the modulus factor {scaled:.4}",
+            1e6 * c
+        ),
+    }]
 }
 
 /// The embedded default launch file (the base when none is given).
@@ -513,15 +541,7 @@ pub fn calibrate_input(
     };
     let start = std::time::Instant::now();
     let effects = super::candidate_effects(&exp, &model, opts);
-    let mut data = super::dataset::build(
-        &exp,
-        &model,
-        &effects,
-        &super::dataset::BuildOptions {
-            dt: opts.dt,
-            progress: opts.progress,
-        },
-    )?;
+    let mut data = super::dataset::build(&exp, &model, &effects, &opts.build_options())?;
     let diagnose = |data: &[TrialData]| {
         super::diagnose_data(label.clone(), model.describe(), data, &effects, opts, start)
     };
@@ -820,6 +840,23 @@ mod tests {
             unit: String::new(),
             value,
             std: 0.0,
+        }
+    }
+
+    /// The contact nuisance is written as a penalty layer scaled back by the calibrated modulus
+    /// factor (the replay scales a layer with the modulus), added to the scene's own; nothing
+    /// is written for no layer or a value that is not one.
+    #[test]
+    fn the_contact_nuisance_is_written_as_an_interface_compliance() {
+        let mut s = SceneConfig::default();
+        s.contact.interface_compliance = 1.0e-6;
+        let ch = apply_contact_nuisance(&mut s, 5.0e-6, 1.2);
+        assert_eq!(ch.len(), 1);
+        assert!((s.contact.interface_compliance - 6.0e-6 / 1.2).abs() < 1e-15);
+        for (c, factor) in [(0.0, 1.0), (-1e-6, 1.0), (f64::NAN, 1.0), (1e-6, 0.0)] {
+            let mut s = SceneConfig::default();
+            assert!(apply_contact_nuisance(&mut s, c, factor).is_empty());
+            assert_eq!(s, SceneConfig::default());
         }
     }
 

@@ -36,6 +36,11 @@ pub struct TrialData {
     /// `calibrate::refine`): (parameter value, force on the grid) per piecewise-linear effect.
     /// Empty for a plain diagnosis.
     pub extra_knots: HashMap<Effect, Vec<ExtraKnot>>,
+    /// The replay with a penalty layer of [`crate::fit::CONTACT_KNOT`] between probe and
+    /// tissue: the contact nuisance's knot ([`crate::fit::Nuisance`]). None when it was not
+    /// replayed (the nuisance off) or its replay diverged (`contact_knot_diverged`).
+    pub contact_knot: Option<Vec<[f64; 3]>>,
+    pub contact_knot_diverged: bool,
     /// Contact normal (outward), depth (mm) and phase at the measurement times.
     pub normal: [f64; 3],
     pub depth: Vec<f64>,
@@ -73,6 +78,9 @@ impl TrialData {
                     out.push(format!("{}: {label}", self.name));
                 }
             }
+        }
+        if self.contact_knot_diverged {
+            out.push(format!("{}: {}", self.name, contact_knot_variant().label()));
         }
         out
     }
@@ -146,6 +154,17 @@ pub struct BuildOptions {
     /// because the probe is prescribed and inertia is negligible at probing speeds).
     pub dt: f64,
     pub progress: bool,
+    /// Replay the contact nuisance's knot ([`contact_knot_variant`]) for every trial.
+    pub contact_knot: bool,
+}
+
+/// The re-simulation the contact nuisance interpolates towards: the baseline with a penalty
+/// layer of [`crate::fit::CONTACT_KNOT`] in series with the tissue under each probe ball.
+pub fn contact_knot_variant() -> Variant {
+    Variant {
+        interface_compliance: crate::fit::CONTACT_KNOT,
+        ..Variant::default()
+    }
 }
 
 /// Replay every trial at baseline and at each re-simulation the `effects` need, in parallel.
@@ -161,6 +180,10 @@ pub fn build(
         for v in e.resims() {
             variants.push((Some(e), v));
         }
+    }
+    // the contact knot is the last variant (no effect of its own)
+    if opts.contact_knot {
+        variants.push((None, contact_knot_variant()));
     }
     let jobs: Vec<(usize, usize)> = (0..variants.len())
         .flat_map(|v| (0..paths.len()).map(move |t| (v, t)))
@@ -195,13 +218,23 @@ pub fn build(
         let base = forces[0][ti].take().unwrap().forces;
         let mut resims: HashMap<Effect, Vec<Vec<[f64; 3]>>> = HashMap::new();
         let mut usable: HashMap<Effect, Vec<bool>> = HashMap::new();
+        let mut contact_knot = None;
         for (vi, (e, _)) in variants.iter().enumerate().skip(1) {
             let r = forces[vi][ti].take().unwrap();
-            usable.entry(e.unwrap()).or_default().push(!r.diverged());
-            resims.entry(e.unwrap()).or_default().push(r.forces);
+            match e {
+                Some(e) => {
+                    usable.entry(*e).or_default().push(!r.diverged());
+                    resims.entry(*e).or_default().push(r.forces);
+                }
+                None => contact_knot = Some(r),
+            }
         }
         let mut td = prepare(trial, path, base, resims);
         flag_diverged(&mut td, &usable);
+        if let Some(r) = contact_knot {
+            td.contact_knot_diverged = r.diverged();
+            td.contact_knot = (!r.diverged()).then_some(r.forces);
+        }
         out.push(td);
     }
     Ok(out)
@@ -337,6 +370,8 @@ pub fn prepare(
         resims,
         resim_ok: HashMap::new(),
         extra_knots: HashMap::new(),
+        contact_knot: None,
+        contact_knot_diverged: false,
         normal,
         depth,
         phase,

@@ -7,6 +7,7 @@
 //! (`friction`, `tilt`, `support`, `mesh`) are replayed at a few parameter values and
 //! interpolated (piecewise linear in μ and in support compliance, quadratic per tilt angle).
 use super::dataset::TrialData;
+use super::fit::NuisanceFit;
 use super::model::Variant;
 use super::signal::{lowpass_in_place, sample_uniform};
 use serde::{Deserialize, Serialize};
@@ -301,25 +302,33 @@ fn piecewise_knots(grid: &mut [[f64; 3]], td: &TrialData, e: Effect, x: f64, def
 }
 
 /// Model force on the trial's grid and at its measurement times for candidate `c` at `theta`,
-/// with the tissue's whole force scaled by `stiffness` (the global stiffness nuisance,
-/// [`crate::fit::Nuisance`]; 1: none). `grid` and `out` are scratch buffers (resized here).
+/// with the nuisances `nuisance` ([`crate::fit::Nuisance`]; [`NuisanceFit::NEUTRAL`]: none).
+/// `grid` and `out` are scratch buffers (resized here).
 ///
-/// The scale acts on the tissue's force after the re-simulated effects (a stiffer specimen at
-/// the same friction, tilt or support scales the whole replayed force: the replay is
-/// displacement-driven and linear in the modulus and support together) and before a device's
-/// bias and tool inertia, which are not tissue. Everything after it is affine in the force, so
-/// the prediction is affine in `stiffness`: what lets the fits profile it out exactly
-/// ([`crate::fit::PhaseQuad`]).
+/// The contact nuisance moves the baseline towards the trial's contact knot by its weight
+/// (like a re-simulated effect: the others' deltas add to it). The stiffness scale acts on the
+/// tissue's force after the re-simulated effects (a stiffer specimen at the same friction,
+/// tilt or support scales the whole replayed force: the replay is displacement-driven and
+/// linear in the modulus and support together) and before a device's bias and tool inertia,
+/// which are not tissue. Everything after it is affine in the force, so the prediction is
+/// affine in the stiffness s and in s × the contact weight: what lets the fits profile both
+/// out ([`crate::fit::PhaseQuad`]).
 pub fn predict(
     c: &Candidate,
     theta: &[f64],
     td: &TrialData,
-    stiffness: f64,
+    nuisance: NuisanceFit,
     grid: &mut Vec<[f64; 3]>,
     out: &mut Vec<[f64; 3]>,
 ) {
     grid.clear();
     grid.extend_from_slice(&td.base);
+    if nuisance.contact != 0.0 {
+        if let Some(knot) = &td.contact_knot {
+            axpy(grid, nuisance.contact, knot, Some(&td.base));
+        }
+    }
+    let stiffness = nuisance.stiffness;
     let mut k = 0;
     let mut delay = 0.0;
     let mut scaled = false;

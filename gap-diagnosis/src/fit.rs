@@ -146,18 +146,6 @@ impl PhaseSse {
             .filter(|&g| self.n[g] < MIN_GROUP_VALUES)
             .fold((0.0, 0), |(s, n), g| (s + self.sse[g], n + self.n[g]))
     }
-    /// (SSE, values) per variance group: each phase with enough values, the rest pooled.
-    fn groups(&self) -> Vec<(f64, usize)> {
-        let mut out: Vec<(f64, usize)> = (0..VarGroup::COUNT)
-            .filter(|&g| self.n[g] >= MIN_GROUP_VALUES)
-            .map(|g| (self.sse[g], self.n[g]))
-            .collect();
-        let (rs, rn) = self.pooled_small();
-        if rn > 0 {
-            out.push((rs, rn));
-        }
-        out
-    }
     /// Σ_g w_g ln(MSE_g) with w_g = n_g · (`effective` / n): −2 log-likelihood up to a
     /// constant when `effective` = n.
     pub fn log_mse_sum(&self, effective: f64) -> f64 {
@@ -165,10 +153,15 @@ impl PhaseSse {
         if n == 0 {
             return 0.0;
         }
-        self.groups()
-            .iter()
-            .map(|&(s, m)| m as f64 * effective / n as f64 * (s / m as f64).max(MSE_FLOOR).ln())
-            .sum()
+        // called for every nuisance trial in every objective evaluation: no allocation
+        let term =
+            |s: f64, m: usize| m as f64 * effective / n as f64 * (s / m as f64).max(MSE_FLOOR).ln();
+        let (rs, rn) = self.pooled_small();
+        let own: f64 = (0..VarGroup::COUNT)
+            .filter(|&g| self.n[g] >= MIN_GROUP_VALUES)
+            .map(|g| term(self.sse[g], self.n[g]))
+            .sum();
+        own + if rn > 0 { term(rs, rn) } else { 0.0 }
     }
     /// Mean square per variance group as the likelihood sees it: a phase with too few values
     /// gets the pooled mean square of all such phases ([`MIN_GROUP_VALUES`]); never below
@@ -193,12 +186,12 @@ impl PhaseSse {
     }
 }
 
-/// Residual sums of `c` at `theta` and stiffness scale `stiffness` over the masked samples,
-/// per phase.
+/// Residual sums of `c` at `theta` and nuisances `nuisance` over the masked samples, per
+/// phase.
 pub fn phase_sse(
     c: &Candidate,
     theta: &[f64],
-    stiffness: f64,
+    nuisance: NuisanceFit,
     data: &[TrialData],
     mask: &[Vec<bool>],
 ) -> PhaseSse {
@@ -208,7 +201,7 @@ pub fn phase_sse(
         if !m.iter().any(|&b| b) {
             continue;
         }
-        predict(c, theta, d, stiffness, &mut grid, &mut out);
+        predict(c, theta, d, nuisance, &mut grid, &mut out);
         for (j, (p, f)) in out.iter().zip(&d.f).enumerate() {
             if m[j] {
                 acc.push(d.var_group[j], sub(*p, *f));
@@ -223,63 +216,173 @@ pub fn phase_sse(
 /// discretisation of the same specimen differs from the replay (issue 15), with room to fit it.
 pub const NUISANCE_MAX: f64 = 1.25;
 
-/// The global stiffness nuisance: one scale of the tissue's whole force, fitted jointly with
-/// the baseline and with every candidate, in every fit (calibration folds and all trials).
+/// The contact nuisance's knot: a penalty layer of 1e-5 m/N (100 N/mm) per probe ball in
+/// series with the tissue, replayed once per trial.
+///
+/// Why a contact term: the force under a ball is set by the few facets it touches, and how
+/// stiff those are depends on the discretisation far more than the tissue's global response
+/// does (README, "The floor against an independent reference": the study mesh is about twice
+/// as stiff under a ball as the same specimen refined once, 2–7 contacts carrying the load).
+/// Another FE code of the same specimen (its own mesh, a penalty or surface-to-surface
+/// contact) therefore differs from the replay by a compliance in series with the tissue under
+/// the probe, which grows in relative weight as the press deepens and the tissue's contact
+/// stiffness rises: no global scale reproduces it, and without a term for it the data ask for
+/// a stiffer tissue with a compliance in series (read as `hardening+support` or `support`).
+/// 100 N/mm is about twice the default tissue's secant contact stiffness at the study's
+/// 0.6–1.2 mm presses, so the knot lowers the deepest forces by about a third: as far as the
+/// band reaches.
+pub const CONTACT_KNOT: f64 = 1.0e-5;
+
+/// Largest weight of the contact knot ([`NuisanceFit::contact`]): the nuisance interpolates
+/// between the baseline (0) and the knot (1), never beyond it.
+pub const CONTACT_WEIGHT_MAX: f64 = 1.0;
+
+/// The nuisances: one scale of the tissue's whole force and a contact compliance in series
+/// with it under the probe, fitted jointly with the baseline and with every candidate, in
+/// every fit (calibration folds and all trials).
 ///
 /// No model is the specimen: another discretisation, contact formulation or a specimen a
 /// little stiffer than its nominal modulus gives a persistent offset of the whole response.
 /// Without a term for it, that offset is the largest residual there is, and it is read as
 /// whichever effect can scale the force (`support`, `modulus`), or it hides a small effect
 /// (friction in sliding) under its own error. Fitted in every model, it is explained by none
-/// of them: an effect must explain what remains after it.
+/// of them: an effect must explain what remains after it. The contact term is the part of
+/// that offset that a different contact discretisation gives ([`CONTACT_KNOT`]); it is fitted
+/// beside every candidate, `modulus` and `hardening` included.
 ///
-/// How `modulus` coexists with it: `modulus` (and `hardening`, whose small-strain scale is
-/// the same parameter) is a global stiffness scale itself, so beside it the nuisance would be
-/// the same parameter twice. Those candidates do not fit the nuisance; their scale is the
-/// total (what they report, and what calibration writes). The baseline with the nuisance is
-/// then exactly `modulus` restricted to the band, and `modulus` can only gain on it where its
-/// fitted scale lies outside the band: `modulus` wins only when the data need a stiffness
-/// change beyond what an unrelated offset can be, by a significant held-out gain.
+/// How `modulus` coexists with the stiffness scale: `modulus` (and `hardening`, whose
+/// small-strain scale is the same parameter) is a global stiffness scale itself, so beside it
+/// the nuisance would be the same parameter twice. Those candidates do not fit the scale;
+/// their scale is the total (what they report, and what calibration writes). The baseline with
+/// the nuisance is then exactly `modulus` restricted to the band, and `modulus` can only gain
+/// on it where its fitted scale lies outside the band: `modulus` wins only when the data need
+/// a stiffness change beyond what an unrelated offset can be, by a significant held-out gain.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Nuisance {
+    /// Band of the stiffness scale (`lo == hi`: held there).
     pub lo: f64,
     pub hi: f64,
+    /// Largest weight of the contact knot (0: the contact nuisance is off).
+    pub contact_max: f64,
 }
 
 impl Nuisance {
-    /// No nuisance: the scale is held at 1 (the diagnosis before issue 15).
-    pub const OFF: Nuisance = Nuisance { lo: 1.0, hi: 1.0 };
-    /// The band [1/[`NUISANCE_MAX`], [`NUISANCE_MAX`]].
+    /// No nuisance: the scale is held at 1, no contact term (the diagnosis before issue 15).
+    pub const OFF: Nuisance = Nuisance {
+        lo: 1.0,
+        hi: 1.0,
+        contact_max: 0.0,
+    };
+    /// The stiffness band [1/[`NUISANCE_MAX`], [`NUISANCE_MAX`]], no contact term.
     pub const STIFFNESS: Nuisance = Nuisance {
         lo: 1.0 / NUISANCE_MAX,
         hi: NUISANCE_MAX,
+        contact_max: 0.0,
     };
-    /// The nuisance as fitted beside `c` (held at 1 where `c` carries its own scale).
+    /// The stiffness band and the contact term up to [`CONTACT_WEIGHT_MAX`].
+    pub const STIFFNESS_AND_CONTACT: Nuisance = Nuisance {
+        lo: 1.0 / NUISANCE_MAX,
+        hi: NUISANCE_MAX,
+        contact_max: CONTACT_WEIGHT_MAX,
+    };
+    /// The nuisance as fitted beside `c` (the scale held at 1 where `c` carries its own).
     pub fn for_candidate(self, c: &Candidate) -> Nuisance {
         if c.absorbs_stiffness() {
-            Nuisance::OFF
+            Nuisance {
+                lo: 1.0,
+                hi: 1.0,
+                ..self
+            }
         } else {
             self
         }
     }
-    /// The scale is a free parameter (it counts in the parameter penalties).
-    pub fn fitted(self) -> bool {
+    /// The nuisance the trials can carry: the contact term only where every trial has its
+    /// knot (replayed and not diverged) and the knot differs from the baseline somewhere.
+    pub fn for_data(self, data: &[TrialData]) -> Nuisance {
+        let replayed = data.iter().all(|d| d.contact_knot.is_some());
+        // a model without a contact layer (an analytic stand-in) replays the knot as the
+        // baseline: nothing to fit, and no parameter to count
+        let visible = data
+            .iter()
+            .any(|d| d.contact_knot.as_ref().is_some_and(|k| *k != d.base));
+        if replayed && visible {
+            self
+        } else {
+            Nuisance {
+                contact_max: 0.0,
+                ..self
+            }
+        }
+    }
+    /// The stiffness scale is a free parameter.
+    pub fn stiffness_fitted(self) -> bool {
         self.lo < self.hi
+    }
+    /// The contact weight is a free parameter.
+    pub fn contact_fitted(self) -> bool {
+        self.contact_max > 0.0
+    }
+    /// Free nuisance parameters (they count in the parameter penalties).
+    pub fn count(self) -> usize {
+        usize::from(self.stiffness_fitted()) + usize::from(self.contact_fitted())
+    }
+    /// The nuisances at rest: the scale at its band's low end (1 when held), no contact term.
+    pub fn held(self) -> NuisanceFit {
+        NuisanceFit {
+            stiffness: self.lo,
+            contact: 0.0,
+        }
     }
 }
 
-/// Per variance group, the residual sums of a prediction affine in the stiffness scale s:
-/// residual r(s) = s·a + b, so SSE_g(s) = s² Σa·a + 2s Σa·b + Σb·b.
+/// Values of the nuisances ([`Nuisance`]): the tissue force's scale and the contact knot's
+/// weight (compliance `contact` × [`CONTACT_KNOT`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NuisanceFit {
+    pub stiffness: f64,
+    pub contact: f64,
+}
+
+impl NuisanceFit {
+    /// No nuisance: the replay as it is.
+    pub const NEUTRAL: NuisanceFit = NuisanceFit {
+        stiffness: 1.0,
+        contact: 0.0,
+    };
+    /// The scale alone.
+    pub fn scale(stiffness: f64) -> NuisanceFit {
+        NuisanceFit {
+            stiffness,
+            contact: 0.0,
+        }
+    }
+    /// The contact nuisance as a compliance in series under each probe ball, m/N.
+    pub fn contact_compliance(self) -> f64 {
+        self.contact * CONTACT_KNOT
+    }
+}
+
+/// Per variance group, the residual sums of a prediction affine in the stiffness scale s and
+/// in u = s × the contact weight: residual r = s·a + u·b + c, so
+/// SSE_g = s²Σa·a + u²Σb·b + Σc·c + 2su Σa·b + 2s Σa·c + 2u Σb·c.
 ///
-/// The prediction is affine in s ([`predict`]), so one prediction (two with a device term)
-/// gives the residual sums at every s: the nuisance is profiled out exactly in each objective
-/// evaluation without adding a dimension to the Nelder–Mead search.
+/// The prediction is affine in both ([`predict`]), so two or three predictions give the
+/// residual sums at every (s, u): the nuisances are profiled out in each objective evaluation
+/// without adding dimensions to the Nelder–Mead search.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct PhaseQuad {
     aa: [f64; VarGroup::COUNT],
     ab: [f64; VarGroup::COUNT],
+    ac: [f64; VarGroup::COUNT],
     bb: [f64; VarGroup::COUNT],
+    bc: [f64; VarGroup::COUNT],
+    cc: [f64; VarGroup::COUNT],
     n: [usize; VarGroup::COUNT],
+    /// Σ a·n and Σ b·n over the samples in contact (n: the trial's normal): the baseline's
+    /// and the contact knot's share of the mean normal force ([`PhaseQuad::knot_level`]).
+    normal_a: f64,
+    normal_b: f64,
 }
 
 /// Golden-section iterations of the nuisance profile: the bracket shrinks to 0.618^40 of the
@@ -288,89 +391,282 @@ const PROFILE_ITERS: usize = 40;
 /// Grid points over the band before the golden section (the profile of a sum of logarithms of
 /// quadratics can have more than one minimum).
 const PROFILE_GRID: usize = 12;
+/// Reweighted least-squares rounds of the joint nuisance profile: each minimises the
+/// residual weighted by the phases' variances of the round before, whose fixed point is the
+/// stationary condition of the phase-variance likelihood; a few rounds settle it.
+const CONTACT_ROUNDS: usize = 8;
 
 impl PhaseQuad {
-    fn push(&mut self, group: VarGroup, a: [f64; 3], b: [f64; 3]) {
+    /// Adds one sample's coefficient vectors: `a` multiplies the scale, `b` the scaled contact
+    /// weight, `c` is the rest (model at zero scale minus measurement).
+    fn push(&mut self, group: VarGroup, a: [f64; 3], b: [f64; 3], c: [f64; 3]) {
         let g = group as usize;
         self.aa[g] += dot(a, a);
         self.ab[g] += dot(a, b);
+        self.ac[g] += dot(a, c);
         self.bb[g] += dot(b, b);
+        self.bc[g] += dot(b, c);
+        self.cc[g] += dot(c, c);
         self.n[g] += 3;
     }
-    /// Residual sums at stiffness scale `s`.
-    pub fn at(&self, s: f64) -> PhaseSse {
+    /// Residual sums at stiffness scale `s` and scaled contact weight `u`.
+    pub fn at(&self, s: f64, u: f64) -> PhaseSse {
         let mut acc = PhaseSse::default();
         for g in 0..VarGroup::COUNT {
-            acc.sse[g] = (s * s * self.aa[g] + 2.0 * s * self.ab[g] + self.bb[g]).max(0.0);
+            acc.sse[g] = (s * s * self.aa[g]
+                + u * u * self.bb[g]
+                + self.cc[g]
+                + 2.0 * (s * u * self.ab[g] + s * self.ac[g] + u * self.bc[g]))
+                .max(0.0);
             acc.n[g] = self.n[g];
         }
         acc
     }
-    /// The scale in `band` of largest likelihood (the phase-variance one, [`PhaseSse`]) and
-    /// the residual sums there.
-    pub fn profile(&self, band: Nuisance) -> (f64, PhaseSse) {
-        if !band.fitted() {
-            return (band.lo, self.at(band.lo));
+    /// How much the contact knot changes the response's level: its mean normal force in
+    /// contact relative to the baseline's, minus 1 (negative: the layer softens).
+    fn knot_level(&self) -> f64 {
+        if self.normal_a.abs() > 0.0 {
+            self.normal_b / self.normal_a
+        } else {
+            0.0
         }
+    }
+    fn objective(&self, s: f64, u: f64) -> f64 {
         let n = self.n.iter().sum::<usize>() as f64;
-        let obj = |x: f64| self.at(x.exp()).log_mse_sum(n);
-        let (a, b) = (band.lo.ln(), band.hi.ln());
-        let step = (b - a) / PROFILE_GRID as f64;
-        let best = (0..=PROFILE_GRID)
-            .map(|i| a + i as f64 * step)
-            .min_by(|x, y| obj(*x).total_cmp(&obj(*y)))
-            .unwrap_or(0.0);
-        let (mut lo, mut hi) = ((best - step).max(a), (best + step).min(b));
-        let r = 0.5 * (5f64.sqrt() - 1.0);
-        let (mut x1, mut x2) = (hi - r * (hi - lo), lo + r * (hi - lo));
-        let (mut f1, mut f2) = (obj(x1), obj(x2));
-        for _ in 0..PROFILE_ITERS {
-            if f1 <= f2 {
-                hi = x2;
-                (x2, f2) = (x1, f1);
-                x1 = hi - r * (hi - lo);
-                f1 = obj(x1);
-            } else {
-                lo = x1;
-                (x1, f1) = (x2, f2);
-                x2 = lo + r * (hi - lo);
-                f2 = obj(x2);
+        self.at(s, u).log_mse_sum(n)
+    }
+    /// The nuisances in `band` of largest likelihood (the phase-variance one, [`PhaseSse`])
+    /// and the residual sums there.
+    ///
+    /// With the contact term the stiffness band bounds the level of the response,
+    /// s·(1 + w·ρ) with ρ the knot's change of the mean normal force in contact
+    /// ([`PhaseQuad::knot_level`]), not the scale alone: a contact layer softens the deepest
+    /// forces, and a stiffer tissue behind it keeps the level. Bounding the scale alone left
+    /// the pair (a stiffer tissue, a softer contact) outside the band although its mean force
+    /// was the replay's, and the self-test's no-effect case read as `hardening`.
+    ///
+    /// The scale alone first, by a golden section over its band with no contact term (the
+    /// profile without the contact nuisance, exactly). Then both by reweighted least squares
+    /// from there: each round takes the phases' variances at the current values and minimises
+    /// the weighted residual, a quadratic, by exact coordinate steps in the scale and the
+    /// contact weight within their bands; the stationary point of those rounds is the
+    /// likelihood's. The result is the best point visited, so it is never worse than the
+    /// scale alone.
+    pub fn profile(&self, band: Nuisance) -> (NuisanceFit, PhaseSse) {
+        let done = |f: NuisanceFit| (f, self.at(f.stiffness, f.stiffness * f.contact));
+        let s0 = if band.stiffness_fitted() {
+            let (x, _) = golden_min(
+                &|x: f64| self.objective(x.exp(), 0.0),
+                band.lo.ln(),
+                band.hi.ln(),
+                PROFILE_GRID,
+                PROFILE_ITERS,
+            );
+            x.exp().clamp(band.lo, band.hi)
+        } else {
+            band.lo
+        };
+        let mut best = (NuisanceFit::scale(s0), self.objective(s0, 0.0));
+        if !band.contact_fitted() || self.bb.iter().all(|&v| v <= 0.0) {
+            return done(best.0);
+        }
+        let rho = self.knot_level();
+        let (mut s, mut u) = (s0, 0.0);
+        for _ in 0..CONTACT_ROUNDS {
+            let mse = self.at(s, u).group_mse();
+            let weighted = |v: &[f64; VarGroup::COUNT]| -> f64 {
+                (0..VarGroup::COUNT)
+                    .filter(|&g| self.n[g] > 0)
+                    .map(|g| v[g] / mse[g])
+                    .sum()
+            };
+            let q = WeightedQuad {
+                aa: weighted(&self.aa),
+                ab: weighted(&self.ab),
+                ac: weighted(&self.ac),
+                bb: weighted(&self.bb),
+                bc: weighted(&self.bc),
+            };
+            (s, u) = q.minimum(band, rho);
+            let v = self.objective(s, u);
+            if v < best.1 {
+                best = (
+                    NuisanceFit {
+                        stiffness: s,
+                        contact: if s > 0.0 { u / s } else { 0.0 },
+                    },
+                    v,
+                );
             }
         }
-        // the grid point itself when the section found nothing better (a minimum on the edge)
-        let x = [(best, obj(best)), (x1, f1), (x2, f2)]
-            .into_iter()
-            .min_by(|p, q| p.1.total_cmp(&q.1))
-            .map(|p| p.0)
-            .unwrap_or(0.0);
-        let s = x.exp().clamp(band.lo, band.hi);
-        (s, self.at(s))
+        done(best.0)
     }
 }
 
-/// [`PhaseQuad`] of `c` at `theta` over the masked samples.
+/// One reweighting round's residual, Σ_g (s²aa + 2su·ab + u²bb + 2s·ac + 2u·bc)/MSE_g plus a
+/// constant: a quadratic in (s, u) minimised exactly over the nuisances' region.
+struct WeightedQuad {
+    aa: f64,
+    ab: f64,
+    ac: f64,
+    bb: f64,
+    bc: f64,
+}
+
+impl WeightedQuad {
+    fn value(&self, s: f64, u: f64) -> f64 {
+        s * s * self.aa
+            + 2.0 * s * u * self.ab
+            + u * u * self.bb
+            + 2.0 * (s * self.ac + u * self.bc)
+    }
+    /// The minimum over the region: the level s + ρ·u in the band (ρ: the knot's change of
+    /// the mean normal force, [`PhaseQuad::knot_level`]), 0 ≤ u ≤ `contact_max`·s (u = s × the
+    /// contact weight). Inside it, the stationary point; else the best of its edges, each a
+    /// one-dimensional quadratic minimised in closed form.
+    fn minimum(&self, band: Nuisance, rho: f64) -> (f64, f64) {
+        let (lo, hi, w_max) = (band.lo, band.hi, band.contact_max);
+        // the level s + ρ·u at the knot's full weight stays positive
+        let rho = if w_max > 0.0 {
+            rho.max((MIN_KNOT_LEVEL - 1.0) / w_max)
+        } else {
+            0.0
+        };
+        let det = self.aa * self.bb - self.ab * self.ab;
+        if band.stiffness_fitted() && det > 0.0 {
+            let s = (self.ab * self.bc - self.bb * self.ac) / det;
+            let u = (self.ab * self.ac - self.aa * self.bc) / det;
+            if (lo..=hi).contains(&(s + rho * u)) && (0.0..=w_max * s).contains(&u) {
+                return (s, u);
+            }
+        }
+        // along (s, u) = p + t·d, t ∈ [0, t_max]: the quadratic's minimum in t, clamped
+        let on_edge = |p: (f64, f64), d: (f64, f64), t_max: f64| -> (f64, f64) {
+            let curv = d.0 * d.0 * self.aa + 2.0 * d.0 * d.1 * self.ab + d.1 * d.1 * self.bb;
+            let slope = p.0 * d.0 * self.aa
+                + (p.0 * d.1 + p.1 * d.0) * self.ab
+                + p.1 * d.1 * self.bb
+                + d.0 * self.ac
+                + d.1 * self.bc;
+            let t = if curv > 0.0 {
+                (-slope / curv).clamp(0.0, t_max)
+            } else if slope < 0.0 {
+                t_max
+            } else {
+                0.0
+            };
+            (p.0 + t * d.0, p.1 + t * d.1)
+        };
+        // the scale held: the contact weight's edge only
+        let held = on_edge((lo, 0.0), (0.0, 1.0), w_max * lo);
+        if !band.stiffness_fitted() {
+            return held;
+        }
+        // the region's edges: the level at each end of its band (u = 0 up to the knot's full
+        // weight), no contact term, and the knot's full weight
+        let full = 1.0 + rho * w_max;
+        [
+            on_edge((lo, 0.0), (-rho, 1.0), w_max * lo / full),
+            on_edge((hi, 0.0), (-rho, 1.0), w_max * hi / full),
+            on_edge((lo, 0.0), (1.0, 0.0), hi - lo),
+            on_edge(
+                (lo / full, w_max * lo / full),
+                (1.0, w_max),
+                (hi - lo) / full,
+            ),
+        ]
+        .into_iter()
+        .min_by(|p, q| self.value(p.0, p.1).total_cmp(&self.value(q.0, q.1)))
+        .unwrap_or((lo, 0.0))
+    }
+}
+
+/// Smallest level the contact knot may leave of the baseline's mean force (a knot that took
+/// nearly all of it would make the level band unbounded in the scale).
+const MIN_KNOT_LEVEL: f64 = 0.2;
+
+/// Minimum of `f` over [a, b]: the best of `grid` + 1 evenly spaced points, then a golden
+/// section over the two grid cells around it (`iters` rounds); the grid point itself when the
+/// section finds nothing better (a minimum on the edge). The profile of a sum of logarithms
+/// of quadratics can have more than one minimum, which the grid guards against.
+fn golden_min(f: &dyn Fn(f64) -> f64, a: f64, b: f64, grid: usize, iters: usize) -> (f64, f64) {
+    if b <= a {
+        return (a, f(a));
+    }
+    let step = (b - a) / grid as f64;
+    let (best, f_best) = (0..=grid)
+        .map(|i| {
+            let x = a + i as f64 * step;
+            (x, f(x))
+        })
+        .min_by(|p, q| p.1.total_cmp(&q.1))
+        .unwrap_or((a, f(a)));
+    let (mut lo, mut hi) = ((best - step).max(a), (best + step).min(b));
+    let r = 0.5 * (5f64.sqrt() - 1.0);
+    let (mut x1, mut x2) = (hi - r * (hi - lo), lo + r * (hi - lo));
+    let (mut f1, mut f2) = (f(x1), f(x2));
+    for _ in 0..iters {
+        if f1 <= f2 {
+            hi = x2;
+            (x2, f2) = (x1, f1);
+            x1 = hi - r * (hi - lo);
+            f1 = f(x1);
+        } else {
+            lo = x1;
+            (x1, f1) = (x2, f2);
+            x2 = lo + r * (hi - lo);
+            f2 = f(x2);
+        }
+    }
+    [(best, f_best), (x1, f1), (x2, f2)]
+        .into_iter()
+        .min_by(|p, q| p.1.total_cmp(&q.1))
+        .map(|(x, v)| (x.clamp(a, b), v))
+        .unwrap_or((best, f_best))
+}
+
+/// [`PhaseQuad`] of `c` at `theta` over the masked samples, for the nuisances of `band`.
 pub fn phase_quad(
     c: &Candidate,
     theta: &[f64],
     data: &[TrialData],
     mask: &[Vec<bool>],
+    band: Nuisance,
 ) -> PhaseQuad {
-    let (mut grid, mut one, mut zero) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut grid, mut one, mut zero, mut knot) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     // without a device term the prediction is linear in the scale: the part at 0 is 0
     let affine = c.0.contains(&Effect::Device);
+    let contact = band.contact_fitted();
     let mut acc = PhaseQuad::default();
     for (d, m) in data.iter().zip(mask) {
         if !m.iter().any(|&b| b) {
             continue;
         }
-        predict(c, theta, d, 1.0, &mut grid, &mut one);
+        predict(c, theta, d, NuisanceFit::NEUTRAL, &mut grid, &mut one);
         if affine {
-            predict(c, theta, d, 0.0, &mut grid, &mut zero);
+            predict(c, theta, d, NuisanceFit::scale(0.0), &mut grid, &mut zero);
+        }
+        if contact {
+            let at_knot = NuisanceFit {
+                stiffness: 1.0,
+                contact: 1.0,
+            };
+            predict(c, theta, d, at_knot, &mut grid, &mut knot);
         }
         for j in 0..d.t.len() {
             if m[j] {
                 let z = if affine { zero[j] } else { [0.0; 3] };
-                acc.push(d.var_group[j], sub(one[j], z), sub(z, d.f[j]));
+                let b = if contact {
+                    sub(knot[j], one[j])
+                } else {
+                    [0.0; 3]
+                };
+                let a = sub(one[j], z);
+                if d.phase[j] != super::metrics::Phase::Approach {
+                    acc.normal_a += dot(a, d.normal);
+                    acc.normal_b += dot(b, d.normal);
+                }
+                acc.push(d.var_group[j], a, b, sub(z, d.f[j]));
             }
         }
     }
@@ -404,11 +700,11 @@ impl Baseline {
     }
 }
 
-/// Sum of squared residuals over the masked samples at stiffness scale `stiffness`.
+/// Sum of squared residuals over the masked samples at nuisances `nuisance`.
 pub fn sse(
     c: &Candidate,
     theta: &[f64],
-    stiffness: f64,
+    nuisance: NuisanceFit,
     data: &[TrialData],
     mask: &[Vec<bool>],
 ) -> (f64, usize) {
@@ -418,7 +714,7 @@ pub fn sse(
         if !m.iter().any(|&b| b) {
             continue;
         }
-        predict(c, theta, d, stiffness, &mut grid, &mut out);
+        predict(c, theta, d, nuisance, &mut grid, &mut out);
         for ((p, f), &b) in out.iter().zip(&d.f).zip(m) {
             if b {
                 let r = sub(*p, *f);
@@ -532,19 +828,19 @@ pub fn default_free(c: &Candidate) -> Vec<bool> {
 /// Grid intervals per parameter of the hardening start search.
 const HARDENING_GRID: usize = 24;
 
-/// A fit: the candidate's parameters, the stiffness scale fitted with them (1 when the
-/// nuisance is off), and their plain sum of squared residuals.
+/// A fit: the candidate's parameters, the nuisances fitted with them (neutral when off), and
+/// their plain sum of squared residuals.
 #[derive(Debug, Clone)]
 pub struct Fitted {
     pub theta: Vec<f64>,
-    pub stiffness: f64,
+    pub nuisance: NuisanceFit,
     pub sse: f64,
 }
 
 /// Maximum-likelihood fit of `c` on the masked samples (one residual variance per phase,
 /// see [`PhaseSse`]); multi-start Nelder–Mead in unit space over the `free` parameters (the
-/// others stay at their neutral value), the stiffness nuisance profiled out at every
-/// evaluation within `nuisance` ([`PhaseQuad::profile`]).
+/// others stay at their neutral value), the nuisances profiled out at every evaluation within
+/// `nuisance` ([`PhaseQuad::profile`]).
 pub fn fit(
     c: &Candidate,
     data: &[TrialData],
@@ -565,11 +861,12 @@ pub fn fit(
         to_theta(&specs, &x)
     };
     // the phase-variance likelihood (see `PhaseSse`), the nuisance profiled out
-    let profiled = |th: &[f64]| -> (f64, PhaseSse) {
-        if nuisance.fitted() {
-            phase_quad(c, th, data, mask).profile(nuisance)
+    let profiled = |th: &[f64]| -> (NuisanceFit, PhaseSse) {
+        if nuisance.count() > 0 {
+            phase_quad(c, th, data, mask, nuisance).profile(nuisance)
         } else {
-            (nuisance.lo, phase_sse(c, th, nuisance.lo, data, mask))
+            let held = nuisance.held();
+            (held, phase_sse(c, th, held, data, mask))
         }
     };
     let obj = |u: &[f64]| {
@@ -577,11 +874,11 @@ pub fn fit(
         acc.log_mse_sum(acc.total().1 as f64)
     };
     let done = |theta: Vec<f64>| -> Fitted {
-        let stiffness = profiled(&theta).0;
-        let plain = sse(c, &theta, stiffness, data, mask).0;
+        let fitted = profiled(&theta).0;
+        let plain = sse(c, &theta, fitted, data, mask).0;
         Fitted {
             theta,
-            stiffness,
+            nuisance: fitted,
             sse: plain,
         }
     };
@@ -635,13 +932,13 @@ pub fn fit(
 }
 
 /// Standard errors from the Gauss–Newton covariance s²(JᵀJ)⁻¹ at the optimum, for the
-/// `free` parameters (the others are held: 0), with the stiffness scale held at its fitted
-/// value (conditional on it: an effect's parameter that trades against the scale reads a
-/// little more certain than it is).
+/// `free` parameters (the others are held: 0), with the nuisances held at their fitted values
+/// (conditional on them: an effect's parameter that trades against the scale reads a little
+/// more certain than it is).
 pub fn uncertainty(
     c: &Candidate,
     theta: &[f64],
-    stiffness: f64,
+    nuisance: NuisanceFit,
     data: &[TrialData],
     free: &[bool],
 ) -> Vec<f64> {
@@ -655,7 +952,7 @@ pub fn uncertainty(
         let (mut grid, mut out) = (Vec::new(), Vec::new());
         let mut r = Vec::new();
         for d in data {
-            predict(c, th, d, stiffness, &mut grid, &mut out);
+            predict(c, th, d, nuisance, &mut grid, &mut out);
             for (p, f) in out.iter().zip(&d.f) {
                 r.extend_from_slice(&sub(*p, *f));
             }
@@ -723,13 +1020,17 @@ pub struct CandidateScore {
     /// held-out, N.
     pub heldout_study_error: f64,
     /// Ranking score: held-out phase-variance log-likelihood (effective values) with a
-    /// BIC-style parameter penalty (the stiffness nuisance counts as a parameter where fitted).
+    /// BIC-style parameter penalty (each nuisance counts as a parameter where fitted).
     pub score: f64,
     /// The stiffness nuisance fitted with the candidate on all trials ([`Nuisance`]); absent
     /// where the candidate's own scale is the total (`modulus`, `hardening`) or the nuisance
     /// is off.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub nuisance_scale: Option<f64>,
+    /// The contact nuisance fitted with the candidate on all trials, as a compliance in series
+    /// under each probe ball, m/N ([`Nuisance`], [`CONTACT_KNOT`]); absent where it is off.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub contact_compliance: Option<f64>,
     /// Held-out shrink against the nuisance floor (the baseline with the stiffness nuisance
     /// fitted per fold): the larger of the phase-weighted and plain shrinks. What the verdict
     /// requires of an effect, beside its significance ([`CandidateScore::floor_gain_z`]).
@@ -763,9 +1064,10 @@ pub fn study_metric(d: &TrialData, pred: &[[f64; 3]]) -> (f64, f64) {
     (m, p)
 }
 
-/// Fit `c` per fold (held-out score) and on everything (parameters, BIC), with the stiffness
-/// nuisance `nuisance` fitted jointly wherever `c` does not carry its own scale
-/// ([`Nuisance::for_candidate`]). The empty candidate is the nuisance floor (named `none`).
+/// Fit `c` per fold (held-out score) and on everything (parameters, BIC), with the nuisances
+/// `nuisance` fitted jointly (the stiffness scale wherever `c` does not carry its own,
+/// [`Nuisance::for_candidate`]; the contact term where the trials have its knot,
+/// [`Nuisance::for_data`]). The empty candidate is the nuisance floor (named `none`).
 pub fn score_candidate(
     c: &Candidate,
     data: &[TrialData],
@@ -774,8 +1076,8 @@ pub fn score_candidate(
     inits: &[Vec<f64>],
     nuisance: Nuisance,
 ) -> CandidateScore {
-    let nuisance = nuisance.for_candidate(c);
-    let extra = usize::from(nuisance.fitted());
+    let nuisance = nuisance.for_candidate(c).for_data(data);
+    let extra = nuisance.count();
     let all: Vec<Vec<bool>> = data.iter().map(|d| vec![true; d.t.len()]).collect();
     let n_all = data.iter().map(|d| 3 * d.t.len()).sum::<usize>();
     let ne_all = effective_n(n_all);
@@ -787,11 +1089,11 @@ pub fn score_candidate(
     let mut free = default_free(c);
     let Fitted {
         mut theta,
-        mut stiffness,
+        nuisance: mut fitted,
         sse: mut sse_all,
     } = fit(c, data, &all, inits, &free, nuisance);
     let mut k = free.iter().filter(|&&f| f).count();
-    let mut acc_all = phase_sse(c, &theta, stiffness, data, &all);
+    let mut acc_all = phase_sse(c, &theta, fitted, data, &all);
     let mut bic = bic_of(&acc_all, k + extra);
     if free.iter().any(|f| !f) {
         // the optional parameters (second Prony term) are kept only when they lower the
@@ -810,15 +1112,15 @@ pub fn score_candidate(
         fi.push(seeded);
         let f2 = fit(c, data, &all, &fi, &all_free, nuisance);
         let k2 = all_free.len();
-        let acc2 = phase_sse(c, &f2.theta, f2.stiffness, data, &all);
+        let acc2 = phase_sse(c, &f2.theta, f2.nuisance, data, &all);
         // and the extra term must remove a quarter of what the simpler fit leaves: a few
         // percent is what it absorbs of other effects' model error (a tilt, a coarse mesh)
         if crit(&acc2, k2) < crit(&acc_all, k) - 10.0
             && acc2.weighted_rmse().powi(2) < 0.75 * acc_all.weighted_rmse().powi(2)
         {
             bic = bic_of(&acc2, k2 + extra);
-            (theta, stiffness, sse_all, k, acc_all, free) =
-                (f2.theta, f2.stiffness, f2.sse, k2, acc2, all_free);
+            (theta, fitted, sse_all, k, acc_all, free) =
+                (f2.theta, f2.nuisance, f2.sse, k2, acc2, all_free);
         }
     }
     let _ = acc_all;
@@ -834,7 +1136,7 @@ pub fn score_candidate(
             if !f.held[i].iter().any(|&b| b) {
                 continue;
             }
-            predict(c, &ff.theta, d, ff.stiffness, &mut grid, &mut out);
+            predict(c, &ff.theta, d, ff.nuisance, &mut grid, &mut out);
             for j in 0..d.t.len() {
                 if f.held[i][j] {
                     held_pred[i][j] = out[j];
@@ -845,7 +1147,7 @@ pub fn score_candidate(
     }
     let heldout_rmse = held.rmse();
     let heldout_weighted_rmse = held.weighted_rmse();
-    let se = uncertainty(c, &theta, stiffness, data, &free);
+    let se = uncertainty(c, &theta, fitted, data, &free);
     let params = c
         .params()
         .into_iter()
@@ -888,7 +1190,10 @@ pub fn score_candidate(
         heldout_weighted_shrink: shrink(heldout_weighted_rmse, baseline.weighted_rmse),
         heldout_study_error: study,
         score,
-        nuisance_scale: nuisance.fitted().then_some(stiffness),
+        nuisance_scale: nuisance.stiffness_fitted().then_some(fitted.stiffness),
+        contact_compliance: nuisance
+            .contact_fitted()
+            .then_some(fitted.contact_compliance()),
         floor_shrink: 0.0,
         floor_gain_z: 0.0,
         theta,
@@ -944,23 +1249,95 @@ mod tests {
                 } else {
                     VarGroup::Hold
                 };
-                // residual s·m − truth·m: a = m, b = −truth·m
-                q.push(group, *m, m.map(|v| -truth * v));
+                // residual s·m − truth·m: a = m, c = −truth·m
+                q.push(group, *m, [0.0; 3], m.map(|v| -truth * v));
             }
             q
         };
         // noise-free: the likelihood is flat once a phase's mean square is under MSE_FLOOR
         // (here within ~3e-6 of the scale)
-        let (s, acc) = quad_for(1.13).profile(Nuisance::STIFFNESS);
+        let scale = |q: PhaseQuad, band| {
+            let (f, acc): (NuisanceFit, PhaseSse) = q.profile(band);
+            (f.stiffness, acc)
+        };
+        let (s, acc) = scale(quad_for(1.13), Nuisance::STIFFNESS);
         assert!((s - 1.13).abs() < 1e-4, "fitted {s}");
         assert!(acc.total().0 < 1e-6);
-        let (s, _) = quad_for(1.6).profile(Nuisance::STIFFNESS);
+        let (s, _) = scale(quad_for(1.6), Nuisance::STIFFNESS);
         assert!((s - NUISANCE_MAX).abs() < 1e-9, "fitted {s}");
-        let (s, _) = quad_for(0.5).profile(Nuisance::STIFFNESS);
+        let (s, _) = scale(quad_for(0.5), Nuisance::STIFFNESS);
         assert!((s - 1.0 / NUISANCE_MAX).abs() < 1e-9, "fitted {s}");
-        let (s, acc) = quad_for(1.13).profile(Nuisance::OFF);
+        let (s, acc) = scale(quad_for(1.13), Nuisance::OFF);
         assert_eq!(s, 1.0);
         assert!(acc.total().0 > 0.1);
+    }
+
+    /// Both nuisances profiled together recover a scale and a contact weight inside their
+    /// bands, stop at the contact band's edge beyond it, and the contact term stays at 0 when
+    /// it is off or the data cannot see it (a knot equal to the baseline). With the contact
+    /// term the band bounds the level, not the scale: a stiffer tissue behind a softer contact
+    /// at the replay's level is inside it.
+    #[test]
+    fn the_contact_nuisance_profile_finds_the_weight_with_the_scale() {
+        // per sample: the baseline m and the knot's change to it d (a series compliance takes
+        // most off the largest forces)
+        let samples = [
+            ([0.0, 0.0, 2.0], [0.0, 0.0, -0.1]),
+            ([0.1, 0.0, 5.0], [0.0, 0.0, -0.9]),
+            ([0.0, -0.2, 9.0], [0.0, 0.05, -2.8]),
+            ([0.0, 0.3, 12.0], [0.0, -0.1, -4.6]),
+            ([0.0, 0.0, 0.0], [0.0, 0.0, 0.0]),
+        ];
+        let quad_for = |s_true: f64, w_true: f64, visible: bool| {
+            let mut q = PhaseQuad::default();
+            for (i, (m, d)) in samples.iter().enumerate() {
+                let group = if i == 4 {
+                    VarGroup::Free
+                } else if i % 2 == 0 {
+                    VarGroup::Hold
+                } else {
+                    VarGroup::Loading
+                };
+                let truth: [f64; 3] = std::array::from_fn(|k| s_true * (m[k] + w_true * d[k]));
+                let b = if visible { *d } else { [0.0; 3] };
+                q.push(group, *m, b, truth.map(|v| -v));
+                // in contact along z (the free sample carries no force)
+                q.normal_a += m[2];
+                q.normal_b += b[2];
+            }
+            q
+        };
+        let (f, acc) = quad_for(1.1, 0.45, true).profile(Nuisance::STIFFNESS_AND_CONTACT);
+        assert!((f.stiffness - 1.1).abs() < 1e-3, "{f:?}");
+        assert!((f.contact - 0.45).abs() < 1e-3, "{f:?}");
+        assert!(acc.total().0 < 1e-5);
+        assert!((f.contact_compliance() - 0.45 * CONTACT_KNOT).abs() < 1e-3 * CONTACT_KNOT);
+        // ×1.45 behind the knot at 0.9: the level ×1.45·(1 − 0.9·0.3) = ×1.06 is in the band
+        // (ρ = −8.4/28), the scale alone is not
+        let (f, acc) = quad_for(1.45, 0.9, true).profile(Nuisance::STIFFNESS_AND_CONTACT);
+        assert!((f.stiffness - 1.45).abs() < 1e-3, "{f:?}");
+        assert!((f.contact - 0.9).abs() < 1e-3, "{f:?}");
+        assert!(acc.total().0 < 1e-5);
+        let (f, _) = quad_for(1.45, 0.0, true).profile(Nuisance::STIFFNESS_AND_CONTACT);
+        assert!((f.stiffness - NUISANCE_MAX).abs() < 1e-9, "{f:?}");
+        // a modulus-like candidate: the scale held at 1, the weight alone
+        let held =
+            Nuisance::STIFFNESS_AND_CONTACT.for_candidate(&Candidate::single(Effect::Modulus));
+        let (f, _) = quad_for(1.0, 0.7, true).profile(held);
+        assert_eq!(f.stiffness, 1.0);
+        assert!((f.contact - 0.7).abs() < 1e-3, "{f:?}");
+        // beyond the band: its edge
+        let (f, _) = quad_for(1.0, 1.6, true).profile(Nuisance::STIFFNESS_AND_CONTACT);
+        assert!((f.contact - CONTACT_WEIGHT_MAX).abs() < 1e-9, "{f:?}");
+        // a truth stiffer than the baseline: no negative compliance
+        let (f, _) = quad_for(1.0, -0.5, true).profile(Nuisance::STIFFNESS_AND_CONTACT);
+        assert_eq!(f.contact, 0.0, "{f:?}");
+        // off, or invisible: 0, and the scale is fitted as before
+        let (f, _) = quad_for(1.1, 0.45, true).profile(Nuisance::STIFFNESS);
+        assert_eq!(f.contact, 0.0);
+        let (f, _) = quad_for(1.1, 0.0, false).profile(Nuisance::STIFFNESS_AND_CONTACT);
+        assert_eq!(f.contact, 0.0);
+        assert!((f.stiffness - 1.1).abs() < 1e-4, "{f:?}");
     }
 
     #[test]

@@ -424,8 +424,32 @@ fn rendering_section(g: &super::session::RenderingGap) -> String {
     h
 }
 
-/// What the stiffness nuisance is, and what it was fitted to here.
+/// What the nuisances are, and what they were fitted to here.
 fn nuisance_paragraph(r: &Report) -> String {
+    let mut h = stiffness_paragraph(r);
+    if let Some(c) = r.heldout.contact_compliance {
+        let _ = write!(
+            h,
+            "<p><b>Contact nuisance.</b> The force under a probe ball depends on how the \
+             contact is discretised far more than the tissue's global response does, so every \
+             candidate is also fitted with a compliance in series with the tissue under each \
+             probe ball, from 0 to {:.0} µm/N ({:.0} N/mm; one more replay per trial). Fitted \
+             to the baseline: <b>{:.2} µm/N</b>{}.</p>",
+            1e6 * crate::fit::CONTACT_KNOT * crate::fit::CONTACT_WEIGHT_MAX,
+            1e-3 / (crate::fit::CONTACT_KNOT * crate::fit::CONTACT_WEIGHT_MAX),
+            1e6 * c,
+            if c > 0.0 {
+                format!(" ({:.0} N/mm)", 1e-3 / c)
+            } else {
+                String::new()
+            }
+        );
+    }
+    h
+}
+
+/// What the stiffness nuisance is, and what it was fitted to here.
+fn stiffness_paragraph(r: &Report) -> String {
     match r.heldout.nuisance_scale {
         Some(s) => format!(
             "<p><b>Stiffness nuisance.</b> No model is the specimen: every candidate, and the \
@@ -503,7 +527,7 @@ pub fn render(r: &Report) -> String {
     h.push_str(&group_table("by depth band", &r.localisation.by_depth_band));
     h.push_str("<h2>Which</h2>");
     h.push_str(&ranking_chart(r));
-    h.push_str("<table><tr><th>candidate</th><th>params</th><th>fit RMSE N</th><th>held-out RMSE N</th><th>shrink</th><th>shrink over the nuisance floor</th><th>paired gain, SE</th><th>ΔBIC</th><th>study-metric error N</th><th>stiffness nuisance</th><th>fitted (± s.e.)</th></tr>");
+    h.push_str("<table><tr><th>candidate</th><th>params</th><th>fit RMSE N</th><th>held-out RMSE N</th><th>shrink</th><th>shrink over the nuisance floor</th><th>paired gain, SE</th><th>ΔBIC</th><th>study-metric error N</th><th>stiffness nuisance</th><th>contact nuisance µm/N</th><th>fitted (± s.e.)</th></tr>");
     for c in &r.ranking {
         let ps: Vec<String> = c
             .params
@@ -513,8 +537,11 @@ pub fn render(r: &Report) -> String {
         let nuisance = c
             .nuisance_scale
             .map_or("– (own scale)".to_string(), |s| format!("×{s:.3}"));
-        let _ = write!(h, "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.1}%</td><td>{:.1}%</td><td>{:.1}</td><td>{:.1}</td><td>{}</td><td>{}</td><td style=\"text-align:left\">{}</td></tr>",
-            esc(&c.effect), c.n_params, fmt(c.fit_rmse), fmt(c.heldout_rmse), 100.0 * c.heldout_shrink, 100.0 * c.floor_shrink, c.floor_gain_z, c.delta_bic, fmt(c.heldout_study_error), esc(&nuisance), esc(&ps.join(", ")));
+        let contact = c
+            .contact_compliance
+            .map_or("–".to_string(), |v| format!("{:.2}", 1e6 * v));
+        let _ = write!(h, "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.1}%</td><td>{:.1}%</td><td>{:.1}</td><td>{:.1}</td><td>{}</td><td>{}</td><td>{}</td><td style=\"text-align:left\">{}</td></tr>",
+            esc(&c.effect), c.n_params, fmt(c.fit_rmse), fmt(c.heldout_rmse), 100.0 * c.heldout_shrink, 100.0 * c.floor_shrink, c.floor_gain_z, c.delta_bic, fmt(c.heldout_study_error), esc(&nuisance), esc(&contact), esc(&ps.join(", ")));
     }
     h.push_str("</table>");
     if let Some(g) = &r.rendering_gap {

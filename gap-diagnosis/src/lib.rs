@@ -126,8 +126,13 @@ pub struct Options {
     /// identified.
     pub min_shrink: f64,
     /// Fit the global stiffness nuisance ([`fit::Nuisance`]) with the baseline and every
-    /// candidate (default). Off: the scale is held at 1, as before issue 15 (for comparison).
+    /// candidate (default). Off: the scale is held at 1 and no contact term is fitted, as
+    /// before issue 15 (for comparison).
     pub nuisance: bool,
+    /// With `nuisance`: also fit the contact nuisance, a compliance in series under the probe
+    /// ([`fit::CONTACT_KNOT`]; one more replay per trial). Default on (README, "A contact
+    /// nuisance beside it").
+    pub contact_nuisance: bool,
 }
 
 impl Options {
@@ -154,6 +159,22 @@ impl Options {
         }
         Ok(())
     }
+    /// The nuisances these options fit ([`fit::Nuisance`]).
+    pub fn nuisance_band(&self) -> Nuisance {
+        match (self.nuisance, self.contact_nuisance) {
+            (false, _) => Nuisance::OFF,
+            (true, false) => Nuisance::STIFFNESS,
+            (true, true) => Nuisance::STIFFNESS_AND_CONTACT,
+        }
+    }
+    /// The replays the dataset needs for these options' nuisances.
+    pub fn build_options(&self) -> BuildOptions {
+        BuildOptions {
+            dt: self.dt,
+            progress: self.progress,
+            contact_knot: self.nuisance_band().contact_fitted(),
+        }
+    }
 }
 
 impl Default for Options {
@@ -165,6 +186,7 @@ impl Default for Options {
             pairs: true,
             min_shrink: 0.08,
             nuisance: true,
+            contact_nuisance: true,
         }
     }
 }
@@ -232,6 +254,10 @@ pub struct Heldout {
     /// the band no effect is needed for. Absent when the nuisance is off.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub nuisance_scale: Option<f64>,
+    /// The contact nuisance fitted to the baseline on all trials: a compliance in series with
+    /// the tissue under each probe ball, m/N ([`fit::CONTACT_KNOT`]). Absent when it is off.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub contact_compliance: Option<f64>,
     /// The nuisance floor: held-out RMSE of the baseline with the nuisance fitted per fold, N.
     /// An effect must shrink this, significantly, to be named.
     #[serde(default)]
@@ -262,6 +288,10 @@ pub struct Verdict {
     /// off. Calibration writes it as a scale of the whole tissue (modulus and support).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub nuisance_scale: Option<f64>,
+    /// The contact nuisance fitted with `effect` (for `none`: with the baseline), m/N per
+    /// probe ball. Calibration writes it as `[scene.contact] interface_compliance`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub contact_compliance: Option<f64>,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -356,15 +386,7 @@ pub fn diagnose(
     opts.check()?;
     let start = std::time::Instant::now();
     let effects = candidate_effects(exp, model, opts);
-    let data = dataset::build(
-        exp,
-        model,
-        &effects,
-        &BuildOptions {
-            dt: opts.dt,
-            progress: opts.progress,
-        },
-    )?;
+    let data = dataset::build(exp, model, &effects, &opts.build_options())?;
     diagnose_data(
         exp.dir.display().to_string(),
         model.describe(),
@@ -436,11 +458,7 @@ pub fn diagnose_data(
     let (scheme, folds) = make_folds(data);
     let base = Baseline::of(data);
     let (r0, study0) = (base.rmse, baseline_study_error(data));
-    let nuisance = if opts.nuisance {
-        Nuisance::STIFFNESS
-    } else {
-        Nuisance::OFF
-    };
+    let nuisance = opts.nuisance_band();
     // the floor every effect must beat: the baseline with only the nuisance fitted
     let floor = score_candidate(&Candidate(Vec::new()), data, &folds, &base, &[], nuisance);
 
@@ -543,10 +561,9 @@ pub fn diagnose_data(
         verdict.separate_by = set.separate_by;
     }
     let winner = ranking.iter().find(|c| c.effect == verdict.effect);
-    verdict.nuisance_scale = match winner {
-        Some(w) => w.nuisance_scale,
-        None => floor.nuisance_scale,
-    };
+    let fitted_with = winner.unwrap_or(&floor);
+    verdict.nuisance_scale = fitted_with.nuisance_scale;
+    verdict.contact_compliance = fitted_with.contact_compliance;
     let heldout = Heldout {
         scheme,
         baseline_rmse: r0,
@@ -555,6 +572,7 @@ pub fn diagnose_data(
         baseline_study_error: study0,
         winner_study_error: winner.map(|w| w.heldout_study_error).unwrap_or(study0),
         nuisance_scale: floor.nuisance_scale,
+        contact_compliance: floor.contact_compliance,
         nuisance_rmse: floor.heldout_rmse,
         shrink_over_nuisance: winner
             .map(|w| shrink(w.heldout_rmse, floor.heldout_rmse))
@@ -600,6 +618,22 @@ pub fn diagnose_data(
         diverged_replays: data.iter().flat_map(|d| d.diverged_labels()).collect(),
         rendering_gap: None,
     })
+}
+
+/// The nuisances fitted to the floor, as the verdict's reason names them.
+fn nuisance_note(floor: &CandidateScore) -> String {
+    let mut parts = Vec::new();
+    if let Some(s) = floor.nuisance_scale {
+        parts.push(format!("a stiffness nuisance ×{s:.3}"));
+    }
+    if let Some(c) = floor.contact_compliance.filter(|&c| c > 0.0) {
+        parts.push(format!("a contact compliance of {:.1} µm/N", 1e6 * c));
+    }
+    if parts.is_empty() {
+        String::new()
+    } else {
+        format!(" after {}", parts.join(" and "))
+    }
 }
 
 /// Sets `c`'s standing against the nuisance floor: its held-out shrink and the significance
@@ -673,11 +707,9 @@ fn decide(
         indistinguishable: Vec::new(),
         separate_by: Vec::new(),
         nuisance_scale: None,
+        contact_compliance: None,
     };
-    let nuisance_note = floor
-        .nuisance_scale
-        .map(|s| format!(" after a stiffness nuisance ×{s:.3}"))
-        .unwrap_or_default();
+    let nuisance_note = nuisance_note(floor);
     let r0 = floor.heldout_rmse;
     if r0 <= 1.15 * noise {
         return none(format!(
@@ -737,6 +769,7 @@ fn decide(
                     indistinguishable: Vec::new(),
                     separate_by: Vec::new(),
                     nuisance_scale: None,
+                    contact_compliance: None,
                 };
             }
         }
@@ -782,6 +815,7 @@ fn decide(
         indistinguishable: Vec::new(),
         separate_by: Vec::new(),
         nuisance_scale: None,
+        contact_compliance: None,
     }
 }
 

@@ -28,6 +28,11 @@ pub struct Variant {
     pub support_stiffness: f64,
     /// Refined discretisation of the same specimen.
     pub fine_mesh: bool,
+    /// Compliance of a penalty layer between probe and tissue, m/N per probe ball, added to
+    /// the scene's (`[scene.contact] interface_compliance`): the contact nuisance's knot
+    /// ([`crate::fit::CONTACT_KNOT`]).
+    #[serde(default)]
+    pub interface_compliance: f64,
 }
 
 impl Default for Variant {
@@ -39,6 +44,7 @@ impl Default for Variant {
             tilt: [0.0; 2],
             support_stiffness: 0.0,
             fine_mesh: false,
+            interface_compliance: 0.0,
         }
     }
 }
@@ -67,6 +73,12 @@ impl Variant {
         }
         if self.fine_mesh {
             s.push("fine mesh".into());
+        }
+        if self.interface_compliance > 0.0 {
+            s.push(format!(
+                "contact interface {:.0} N/mm",
+                1e-3 / self.interface_compliance
+            ));
         }
         if s.is_empty() {
             "baseline".into()

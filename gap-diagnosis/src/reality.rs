@@ -17,6 +17,7 @@ use super::experiment::{
     write_trial_csv, ExperimentSpec, MaterialSpec, ProbeSpec, Region, SpecimenSpec, Trial,
     TrialSpec,
 };
+use super::fit::NuisanceFit;
 use super::model::{replay, ForceModel, ProbePath, Variant};
 use super::signal::{add, interp, nlerp, norm, scale, sub};
 use super::sim_model::{RefinedTruth, SimForceModel};
@@ -436,6 +437,27 @@ pub fn write_experiment(
     write_experiment_with(spec, truth.as_ref(), &sites, dir, truth_path)
 }
 
+/// [`write_experiment`] with the truth on the replay's own mesh and solve but another contact
+/// formulation: a penalty layer of `interface_compliance` (m/N per probe ball,
+/// `[scene.contact] interface_compliance`) in series with the tissue, where the replay's
+/// contact is hard. What an independent code of the same mesh differs by (issue 15's hidden
+/// cases), without the refined truth's other discretisation; `spec.truth_mesh` is recorded
+/// as said.
+pub fn write_experiment_with_contact_layer(
+    spec: &RealitySpec,
+    interface_compliance: f64,
+    dir: &Path,
+    truth_path: &Path,
+) -> Result<Truth, GapError> {
+    let data_dir = super::data_dir();
+    let mut scene = SceneConfig::default();
+    scene.meniscus.mesh = spec.mesh.clone();
+    let replay = SimForceModel::from_scene(scene.clone(), &data_dir);
+    scene.contact.interface_compliance = interface_compliance;
+    let truth = SimForceModel::from_scene(scene, &data_dir);
+    write_experiment_with(spec, &truth, &replay.sites()?, dir, truth_path)
+}
+
 /// A probing site: region, surface point and outward normal (world, m).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Site {
@@ -536,7 +558,7 @@ pub fn write_experiment_with(
         let mut td = prepare(&grid_trial, path.clone(), f, Default::default());
         td.t = ts.clone();
         let (mut g, mut out) = (Vec::new(), Vec::new());
-        predict(&post, &theta, &td, 1.0, &mut g, &mut out);
+        predict(&post, &theta, &td, NuisanceFit::NEUTRAL, &mut g, &mut out);
         let force: Vec<[f64; 3]> = out
             .iter()
             .map(|v| {

@@ -101,7 +101,8 @@ impl SimForceModel {
         sc.material.modulus_scale *= v.modulus_scale;
         // a penalty contact's stiffness follows the modulus (as an FE code's automatic
         // penalty does), so a stiffness offset scales the whole response
-        sc.contact.interface_compliance /= v.modulus_scale;
+        sc.contact.interface_compliance =
+            (sc.contact.interface_compliance + v.interface_compliance) / v.modulus_scale;
         if v.neo_hookean {
             sc.material.model = launch_config::scene::MaterialModel::StableNeoHookean;
         }

@@ -39,6 +39,7 @@ fn resimulated_rmse(exp_dir: &Path, launch: &Path, dt: f64) -> f64 {
         &BuildOptions {
             dt,
             progress: false,
+            contact_knot: false,
         },
     )
     .unwrap();

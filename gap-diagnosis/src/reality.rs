@@ -426,10 +426,7 @@ pub fn write_experiment(
     dir: &Path,
     truth_path: &Path,
 ) -> Result<Truth, GapError> {
-    let data_dir = super::data_dir();
-    let mut scene = SceneConfig::default();
-    scene.meniscus.mesh = spec.mesh.clone();
-    let model = SimForceModel::from_scene(scene, &data_dir);
+    let model = SimForceModel::from_scene(specimen_scene(spec), &super::data_dir());
     // the probing sites are the specimen's as the replay meshes it (the refined mesh has the
     // same surface)
     let sites = model.sites()?;
@@ -450,12 +447,18 @@ pub fn write_experiment_with_contact_layer(
     truth_path: &Path,
 ) -> Result<Truth, GapError> {
     let data_dir = super::data_dir();
+    let replay = SimForceModel::from_scene(specimen_scene(spec), &data_dir);
+    let mut layered = specimen_scene(spec);
+    layered.contact.interface_compliance = interface_compliance;
+    let truth = SimForceModel::from_scene(layered, &data_dir);
+    write_experiment_with(spec, &truth, &replay.sites()?, dir, truth_path)
+}
+
+/// The scene the diagnosis replays `spec`'s specimen in: the default scene with its mesh.
+fn specimen_scene(spec: &RealitySpec) -> SceneConfig {
     let mut scene = SceneConfig::default();
     scene.meniscus.mesh = spec.mesh.clone();
-    let replay = SimForceModel::from_scene(scene.clone(), &data_dir);
-    scene.contact.interface_compliance = interface_compliance;
-    let truth = SimForceModel::from_scene(scene, &data_dir);
-    write_experiment_with(spec, &truth, &replay.sites()?, dir, truth_path)
+    scene
 }
 
 /// A probing site: region, surface point and outward normal (world, m).

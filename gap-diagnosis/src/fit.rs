@@ -379,10 +379,6 @@ pub struct PhaseQuad {
     bc: [f64; VarGroup::COUNT],
     cc: [f64; VarGroup::COUNT],
     n: [usize; VarGroup::COUNT],
-    /// Σ a·n and Σ b·n over the samples in contact (n: the trial's normal): the baseline's
-    /// and the contact knot's share of the mean normal force ([`PhaseQuad::knot_level`]).
-    normal_a: f64,
-    normal_b: f64,
 }
 
 /// Golden-section iterations of the nuisance profile: the bracket shrinks to 0.618^40 of the
@@ -422,15 +418,6 @@ impl PhaseQuad {
         }
         acc
     }
-    /// How much the contact knot changes the response's level: its mean normal force in
-    /// contact relative to the baseline's, minus 1 (negative: the layer softens).
-    fn knot_level(&self) -> f64 {
-        if self.normal_a.abs() > 0.0 {
-            self.normal_b / self.normal_a
-        } else {
-            0.0
-        }
-    }
     fn objective(&self, s: f64, u: f64) -> f64 {
         let n = self.n.iter().sum::<usize>() as f64;
         self.at(s, u).log_mse_sum(n)
@@ -438,12 +425,10 @@ impl PhaseQuad {
     /// The nuisances in `band` of largest likelihood (the phase-variance one, [`PhaseSse`])
     /// and the residual sums there.
     ///
-    /// With the contact term the stiffness band bounds the level of the response,
-    /// s·(1 + w·ρ) with ρ the knot's change of the mean normal force in contact
-    /// ([`PhaseQuad::knot_level`]), not the scale alone: a contact layer softens the deepest
-    /// forces, and a stiffer tissue behind it keeps the level. Bounding the scale alone left
-    /// the pair (a stiffer tissue, a softer contact) outside the band although its mean force
-    /// was the replay's, and the self-test's no-effect case read as `hardening`.
+    /// The two are bounded separately: the scale is the tissue's (the band of an unrelated
+    /// stiffness offset), the contact weight the layer's. Bounding their product instead (the
+    /// response's level) lost effects whose truth had both an offset and a softer contact
+    /// (README, "A contact nuisance beside it").
     ///
     /// The scale alone first, by a golden section over its band with no contact term (the
     /// profile without the contact nuisance, exactly). Then both by reweighted least squares
@@ -470,7 +455,6 @@ impl PhaseQuad {
         if !band.contact_fitted() || self.bb.iter().all(|&v| v <= 0.0) {
             return done(best.0);
         }
-        let rho = self.knot_level();
         let (mut s, mut u) = (s0, 0.0);
         for _ in 0..CONTACT_ROUNDS {
             let mse = self.at(s, u).group_mse();
@@ -487,7 +471,7 @@ impl PhaseQuad {
                 bb: weighted(&self.bb),
                 bc: weighted(&self.bc),
             };
-            (s, u) = q.minimum(band, rho);
+            (s, u) = q.minimum(band);
             let v = self.objective(s, u);
             if v < best.1 {
                 best = (
@@ -520,23 +504,16 @@ impl WeightedQuad {
             + u * u * self.bb
             + 2.0 * (s * self.ac + u * self.bc)
     }
-    /// The minimum over the region: the level s + ρ·u in the band (ρ: the knot's change of
-    /// the mean normal force, [`PhaseQuad::knot_level`]), 0 ≤ u ≤ `contact_max`·s (u = s × the
+    /// The minimum over the region: s in the band, 0 ≤ u ≤ `contact_max`·s (u = s × the
     /// contact weight). Inside it, the stationary point; else the best of its edges, each a
     /// one-dimensional quadratic minimised in closed form.
-    fn minimum(&self, band: Nuisance, rho: f64) -> (f64, f64) {
+    fn minimum(&self, band: Nuisance) -> (f64, f64) {
         let (lo, hi, w_max) = (band.lo, band.hi, band.contact_max);
-        // the level s + ρ·u at the knot's full weight stays positive
-        let rho = if w_max > 0.0 {
-            rho.max((MIN_KNOT_LEVEL - 1.0) / w_max)
-        } else {
-            0.0
-        };
         let det = self.aa * self.bb - self.ab * self.ab;
         if band.stiffness_fitted() && det > 0.0 {
             let s = (self.ab * self.bc - self.bb * self.ac) / det;
             let u = (self.ab * self.ac - self.aa * self.bc) / det;
-            if (lo..=hi).contains(&(s + rho * u)) && (0.0..=w_max * s).contains(&u) {
+            if (lo..=hi).contains(&s) && (0.0..=w_max * s).contains(&u) {
                 return (s, u);
             }
         }
@@ -562,28 +539,19 @@ impl WeightedQuad {
         if !band.stiffness_fitted() {
             return held;
         }
-        // the region's edges: the level at each end of its band (u = 0 up to the knot's full
+        // the region's edges: the scale at each end of its band (u = 0 up to the knot's full
         // weight), no contact term, and the knot's full weight
-        let full = 1.0 + rho * w_max;
         [
-            on_edge((lo, 0.0), (-rho, 1.0), w_max * lo / full),
-            on_edge((hi, 0.0), (-rho, 1.0), w_max * hi / full),
+            held,
+            on_edge((hi, 0.0), (0.0, 1.0), w_max * hi),
             on_edge((lo, 0.0), (1.0, 0.0), hi - lo),
-            on_edge(
-                (lo / full, w_max * lo / full),
-                (1.0, w_max),
-                (hi - lo) / full,
-            ),
+            on_edge((lo, w_max * lo), (1.0, w_max), hi - lo),
         ]
         .into_iter()
         .min_by(|p, q| self.value(p.0, p.1).total_cmp(&self.value(q.0, q.1)))
         .unwrap_or((lo, 0.0))
     }
 }
-
-/// Smallest level the contact knot may leave of the baseline's mean force (a knot that took
-/// nearly all of it would make the level band unbounded in the scale).
-const MIN_KNOT_LEVEL: f64 = 0.2;
 
 /// Minimum of `f` over [a, b]: the best of `grid` + 1 evenly spaced points, then a golden
 /// section over the two grid cells around it (`iters` rounds); the grid point itself when the
@@ -661,12 +629,7 @@ pub fn phase_quad(
                 } else {
                     [0.0; 3]
                 };
-                let a = sub(one[j], z);
-                if d.phase[j] != super::metrics::Phase::Approach {
-                    acc.normal_a += dot(a, d.normal);
-                    acc.normal_b += dot(b, d.normal);
-                }
-                acc.push(d.var_group[j], a, b, sub(z, d.f[j]));
+                acc.push(d.var_group[j], sub(one[j], z), b, sub(z, d.f[j]));
             }
         }
     }
@@ -1274,9 +1237,8 @@ mod tests {
 
     /// Both nuisances profiled together recover a scale and a contact weight inside their
     /// bands, stop at the contact band's edge beyond it, and the contact term stays at 0 when
-    /// it is off or the data cannot see it (a knot equal to the baseline). With the contact
-    /// term the band bounds the level, not the scale: a stiffer tissue behind a softer contact
-    /// at the replay's level is inside it.
+    /// it is off or the data cannot see it (a knot equal to the baseline). The scale's band
+    /// holds beside the contact term.
     #[test]
     fn the_contact_nuisance_profile_finds_the_weight_with_the_scale() {
         // per sample: the baseline m and the knot's change to it d (a series compliance takes
@@ -1301,9 +1263,6 @@ mod tests {
                 let truth: [f64; 3] = std::array::from_fn(|k| s_true * (m[k] + w_true * d[k]));
                 let b = if visible { *d } else { [0.0; 3] };
                 q.push(group, *m, b, truth.map(|v| -v));
-                // in contact along z (the free sample carries no force)
-                q.normal_a += m[2];
-                q.normal_b += b[2];
             }
             q
         };
@@ -1312,13 +1271,8 @@ mod tests {
         assert!((f.contact - 0.45).abs() < 1e-3, "{f:?}");
         assert!(acc.total().0 < 1e-5);
         assert!((f.contact_compliance() - 0.45 * CONTACT_KNOT).abs() < 1e-3 * CONTACT_KNOT);
-        // ×1.45 behind the knot at 0.9: the level ×1.45·(1 − 0.9·0.3) = ×1.06 is in the band
-        // (ρ = −8.4/28), the scale alone is not
-        let (f, acc) = quad_for(1.45, 0.9, true).profile(Nuisance::STIFFNESS_AND_CONTACT);
-        assert!((f.stiffness - 1.45).abs() < 1e-3, "{f:?}");
-        assert!((f.contact - 0.9).abs() < 1e-3, "{f:?}");
-        assert!(acc.total().0 < 1e-5);
-        let (f, _) = quad_for(1.45, 0.0, true).profile(Nuisance::STIFFNESS_AND_CONTACT);
+        // ×1.45 behind the knot at 0.9: the scale stops at its band's edge
+        let (f, _) = quad_for(1.45, 0.9, true).profile(Nuisance::STIFFNESS_AND_CONTACT);
         assert!((f.stiffness - NUISANCE_MAX).abs() < 1e-9, "{f:?}");
         // a modulus-like candidate: the scale held at 1, the weight alone
         let held =

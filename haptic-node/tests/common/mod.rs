@@ -273,28 +273,52 @@ pub fn assert_rate_limited_and_clamped(w: &Watcher) {
     }
 }
 
-/// After a `kill -9` of the physics at `killed_ns`: the frame goes stale 20 ms after the last
-/// frame and the force is zero within 10 ms of that.
+/// After a `kill -9` of the physics at `killed_ns`: every tick more than 20 ms after the
+/// last frame flags the frame stale, and every tick 10 ms after the first stale one renders
+/// zero.
+///
+/// Each tick is judged at its own time (a state's `publish_ns` is its tick's clock reading),
+/// not by when the first such tick came: on a loaded 2-core CI runner the loop itself may be
+/// descheduled for milliseconds (CI's run of stop 24 failed this test on "the first stale
+/// tick within 22 ms of the last frame"), and how late ticks come is the servo's period
+/// error, which `haptic-bench` measures. What the node controls, and what is asserted here,
+/// is that no tick that does run past a deadline renders force it should not.
 pub fn check_ramp_after_kill(w: &Watcher, killed_ns: u64) {
     use msgs::haptic_to_physics::fault;
+    const STALE_NS: u64 = 20 * MS;
+    const RAMP_NS: u64 = 10 * MS;
     let last_frame = w.seen_frames.iter().map(|f| f.publish_ns).max().unwrap();
     assert!(last_frame <= killed_ns);
-    let first_stale = w
+    let after: Vec<_> = w
         .seen_states
         .iter()
-        .find(|st| st.publish_ns > last_frame && st.faults & fault::STALE_FRAME != 0)
+        .filter(|st| st.publish_ns > last_frame)
+        .collect();
+    // Not vacuous: the watch ran well past the stale limit and the ramp.
+    let newest = after.last().expect("ticks after the last frame").publish_ns;
+    assert!(
+        newest > last_frame + STALE_NS + RAMP_NS + 50 * MS,
+        "only {:.1} ms of ticks after the last frame",
+        (newest - last_frame) as f64 / 1e6
+    );
+    for st in &after {
+        if st.publish_ns > last_frame + STALE_NS {
+            assert!(
+                st.faults & fault::STALE_FRAME != 0,
+                "tick {} at {:.1} ms after the last frame is not flagged stale",
+                st.sequence,
+                (st.publish_ns - last_frame) as f64 / 1e6
+            );
+        }
+    }
+    let first_stale = after
+        .iter()
+        .find(|st| st.faults & fault::STALE_FRAME != 0)
         .expect("frame goes stale")
         .publish_ns;
-    // Stale limit 20 ms (+ one tick to notice).
-    assert!(
-        first_stale <= last_frame + 22 * MS,
-        "stale after {} ms",
-        (first_stale - last_frame) as f64 / 1e6
-    );
-    for st in w
-        .seen_states
+    for st in after
         .iter()
-        .filter(|st| st.publish_ns >= first_stale + 10 * MS)
+        .filter(|st| st.publish_ns >= first_stale + RAMP_NS)
     {
         assert_eq!(
             st.rendered_force, [0.0; 3],
@@ -302,8 +326,7 @@ pub fn check_ramp_after_kill(w: &Watcher, killed_ns: u64) {
             st.sequence
         );
     }
-    let zero_at = w
-        .seen_states
+    let zero_at = after
         .iter()
         .find(|st| st.publish_ns > killed_ns && st.rendered_force == [0.0; 3])
         .expect("force reaches zero")
@@ -314,5 +337,4 @@ pub fn check_ramp_after_kill(w: &Watcher, killed_ns: u64) {
         (first_stale - last_frame) as f64 / 1e6,
         (zero_at - first_stale) as f64 / 1e6
     );
-    assert!(zero_at <= first_stale + 10 * MS + MS / 2);
 }

@@ -4,7 +4,15 @@
 //! `cargo run --release -p gap-diagnosis --example gap_dev -- DIR [rediagnose|phase-table]`
 //! (`DIR` is a `--keep` folder of `arthrosim gap selftest`; `GAP_DEV_CASES=case005,…`
 //! restricts `rediagnose`; `phase-table` prints the held-out RMSE per phase).
+//! `gap_dev DIR contact-layer-cases SEED [MESH]` writes, in the same layout, the hidden sets'
+//! 18 cases (their single effects and pairs) with the same-mesh penalty-contact truth
+//! (`reality::write_experiment_with_contact_layer`, 4 µm/N, the study's 5 probings per
+//! region) on MESH (default `study:lateral`, the mesh the hidden cases were handed), seeds
+//! SEED…SEED+17, to be diagnosed by `rediagnose`.
+//! `gap_dev DIR eval CANDIDATE θ…` scores one candidate at given parameters on the kept
+//! cases (see [`eval_at`]); `GAP_DEV_TOP=N` prints N ranked candidates in `rediagnose`.
 use anyhow::{bail, Context};
+use gap_diagnosis::effects::Effect;
 use gap_diagnosis::model::{ForceModel, ProbePath, Variant};
 use gap_diagnosis::{self as gap, GapError, SimForceModel};
 use std::collections::HashMap;
@@ -93,6 +101,27 @@ impl Case {
         })
     }
 
+    /// The default diagnosis' candidate effects, and the trials with every replay it makes
+    /// (at 0.02 s), through `model`.
+    fn dataset(
+        &self,
+        model: &dyn ForceModel,
+    ) -> anyhow::Result<(Vec<Effect>, Vec<gap_diagnosis::dataset::TrialData>)> {
+        use gap_diagnosis::dataset::{build, BuildOptions};
+        let effects = gap::candidate_effects(&self.exp, model, &gap::Options::default());
+        let td = build(
+            &self.exp,
+            model,
+            &effects,
+            &BuildOptions {
+                dt: 0.02,
+                progress: false,
+                contact_knot: true,
+            },
+        )?;
+        Ok((effects, td))
+    }
+
     /// The physics model behind the on-disk replay cache.
     fn cached_model(&self) -> Cached<'_> {
         Cached {
@@ -167,7 +196,12 @@ fn rediagnose_kept_cases(root: &Path) -> anyhow::Result<()> {
             eprintln!("    diverged: {:?}", r.diverged_replays);
         }
         eprintln!("    truth params: {}", truth["spec"]["injected"]);
-        for c in r.ranking.iter().take(10) {
+        // GAP_DEV_TOP=N: how many ranked candidates to print (10)
+        let top = std::env::var("GAP_DEV_TOP")
+            .ok()
+            .and_then(|s| s.parse().ok())
+            .unwrap_or(10);
+        for c in r.ranking.iter().take(top) {
             eprintln!(
                 "    {:24} held {:.4} shrink {:6.1}% w {:.4} {:6.1}% dBIC {:9.1} score {:9.1} {}",
                 c.effect,
@@ -195,26 +229,18 @@ fn rediagnose_kept_cases(root: &Path) -> anyhow::Result<()> {
 
 /// Per-phase held-out RMSE of the ranked candidates (pair-rule design).
 fn phase_table(root: &Path) -> anyhow::Result<()> {
-    use gap_diagnosis::dataset::{build, BuildOptions};
-    use gap_diagnosis::effects::Effect;
     use gap_diagnosis::metrics::Phase;
     let dirs = case_dirs(root)?;
     let data = gap::data_dir();
+    let only = std::env::var("GAP_DEV_CASES").unwrap_or_default();
     for dir in dirs {
+        if !dir.to_string_lossy().ends_with(only.as_str()) {
+            continue;
+        }
         let case = Case::open(root, &dir, &data)?;
-        let (name, exp, truth) = (&case.name, &case.exp, &case.truth);
+        let (name, truth) = (&case.name, &case.truth);
         let model = case.cached_model();
-        let effects = Effect::ALL.to_vec();
-        let td = build(
-            exp,
-            &model,
-            &effects,
-            &BuildOptions {
-                dt: 0.02,
-                progress: false,
-                contact_knot: true,
-            },
-        )?;
+        let (effects, td) = case.dataset(&model)?;
         let r = gap::diagnose_data(
             name.clone(),
             String::new(),
@@ -262,6 +288,141 @@ fn phase_table(root: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The hidden sets' cases (issue 15): each single effect, then the second set's pairs.
+const HIDDEN_LIKE_CASES: [&str; 18] = [
+    "none",
+    "modulus",
+    "hardening",
+    "support",
+    "tilt",
+    "friction",
+    "device",
+    "sensor",
+    "viscoelastic",
+    "none",
+    "friction",
+    "sensor",
+    "modulus+sensor",
+    "modulus+friction",
+    "hardening+friction",
+    "hardening+viscoelastic",
+    "support+device",
+    "support+tilt",
+];
+
+fn write_contact_layer_cases(root: &Path, seed0: u64, mesh: &str) -> anyhow::Result<()> {
+    std::fs::create_dir_all(root)?;
+    for (i, case) in HIDDEN_LIKE_CASES.iter().enumerate() {
+        let effects: Vec<&str> = if *case == "none" {
+            Vec::new()
+        } else {
+            case.split('+').collect()
+        };
+        let mut spec = gap::reality::RealitySpec::from_effects(&effects, seed0 + i as u64)?;
+        spec.mesh = mesh.to_string();
+        let name = format!("case{i:03}");
+        let t0 = std::time::Instant::now();
+        gap::reality::write_experiment_with_contact_layer(
+            &spec,
+            4e-6,
+            &root.join(&name),
+            &root.join(format!("{name}_truth.json")),
+        )?;
+        eprintln!(
+            "{name} {} (×{:.3}) written in {:.1} s",
+            spec.label(),
+            spec.stiffness_scale,
+            t0.elapsed().as_secs_f64()
+        );
+    }
+    Ok(())
+}
+
+/// One candidate at given parameters, `θ` as `a,b,…` in the candidate's order: the RMSE,
+/// phase-weighted RMSE, the likelihood's Σ n ln(MSE) and the RMS per variance group (free,
+/// near contact, loading, hold, unloading, sliding), at the nuisance `GAP_DEV_NUISANCE=s,w`
+/// (scale, contact weight; default `1,0`). With `GAP_DEV_FOLDS=1`, each held-out fold's own
+/// fit, with and without the nuisances, first.
+fn eval_at(root: &Path, cand: &str, thetas: &[String]) -> anyhow::Result<()> {
+    use gap_diagnosis::effects::Candidate;
+    use gap_diagnosis::fit::{self, Nuisance, NuisanceFit, PhaseSse};
+    let numbers = |s: &str| -> anyhow::Result<Vec<f64>> {
+        s.split(',')
+            .map(|x| {
+                x.parse::<f64>()
+                    .with_context(|| format!("number {x:?} in {s:?}"))
+            })
+            .collect()
+    };
+    let c = Candidate(
+        cand.split('+')
+            .map(|e| Effect::parse(e).with_context(|| format!("unknown effect {e:?}")))
+            .collect::<anyhow::Result<_>>()?,
+    );
+    let thetas: Vec<Vec<f64>> = thetas
+        .iter()
+        .map(|t| numbers(t))
+        .collect::<anyhow::Result<_>>()?;
+    let nu = match numbers(&std::env::var("GAP_DEV_NUISANCE").unwrap_or("1,0".into()))?[..] {
+        [stiffness, contact] => NuisanceFit { stiffness, contact },
+        _ => bail!("GAP_DEV_NUISANCE is `scale,contact_weight`"),
+    };
+    let show = |acc: &PhaseSse| {
+        let groups: Vec<String> = acc
+            .group_mse()
+            .iter()
+            .map(|m| format!("{:.3}", m.sqrt()))
+            .collect();
+        format!(
+            "rmse {:.4} weighted {:.4} Σn·ln(mse) {:.1} per group [{}]",
+            acc.rmse(),
+            acc.weighted_rmse(),
+            acc.log_mse_sum(acc.total().1 as f64),
+            groups.join(", ")
+        )
+    };
+    let folds_too = std::env::var_os("GAP_DEV_FOLDS").is_some();
+    let only = std::env::var("GAP_DEV_CASES").unwrap_or_default();
+    let data = gap::data_dir();
+    for dir in case_dirs(root)? {
+        if !dir.to_string_lossy().ends_with(only.as_str()) {
+            continue;
+        }
+        let case = Case::open(root, &dir, &data)?;
+        let model = case.cached_model();
+        let opts = gap::Options::default();
+        let (_, td) = case.dataset(&model)?;
+        if folds_too {
+            let (_, folds) = fit::make_folds(&td);
+            let band = opts.nuisance_band().for_candidate(&c).for_data(&td);
+            let free = fit::default_free(&c);
+            for f in &folds {
+                for (label, nb) in [("with nuisances", band), ("without", Nuisance::OFF)] {
+                    let ff = fit::fit(&c, &td, &f.calib, &[], &free, nb);
+                    let calib = fit::phase_sse(&c, &ff.theta, ff.nuisance, &td, &f.calib);
+                    let held = fit::phase_sse(&c, &ff.theta, ff.nuisance, &td, &f.held);
+                    eprintln!(
+                        "{} fold {} {label}: θ {:.3?} nuisance ×{:.3} w {:.2}\n    calib {}\n    held  {}",
+                        case.name,
+                        f.label,
+                        ff.theta,
+                        ff.nuisance.stiffness,
+                        ff.nuisance.contact,
+                        show(&calib),
+                        show(&held)
+                    );
+                }
+            }
+        }
+        let all: Vec<Vec<bool>> = td.iter().map(|d| vec![true; d.t.len()]).collect();
+        for theta in &thetas {
+            let acc = fit::phase_sse(&c, theta, nu, &td, &all);
+            eprintln!("{} {cand} θ {theta:?}: {}", case.name, show(&acc));
+        }
+    }
+    Ok(())
+}
+
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let Some(root) = args.first() else {
@@ -271,6 +432,15 @@ fn main() -> anyhow::Result<()> {
     match args.get(1).map(String::as_str) {
         None | Some("rediagnose") => rediagnose_kept_cases(&root),
         Some("phase-table") => phase_table(&root),
-        Some(other) => bail!("unknown mode {other:?} (expected rediagnose or phase-table)"),
+        Some("contact-layer-cases") => {
+            let seed = args.get(2).map_or(Ok(200), |s| s.parse::<u64>())?;
+            let mesh = args.get(3).map_or("study:lateral", String::as_str);
+            write_contact_layer_cases(&root, seed, mesh)
+        }
+        Some("eval") if args.len() >= 3 => eval_at(&root, &args[2], &args[3..]),
+        Some(other) => bail!(
+            "unknown mode {other:?} (expected rediagnose, phase-table, contact-layer-cases or \
+             eval CANDIDATE θ…)"
+        ),
     }
 }

@@ -800,19 +800,20 @@ impl Simulation {
         }
         self.fem.commit();
         lap(&mut self.times.correction_ns, &mut last);
-        self.time = (self.sequence + 1) as f64 * dt;
-        self.sequence += 1;
 
         let force = impulse / dt;
         let torque = angular / dt;
         if !(force.iter().all(|v| v.is_finite())
             && self.probe.position.iter().all(|v| v.is_finite()))
         {
+            // Before time and sequence advance: the errored step is closed by `step`, once.
             return Err(PhysicsError::Numerical {
-                time: self.time,
+                time: (self.sequence + 1) as f64 * dt,
                 detail: "non-finite contact force or probe position".into(),
             });
         }
+        self.time = (self.sequence + 1) as f64 * dt;
+        self.sequence += 1;
         self.contact_force = [force.x, force.y, force.z];
         self.contact_torque = [torque.x, torque.y, torque.z];
         self.report.contacts = m;
@@ -1091,5 +1092,29 @@ fn support_length(mesh: &crate::mesh::TetMesh, triangles: &[[usize; 3]], fixed: 
         volume / area
     } else {
         0.0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use msgs::physics_to_haptic::physics_fault;
+
+    /// A step whose contact force or probe position came out non-finite used to advance the
+    /// sequence twice (once in `advance`, before its last check, and once more when the
+    /// errored step was closed): the haptic node saw a frame missing that was never sent.
+    #[test]
+    fn a_non_finite_step_does_not_skip_a_sequence_number() {
+        let scene = launch_config::SceneConfig::default();
+        let mut sim = Simulation::new(&scene, &launch_config::data_dir()).unwrap();
+        sim.step().unwrap();
+        let before = sim.frame.sequence;
+        sim.probe.velocity = Vector3::new(f64::NAN, 0.0, 0.0);
+        sim.step().unwrap();
+        assert_ne!(sim.frame.physics_faults & physics_fault::NUMERICAL, 0);
+        assert_eq!(sim.frame.sequence, before + 1);
+        assert!((sim.frame.sim_time_s - (before + 1) as f64 * sim.dt).abs() < 1e-12);
+        sim.step().unwrap();
+        assert_eq!(sim.frame.sequence, before + 2);
     }
 }

@@ -189,35 +189,62 @@ fn bounded_default_session_covers_three_regions_and_leaves_nothing_running() {
 /// tick; one such fade in a hold gave 0.04–0.08 N. At least half of every hold must be
 /// unflagged, so the deviation is measured over most of it (a CI machine with 30% of its CPU
 /// stolen by the host flagged 10.5% of one hold).
+///
+/// The deviation is taken within each unflagged stretch of a hold, about that stretch's own
+/// mean, and pooled: while the force fades the emulated hand, still pressing, sinks a little
+/// deeper, and the hold resumes at a slightly higher force (0.396 → 0.422 N after 10 faded
+/// ticks). Measured about one mean for the whole hold, that step read as unsteadiness (0.024 N
+/// in one full-suite run, 0.001 N in holds without a fade); chatter at a still hand is inside
+/// the stretches and is still caught.
 fn every_hold_is_steady(recording: &Path) {
     const HOLD: u32 = msgs::protocol::Phase::Hold as u32;
     let (_, ticks) = recordings::export::read_lossless(recording)
         .unwrap_or_else(|e| panic!("reading {}: {e}", recording.display()));
-    // Per probing: the unflagged hold forces and the number of flagged hold ticks.
-    let mut holds: std::collections::BTreeMap<u32, (Vec<f64>, usize)> = Default::default();
+    // Per probing: the unflagged hold forces in stretches between flagged ticks, and the
+    // number of flagged hold ticks.
+    let mut holds: std::collections::BTreeMap<u32, (Vec<Vec<f64>>, usize)> = Default::default();
+    let mut after_flag = true;
+    let mut last_probing = None;
     for t in ticks.iter().filter(|t| t.phase == HOLD) {
         let hold = holds.entry(t.probing_index).or_default();
+        if last_probing != Some(t.probing_index) {
+            after_flag = true;
+            last_probing = Some(t.probing_index);
+        }
         if t.faults != 0 {
             hold.1 += 1;
+            after_flag = true;
             continue;
         }
+        if after_flag {
+            hold.0.push(Vec::new());
+            after_flag = false;
+        }
         let f = &t.rendered_force;
-        hold.0.push((f.x * f.x + f.y * f.y + f.z * f.z).sqrt());
+        if let Some(stretch) = hold.0.last_mut() {
+            stretch.push((f.x * f.x + f.y * f.y + f.z * f.z).sqrt());
+        }
     }
     assert!(holds.len() >= 3, "only {} holds recorded", holds.len());
-    for (probing, (forces, flagged)) in &holds {
+    for (probing, (stretches, flagged)) in &holds {
+        let unflagged: usize = stretches.iter().map(Vec::len).sum();
         assert!(
-            *flagged * 2 <= forces.len() + flagged && forces.len() >= 100,
+            *flagged * 2 <= unflagged + flagged && unflagged >= 100,
             "probing {probing}: {flagged} of {} hold ticks flagged a fault",
-            forces.len() + flagged
+            unflagged + flagged
         );
-        let n = forces.len() as f64;
-        let mean = forces.iter().sum::<f64>() / n;
-        let sd = (forces.iter().map(|f| (f - mean).powi(2)).sum::<f64>() / n).sqrt();
+        let mut squares = 0.0;
+        for stretch in stretches {
+            let mean = stretch.iter().sum::<f64>() / stretch.len() as f64;
+            squares += stretch.iter().map(|f| (f - mean).powi(2)).sum::<f64>();
+        }
+        let sd = (squares / unflagged as f64).sqrt();
+        let mean = stretches.iter().flatten().sum::<f64>() / unflagged as f64;
         assert!(
             sd <= 0.02,
-            "probing {probing}: rendered force over the hold {mean:.3} ± {sd:.4} N (≤ 0.02 N; \
-             {flagged} flagged ticks left out)"
+            "probing {probing}: rendered force over the hold {mean:.3} ± {sd:.4} N within {} \
+             unflagged stretches (≤ 0.02 N; {flagged} flagged ticks left out)",
+            stretches.len()
         );
     }
 }

@@ -313,11 +313,8 @@ const HIDDEN_LIKE_CASES: [&str; 18] = [
 fn write_contact_layer_cases(root: &Path, seed0: u64, mesh: &str) -> anyhow::Result<()> {
     std::fs::create_dir_all(root)?;
     for (i, case) in HIDDEN_LIKE_CASES.iter().enumerate() {
-        let effects: Vec<&str> = if *case == "none" {
-            Vec::new()
-        } else {
-            case.split('+').collect()
-        };
+        // `none` is read as no effect
+        let effects: Vec<&str> = case.split('+').collect();
         let mut spec = gap::reality::RealitySpec::from_effects(&effects, seed0 + i as u64)?;
         spec.mesh = mesh.to_string();
         let name = format!("case{i:03}");

@@ -192,6 +192,11 @@ pub struct GapArgs {
     /// the tissue under the probe, up to 10 µm/N; saves one replay per trial; for comparison).
     #[arg(long)]
     pub no_contact_nuisance: bool,
+    /// Do not re-simulate the trials at the tilt the whole experiment fits (the tilt's second
+    /// stage; saves up to two replays per trial when a tilt of 1° or more is fitted; for
+    /// comparison).
+    #[arg(long)]
+    pub no_tilt_centre: bool,
     /// Also write a launch file whose scene carries the verdict as physics (modulus →
     /// modulus_scale, support → support_stiffness, friction → friction, …; see the README).
     /// A force–displacement table is then fitted in the base scene (press at `--site`,

@@ -349,6 +349,7 @@ fn gap_command(args: GapArgs) -> Result<i32> {
                 progress: !json,
                 nuisance: !args.no_nuisance,
                 contact_nuisance: !args.no_contact_nuisance,
+                tilt_centre: !args.no_tilt_centre,
                 ..gap::Options::default()
             },
             ..gap::selftest::SelftestOptions::default()
@@ -370,6 +371,7 @@ fn gap_command(args: GapArgs) -> Result<i32> {
         pairs: !args.no_pairs,
         nuisance: !args.no_nuisance,
         contact_nuisance: !args.no_contact_nuisance,
+        tilt_centre: !args.no_tilt_centre,
         ..gap::Options::default()
     };
     // checked before anything is read: a bad flag fails before minutes of replays

@@ -107,18 +107,12 @@ impl Case {
         &self,
         model: &dyn ForceModel,
     ) -> anyhow::Result<(Vec<Effect>, Vec<gap_diagnosis::dataset::TrialData>)> {
-        use gap_diagnosis::dataset::{build, BuildOptions};
-        let effects = gap::candidate_effects(&self.exp, model, &gap::Options::default());
-        let td = build(
-            &self.exp,
-            model,
-            &effects,
-            &BuildOptions {
-                dt: 0.02,
-                progress: false,
-                contact_knot: true,
-            },
-        )?;
+        let opts = gap::Options {
+            tilt_centre: std::env::var_os("GAP_DEV_NO_TILT_CENTRE").is_none(),
+            ..gap::Options::default()
+        };
+        let effects = gap::candidate_effects(&self.exp, model, &opts);
+        let td = gap::prepare_dataset(&self.exp, model, &effects, &opts)?;
         Ok((effects, td))
     }
 
@@ -167,6 +161,7 @@ fn rediagnose_kept_cases(root: &Path) -> anyhow::Result<()> {
         // GAP_DEV_NO_CONTACT=1: without the contact nuisance
         let opts = gap::Options {
             contact_nuisance: std::env::var_os("GAP_DEV_NO_CONTACT").is_none(),
+            tilt_centre: std::env::var_os("GAP_DEV_NO_TILT_CENTRE").is_none(),
             ..gap::Options::default()
         };
         let r = gap::diagnose(exp, &model, &opts)?;
@@ -192,6 +187,9 @@ fn rediagnose_kept_cases(root: &Path) -> anyhow::Result<()> {
             r.heldout.baseline_rmse,
             r.verdict.reason
         );
+        if !r.centres.is_empty() {
+            eprintln!("    centres: {:?}", r.centres);
+        }
         if !r.diverged_replays.is_empty() {
             eprintln!("    diverged: {:?}", r.diverged_replays);
         }
@@ -213,7 +211,7 @@ fn rediagnose_kept_cases(root: &Path) -> anyhow::Result<()> {
                 c.score,
                 c.params
                     .iter()
-                    .map(|p| format!("{}={:.3}", p.name, p.value))
+                    .map(|p| format!("{}={:.4e}", p.name, p.value))
                     .collect::<Vec<_>>()
                     .join(" ")
             );
@@ -360,6 +358,10 @@ fn eval_at(root: &Path, cand: &str, thetas: &[String]) -> anyhow::Result<()> {
         .iter()
         .map(|t| numbers(t))
         .collect::<anyhow::Result<_>>()?;
+    let np = c.params().len();
+    if let Some(t) = thetas.iter().find(|t| t.len() != np) {
+        bail!("{cand} has {np} parameters, θ {t:?} gives {}", t.len());
+    }
     let nu = match numbers(&std::env::var("GAP_DEV_NUISANCE").unwrap_or("1,0".into()))?[..] {
         [stiffness, contact] => NuisanceFit { stiffness, contact },
         _ => bail!("GAP_DEV_NUISANCE is `scale,contact_weight`"),

@@ -15,7 +15,7 @@
 use super::dataset::TrialData;
 use super::effects::Effect;
 use super::fit::FittedParam;
-use super::model::{replay_checked, ForceModel};
+use super::model::ForceModel;
 use super::sim_model::{refined_spec, SimForceModel};
 use super::{GapError, Options, Region, Report};
 use launch_config::{LaunchFile, SceneConfig};
@@ -541,7 +541,7 @@ pub fn calibrate_input(
     };
     let start = std::time::Instant::now();
     let effects = super::candidate_effects(&exp, &model, opts);
-    let mut data = super::dataset::build(&exp, &model, &effects, &opts.build_options())?;
+    let mut data = super::prepare_dataset(&exp, &model, &effects, opts)?;
     let diagnose = |data: &[TrialData]| {
         super::diagnose_data(label.clone(), model.describe(), data, &effects, opts, start)
     };
@@ -685,15 +685,7 @@ pub fn refine(
             let Some(variant) = e.knot_variant(v) else {
                 continue;
             };
-            use rayon::prelude::*;
-            let forces: Vec<Result<_, GapError>> = data
-                .par_iter()
-                .map(|d| {
-                    replay_checked(model, &variant, &d.path).map_err(|err| {
-                        GapError::Sim(format!("trial {}, {}: {err}", d.name, variant.label()))
-                    })
-                })
-                .collect();
+            let forces = super::dataset::replay_trials(data, model, &variant);
             let mut kept = 0;
             for (d, f) in data.iter_mut().zip(forces) {
                 let f = f?;

@@ -13,6 +13,19 @@ use std::collections::HashMap;
 /// A re-simulation at a fitted parameter value: (parameter value, force on the grid).
 pub type ExtraKnot = (f64, Vec<[f64; 3]>);
 
+/// A re-simulation at the parameters the whole experiment fits for a candidate's
+/// re-simulated effects ([`crate::tilt_centre`]), kept as what it corrects in their
+/// interpolation there ([`crate::effects::centre_for`]).
+#[derive(Debug, Clone)]
+pub struct Centre {
+    /// The re-simulated effects, in application order, and their parameters there (the
+    /// candidate's units: tilt in degrees, support compliance in m/N, μ).
+    pub effects: Vec<Effect>,
+    pub theta: Vec<f64>,
+    /// Re-simulated force minus the effects' interpolation at `theta`, on the grid.
+    pub correction: Vec<[f64; 3]>,
+}
+
 #[derive(Debug, Clone)]
 pub struct TrialData {
     pub name: String,
@@ -41,6 +54,8 @@ pub struct TrialData {
     /// replayed (the nuisance off) or its replay diverged (`contact_knot_diverged`).
     pub contact_knot: Option<Vec<[f64; 3]>>,
     pub contact_knot_diverged: bool,
+    /// Re-simulations at fitted parameters ([`Centre`]; empty: none made, or diverged).
+    pub centres: Vec<Centre>,
     /// Contact normal (outward), depth (mm) and phase at the measurement times.
     pub normal: [f64; 3],
     pub depth: Vec<f64>,
@@ -240,6 +255,22 @@ pub fn build(
     Ok(out)
 }
 
+/// Replays every prepared trial at `variant`, in parallel (the re-simulations made after the
+/// dataset: calibration's extra knots, the tilt's centres). An error names the trial.
+pub fn replay_trials(
+    data: &[TrialData],
+    model: &dyn ForceModel,
+    variant: &Variant,
+) -> Vec<Result<Replayed, GapError>> {
+    data.par_iter()
+        .map(|d| {
+            replay_checked(model, variant, &d.path).map_err(|err| {
+                GapError::Sim(format!("trial {}, {}: {err}", d.name, variant.label()))
+            })
+        })
+        .collect()
+}
+
 /// Replace diverged re-simulations (`usable[e][k]` false: the physics flagged a faulty step)
 /// by the baseline and flag them in `resim_ok` (the effects' interpolation then uses the
 /// remaining knots).
@@ -372,6 +403,7 @@ pub fn prepare(
         extra_knots: HashMap::new(),
         contact_knot: None,
         contact_knot_diverged: false,
+        centres: Vec::new(),
         normal,
         depth,
         phase,

@@ -6,7 +6,7 @@
 //! `device` bias + tool inertia; `sensor` delay + first-order low-pass). Re-simulated effects
 //! (`friction`, `tilt`, `support`, `mesh`) are replayed at a few parameter values and
 //! interpolated (piecewise linear in μ and in support compliance, quadratic per tilt angle).
-use super::dataset::TrialData;
+use super::dataset::{Centre, TrialData};
 use super::fit::NuisanceFit;
 use super::model::Variant;
 use super::signal::{lowpass_in_place, sample_uniform};
@@ -328,6 +328,12 @@ pub fn predict(
             axpy(grid, nuisance.contact, knot, Some(&td.base));
         }
     }
+    // the re-simulated effects' deltas all add to the tissue's force before anything scales
+    // it, so they and the centre's correction come first, in any order
+    axpy_resimulated(grid, c, theta, td);
+    if let Some((centre, w)) = centre_for(c, theta, td) {
+        axpy(grid, w, &centre.correction, None);
+    }
     let stiffness = nuisance.stiffness;
     let mut k = 0;
     let mut delay = 0.0;
@@ -341,39 +347,8 @@ pub fn predict(
             scaled = true;
         }
         match e {
-            Effect::Friction => piecewise_knots(grid, td, Effect::Friction, th[0], FRICTION_KNOTS),
-            Effect::Support => piecewise_knots(grid, td, Effect::Support, th[0], SUPPORT_KNOTS),
-            Effect::Tilt => {
-                let r = td.resim(Effect::Tilt);
-                let h = TILT_STEP;
-                for (axis, ang) in [(0usize, th[0].to_radians()), (1, th[1].to_radians())] {
-                    let (rp, rm) = (&r[2 * axis], &r[2 * axis + 1]);
-                    let ok_p = td.resim_valid(Effect::Tilt, 2 * axis);
-                    let ok_m = td.resim_valid(Effect::Tilt, 2 * axis + 1);
-                    match (ok_p, ok_m) {
-                        (true, true) => {
-                            let a1 = ang / (2.0 * h);
-                            let a2 = ang * ang / (2.0 * h * h);
-                            for (i, g) in grid.iter_mut().enumerate() {
-                                for q in 0..3 {
-                                    g[q] += a1 * (rp[i][q] - rm[i][q])
-                                        + a2 * (rp[i][q] + rm[i][q] - 2.0 * td.base[i][q]);
-                                }
-                            }
-                        }
-                        // one side diverged: the secant through the other
-                        (true, false) => axpy(grid, ang / h, rp, Some(&td.base)),
-                        (false, true) => axpy(grid, -ang / h, rm, Some(&td.base)),
-                        (false, false) => {}
-                    }
-                }
-            }
-            Effect::Mesh => {
-                if td.resim_valid(Effect::Mesh, 0) {
-                    let r = td.resim(Effect::Mesh);
-                    axpy(grid, 1.0, &r[0], Some(&td.base));
-                }
-            }
+            // added above
+            Effect::Friction | Effect::Support | Effect::Tilt | Effect::Mesh => {}
             Effect::Modulus => grid.iter_mut().for_each(|g| *g = g.map(|v| v * th[0])),
             Effect::Hardening => {
                 for (g, d) in grid.iter_mut().zip(&td.depth_grid) {
@@ -405,6 +380,132 @@ pub fn predict(
         td.t.iter()
             .map(|&t| sample_uniform(td.path.t0, td.path.dt, grid, t - delay)),
     );
+}
+
+/// The tilt's interpolation between re-simulations: per axis, the quadratic through the
+/// baseline and the knots at ±[`TILT_STEP`] (one side diverged: the secant through the
+/// other), added to `grid`. Angles in degrees.
+pub fn tilt_quadratic(grid: &mut [[f64; 3]], td: &TrialData, th_deg: [f64; 2]) {
+    let r = td.resim(Effect::Tilt);
+    let h = TILT_STEP;
+    for (axis, ang) in [
+        (0usize, th_deg[0].to_radians()),
+        (1, th_deg[1].to_radians()),
+    ] {
+        let (rp, rm) = (&r[2 * axis], &r[2 * axis + 1]);
+        let ok_p = td.resim_valid(Effect::Tilt, 2 * axis);
+        let ok_m = td.resim_valid(Effect::Tilt, 2 * axis + 1);
+        match (ok_p, ok_m) {
+            (true, true) => {
+                let a1 = ang / (2.0 * h);
+                let a2 = ang * ang / (2.0 * h * h);
+                for (i, g) in grid.iter_mut().enumerate() {
+                    for q in 0..3 {
+                        g[q] += a1 * (rp[i][q] - rm[i][q])
+                            + a2 * (rp[i][q] + rm[i][q] - 2.0 * td.base[i][q]);
+                    }
+                }
+            }
+            // one side diverged: the secant through the other
+            (true, false) => axpy(grid, ang / h, rp, Some(&td.base)),
+            (false, true) => axpy(grid, -ang / h, rm, Some(&td.base)),
+            (false, false) => {}
+        }
+    }
+}
+
+/// Adds the interpolated deltas of candidate `c`'s re-simulated effects at `theta` to `grid`
+/// (no centre: [`centre_for`]).
+pub fn axpy_resimulated(grid: &mut [[f64; 3]], c: &Candidate, theta: &[f64], td: &TrialData) {
+    let mut k = 0;
+    for &e in &c.0 {
+        let np = e.params().len();
+        let th = &theta[k..k + np];
+        k += np;
+        match e {
+            Effect::Friction => piecewise_knots(grid, td, Effect::Friction, th[0], FRICTION_KNOTS),
+            Effect::Support => piecewise_knots(grid, td, Effect::Support, th[0], SUPPORT_KNOTS),
+            Effect::Tilt => tilt_quadratic(grid, td, [th[0], th[1]]),
+            Effect::Mesh if td.resim_valid(Effect::Mesh, 0) => {
+                axpy(grid, 1.0, &td.resim(Effect::Mesh)[0], Some(&td.base));
+            }
+            _ => {}
+        }
+    }
+}
+
+/// The re-simulated effects, in application order: their force comes from replays, which
+/// the others act on.
+pub fn resimulated(c: &Candidate) -> impl Iterator<Item = Effect> + '_ {
+    c.0.iter().copied().filter(|e| !e.resims().is_empty())
+}
+
+/// One unit of each re-simulated parameter in [`centre_weight`]'s distance: the span its
+/// default knots cover (tilt: the ±6° step; support and friction: the larger knot).
+pub fn centre_unit(e: Effect) -> f64 {
+    match e {
+        Effect::Tilt => TILT_STEP.to_degrees(),
+        Effect::Support => SUPPORT_KNOTS[1],
+        Effect::Friction => FRICTION_KNOTS[1],
+        _ => 1.0,
+    }
+}
+
+/// The centre ([`TrialData::centres`]) candidate `c` uses at `theta`, and its weight there:
+/// the centre made for exactly `c`'s re-simulated effects, else the one made for the most of
+/// them (a pair's tilt uses the tilt's own centre).
+pub fn centre_for<'a>(
+    c: &Candidate,
+    theta: &[f64],
+    td: &'a TrialData,
+) -> Option<(&'a Centre, f64)> {
+    if td.centres.is_empty() {
+        return None;
+    }
+    let own: Vec<Effect> = resimulated(c).collect();
+    let centre = td
+        .centres
+        .iter()
+        .filter(|k| k.effects.iter().all(|e| own.contains(e)))
+        .max_by_key(|k| k.effects.len())?;
+    // the candidate's values of the centre's parameters, in the centre's order
+    let mut at = Vec::with_capacity(centre.theta.len());
+    let mut units = Vec::with_capacity(centre.theta.len());
+    for &e in &centre.effects {
+        let mut k = 0;
+        for &ce in &c.0 {
+            let np = ce.params().len();
+            if ce == e {
+                at.extend_from_slice(&theta[k..k + np]);
+                units.extend(std::iter::repeat_n(centre_unit(e), np));
+            }
+            k += np;
+        }
+    }
+    let w = centre_weight(&at, &centre.theta, &units);
+    (w > 0.0).then_some((centre, w))
+}
+
+/// Weight of a centre's correction at `at` (the centre at `centre`, each coordinate divided by
+/// its `units`): 1 at the centre, falling smoothly (C¹) to 0 at the centre's own distance from
+/// the neutral point (every re-simulated effect vanishes at 0) and held there beyond. So the
+/// candidate is exact at the re-simulated parameters, and at the neutral point it is still
+/// exactly the baseline, which the other candidates and the floor share.
+pub fn centre_weight(at: &[f64], centre: &[f64], units: &[f64]) -> f64 {
+    let (mut r2, mut d2) = (0.0, 0.0);
+    for ((a, c), u) in at.iter().zip(centre).zip(units) {
+        r2 += (c / u).powi(2);
+        d2 += ((a - c) / u).powi(2);
+    }
+    if r2 == 0.0 {
+        return 0.0;
+    }
+    let v = 1.0 - d2 / r2;
+    if v > 0.0 {
+        v * v
+    } else {
+        0.0
+    }
 }
 
 fn scale_grid(grid: &mut [[f64; 3]], s: f64) {
@@ -536,5 +637,33 @@ mod tests {
                 assert!(p.lo <= p.neutral && p.neutral <= p.hi, "{}", p.name);
             }
         }
+    }
+
+    /// A centre's weight is 1 there, 0 at the neutral point and at or beyond the centre's own
+    /// distance from it, between them in [0, 1] and continuous: the candidate stays exactly the
+    /// baseline at the neutral point and nothing jumps as a fit moves.
+    #[test]
+    fn a_centre_weighs_one_at_itself_and_nothing_at_the_neutral_point() {
+        let (c, u) = ([4.0, -2.0, 3e-4], [6.0, 6.0, SUPPORT_KNOTS[1]]);
+        assert_eq!(centre_weight(&c, &c, &u), 1.0);
+        assert_eq!(centre_weight(&[0.0; 3], &c, &u), 0.0);
+        assert_eq!(centre_weight(&[8.0, -4.0, 6e-4], &c, &u), 0.0);
+        let mut last = centre_weight(&[0.0; 3], &c, &u);
+        for k in 1..=1000 {
+            let f = k as f64 / 1000.0;
+            let at = [c[0] * f, c[1] * f, c[2] * f];
+            let w = centre_weight(&at, &c, &u);
+            assert!(
+                (0.0..=1.0).contains(&w) && w >= last,
+                "{f}: {w} after {last}"
+            );
+            assert!(w - last < 0.01, "{f}: a jump {last} -> {w}");
+            last = w;
+        }
+        assert_eq!(
+            centre_weight(&c, &[0.0; 3], &u),
+            0.0,
+            "a centre at neutral is none"
+        );
     }
 }

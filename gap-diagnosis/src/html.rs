@@ -482,6 +482,15 @@ pub fn render(r: &Report) -> String {
         esc(&r.verdict.effect), 100.0 * r.verdict.heldout_shrink, fmt(r.heldout.baseline_rmse), fmt(r.heldout.winner_rmse), esc(&r.heldout.scheme),
         fmt(r.heldout.baseline_study_error), fmt(r.heldout.winner_study_error), esc(&r.verdict.reason));
     h.push_str(&nuisance_paragraph(r));
+    if !r.centres.is_empty() {
+        let items: Vec<String> = r.centres.iter().map(|c| esc(c)).collect();
+        let _ = write!(
+            h,
+            "<p><b>Re-simulated at the fitted tilt</b> (the tilt's second stage: its \
+             interpolation between knots is exact there): {}</p>",
+            items.join("; ")
+        );
+    }
     if r.verdict.indistinguishable.len() > 1 {
         let _ = write!(
             h,

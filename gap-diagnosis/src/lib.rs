@@ -55,6 +55,7 @@ pub mod selftest;
 pub mod separability;
 pub mod session;
 pub mod signal;
+pub mod tilt_centre;
 
 pub use effects::{Candidate, Effect};
 pub use experiment::{
@@ -133,6 +134,10 @@ pub struct Options {
     /// ([`fit::CONTACT_KNOT`]; one more replay per trial). Default on (README, "A contact
     /// nuisance beside it").
     pub contact_nuisance: bool,
+    /// Re-simulate every trial once more at the tilt the whole experiment fits, when it is
+    /// at least [`tilt_centre::MIN_CENTRE_DEG`], and at the tilt+support pair's fit
+    /// ([`tilt_centre`]; up to two replays per trial for each). Default on.
+    pub tilt_centre: bool,
 }
 
 impl Options {
@@ -187,6 +192,7 @@ impl Default for Options {
             min_shrink: 0.08,
             nuisance: true,
             contact_nuisance: true,
+            tilt_centre: true,
         }
     }
 }
@@ -313,6 +319,11 @@ pub struct Report {
     /// interpolate through their other knots.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub diverged_replays: Vec<String>,
+    /// The re-simulations at fitted parameters, the tilt's second stage ([`tilt_centre`]):
+    /// e.g. `tilt at tilt_x 4.19 deg, tilt_y 2.05 deg (15 of 15 trials)`. Empty when no tilt
+    /// of at least [`tilt_centre::MIN_CENTRE_DEG`] was fitted or the option was off.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub centres: Vec<String>,
     /// Device-rendered vs model force, when a session recording was given.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rendering_gap: Option<session::RenderingGap>,
@@ -386,7 +397,7 @@ pub fn diagnose(
     opts.check()?;
     let start = std::time::Instant::now();
     let effects = candidate_effects(exp, model, opts);
-    let data = dataset::build(exp, model, &effects, &opts.build_options())?;
+    let data = prepare_dataset(exp, model, &effects, opts)?;
     diagnose_data(
         exp.dir.display().to_string(),
         model.describe(),
@@ -395,6 +406,22 @@ pub fn diagnose(
         opts,
         start,
     )
+}
+
+/// Every replay the diagnosis of `exp` with `effects` needs: the baseline, each effect's
+/// re-simulations and the nuisance's knot ([`dataset::build`]), then the tilt's second stage
+/// ([`tilt_centre::add_centres`]) when `opts.tilt_centre`.
+pub fn prepare_dataset(
+    exp: &Experiment,
+    model: &dyn ForceModel,
+    effects: &[Effect],
+    opts: &Options,
+) -> Result<Vec<dataset::TrialData>, GapError> {
+    let mut data = dataset::build(exp, model, effects, &opts.build_options())?;
+    if opts.tilt_centre {
+        tilt_centre::add_centres(&mut data, model, opts.nuisance_band())?;
+    }
+    Ok(data)
 }
 
 /// The candidate effects [`diagnose`] considers for `exp` with `model`.
@@ -616,6 +643,7 @@ pub fn diagnose_data(
         elapsed_s: start.elapsed().as_secs_f64(),
         trial_reports,
         diverged_replays: data.iter().flat_map(|d| d.diverged_labels()).collect(),
+        centres: tilt_centre::describe(data),
         rendering_gap: None,
     })
 }

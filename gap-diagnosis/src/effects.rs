@@ -434,12 +434,6 @@ pub fn axpy_resimulated(grid: &mut [[f64; 3]], c: &Candidate, theta: &[f64], td:
     }
 }
 
-/// The re-simulated effects, in application order: their force comes from replays, which
-/// the others act on.
-pub fn resimulated(c: &Candidate) -> impl Iterator<Item = Effect> + '_ {
-    c.0.iter().copied().filter(|e| !e.resims().is_empty())
-}
-
 /// One unit of each re-simulated parameter in [`centre_weight`]'s distance: the span its
 /// default knots cover (tilt: the ±6° step; support and friction: the larger knot).
 pub fn centre_unit(e: Effect) -> f64 {
@@ -462,24 +456,20 @@ pub fn centre_for<'a>(
     if td.centres.is_empty() {
         return None;
     }
-    let own: Vec<Effect> = resimulated(c).collect();
+    // a centre's effects are re-simulated ones: those of the candidate, or some of them
     let centre = td
         .centres
         .iter()
-        .filter(|k| k.effects.iter().all(|e| own.contains(e)))
+        .filter(|k| k.effects.iter().all(|e| c.0.contains(e)))
         .max_by_key(|k| k.effects.len())?;
-    // the candidate's values of the centre's parameters, in the centre's order
+    // the candidate's values of the centre's parameters; both list effects in application
+    // order, so they come in the centre's order
     let mut at = Vec::with_capacity(centre.theta.len());
     let mut units = Vec::with_capacity(centre.theta.len());
-    for &e in &centre.effects {
-        let mut k = 0;
-        for &ce in &c.0 {
-            let np = ce.params().len();
-            if ce == e {
-                at.extend_from_slice(&theta[k..k + np]);
-                units.extend(std::iter::repeat_n(centre_unit(e), np));
-            }
-            k += np;
+    for ((e, _), &v) in c.params().iter().zip(theta) {
+        if centre.effects.contains(e) {
+            at.push(v);
+            units.push(centre_unit(*e));
         }
     }
     let w = centre_weight(&at, &centre.theta, &units);

@@ -136,7 +136,7 @@ pub struct Options {
     pub contact_nuisance: bool,
     /// Re-simulate every trial once more at the tilt the whole experiment fits, when it is
     /// at least [`tilt_centre::MIN_CENTRE_DEG`], and at the tilt+support pair's fit
-    /// ([`tilt_centre`]; up to two replays per trial for each). Default on.
+    /// ([`tilt_centre`]; up to [`tilt_centre::ROUNDS`] replays per trial for each). Default on.
     pub tilt_centre: bool,
 }
 

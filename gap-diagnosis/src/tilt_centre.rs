@@ -29,45 +29,34 @@ pub const MIN_CENTRE_DEG: f64 = 1.0;
 pub const MIN_CENTRE_SUPPORT: f64 = 0.1 * SUPPORT_KNOTS[0];
 
 /// At most this many re-simulations per trial and centre: the fit with the first centre moves
-/// towards the true parameters (the interpolation's error shrinks near the centre), and a
-/// second centre at the refit is made when it moved by at least [`SETTLED`] (in
+/// towards the true parameters (the interpolation's error shrinks near the centre), and
+/// another centre at the refit is made when it moved by at least [`SETTLED`] (in
 /// [`crate::effects::centre_unit`]s: 0.5° of tilt).
 pub const ROUNDS: usize = 3;
 pub const SETTLED: f64 = 0.5 / 6.0;
-
-/// What [`add_centres`] re-simulated: per centre, the candidate, its parameters and how many
-/// trials got a usable replay.
-#[derive(Debug, Clone, PartialEq)]
-pub struct CentreMade {
-    pub candidate: String,
-    pub theta: Vec<f64>,
-    pub usable: usize,
-}
 
 /// Fits the tilt alone to every trial (with the nuisances `nuisance`) and, when it tilts by
 /// at least [`MIN_CENTRE_DEG`], re-simulates every trial at the fitted angles and stores the
 /// correction as a [`Centre`]; then once more at the refit if it moved ([`ROUNDS`]). With a
 /// tilt centre and support knots, the same for the tilt+support pair when its fitted support
-/// compliance is at least [`MIN_CENTRE_SUPPORT`], whatever tilt it fits. Returns the last centre made of each kind.
+/// compliance is at least [`MIN_CENTRE_SUPPORT`], whatever tilt it fits. What was made is in
+/// each trial's [`TrialData::centres`] ([`describe`]).
 pub fn add_centres(
     data: &mut [TrialData],
     model: &dyn ForceModel,
     nuisance: Nuisance,
-) -> Result<Vec<CentreMade>, GapError> {
+) -> Result<(), GapError> {
     let has = |data: &[TrialData], e: Effect| {
         !data.is_empty() && data.iter().all(|d| d.resims.contains_key(&e))
     };
-    let mut made = Vec::new();
     if !has(data, Effect::Tilt) {
-        return Ok(made);
+        return Ok(());
     }
     let tilt = Candidate::single(Effect::Tilt);
     let significant = |th: &[f64]| th[0].hypot(th[1]) >= MIN_CENTRE_DEG;
-    let Some(t) = centre_rounds(data, model, nuisance, &tilt, &[], significant)? else {
-        return Ok(made);
+    let Some(angles) = centre_rounds(data, model, nuisance, &tilt, &[], significant)? else {
+        return Ok(());
     };
-    let angles = t.theta.clone();
-    made.push(t);
     if has(data, Effect::Support) {
         let pair = Candidate::pair(Effect::Tilt, Effect::Support);
         let inits: Vec<Vec<f64>> = [SUPPORT_KNOTS[0], SUPPORT_KNOTS[1]]
@@ -77,15 +66,14 @@ pub fn add_centres(
         // the tilt alone was significant; on a soft support the pair's interpolation may
         // first fit less of it (its tilted knots stand on the fixed base)
         let significant = |th: &[f64]| th[2] >= MIN_CENTRE_SUPPORT;
-        if let Some(p) = centre_rounds(data, model, nuisance, &pair, &inits, significant)? {
-            made.push(p);
-        }
+        centre_rounds(data, model, nuisance, &pair, &inits, significant)?;
     }
-    Ok(made)
+    Ok(())
 }
 
 /// Up to [`ROUNDS`] centres for candidate `c` (only re-simulated effects), each at the
-/// candidate's fit over every trial with the centre before it in place.
+/// candidate's fit over every trial with the centre before it in place; returns the last
+/// centre's parameters (None: the fit was never significant).
 fn centre_rounds(
     data: &mut [TrialData],
     model: &dyn ForceModel,
@@ -93,22 +81,22 @@ fn centre_rounds(
     c: &Candidate,
     inits: &[Vec<f64>],
     significant: impl Fn(&[f64]) -> bool,
-) -> Result<Option<CentreMade>, GapError> {
+) -> Result<Option<Vec<f64>>, GapError> {
     let all: Vec<Vec<bool>> = data.iter().map(|d| vec![true; d.t.len()]).collect();
     let nuisance = nuisance.for_candidate(c).for_data(data);
-    let mut done: Option<CentreMade> = None;
+    let mut done: Option<Vec<f64>> = None;
     for _ in 0..ROUNDS {
         let mut starts = inits.to_vec();
-        starts.extend(done.iter().map(|m| m.theta.clone()));
+        starts.extend(done.clone());
         let fitted = fit(c, data, &all, &starts, &default_free(c), nuisance);
         if !significant(&fitted.theta) {
             break;
         }
-        if let Some(m) = &done {
+        if let Some(last) = &done {
             let moved = fitted
                 .theta
                 .iter()
-                .zip(&m.theta)
+                .zip(last)
                 .zip(units(c))
                 .map(|((a, b), u)| ((a - b) / u).powi(2))
                 .sum::<f64>()
@@ -117,12 +105,8 @@ fn centre_rounds(
                 break;
             }
         }
-        let usable = replay_centre(data, model, c, &fitted.theta)?;
-        done = Some(CentreMade {
-            candidate: c.name(),
-            theta: fitted.theta,
-            usable,
-        });
+        replay_centre(data, model, c, &fitted.theta)?;
+        done = Some(fitted.theta);
     }
     Ok(done)
 }
@@ -151,16 +135,15 @@ fn centre_variant(c: &Candidate, theta: &[f64]) -> Variant {
 }
 
 /// Re-simulates every trial at `theta` and stores the correction (replacing an earlier centre
-/// of the same effects); returns how many trials got a usable replay.
+/// of the same effects).
 fn replay_centre(
     data: &mut [TrialData],
     model: &dyn ForceModel,
     c: &Candidate,
     theta: &[f64],
-) -> Result<usize, GapError> {
+) -> Result<(), GapError> {
     let variant = centre_variant(c, theta);
     let replays = replay_trials(data, model, &variant);
-    let mut usable = 0;
     for (d, r) in data.iter_mut().zip(replays) {
         let r = r?;
         d.centres.retain(|k| k.effects != c.0);
@@ -182,9 +165,8 @@ fn replay_centre(
             theta: theta.to_vec(),
             correction,
         });
-        usable += 1;
     }
-    Ok(usable)
+    Ok(())
 }
 
 /// The centres in `data`, one line each, as the report lists them: the candidate, its
@@ -203,7 +185,11 @@ pub fn describe(data: &[TrialData]) -> Vec<String> {
                 .params()
                 .iter()
                 .zip(&k.theta)
-                .map(|((_, p), v)| format!("{} {v:.4} {}", p.name, p.unit))
+                .map(|((_, p), v)| {
+                    format!("{} {v:.4} {}", p.name, p.unit)
+                        .trim_end()
+                        .to_string()
+                })
                 .collect();
             let usable = data
                 .iter()
@@ -212,7 +198,7 @@ pub fn describe(data: &[TrialData]) -> Vec<String> {
             format!(
                 "{} at {} ({usable} of {} trials)",
                 c.name(),
-                params.join(", ").replace("  ", " "),
+                params.join(", "),
                 data.len()
             )
         })

@@ -8,7 +8,8 @@
 //! 18 cases (their single effects and pairs) with the same-mesh penalty-contact truth
 //! (`reality::write_experiment_with_contact_layer`, 4 µm/N, the study's 5 probings per
 //! region) on MESH (default `study:lateral`, the mesh the hidden cases were handed), seeds
-//! SEED…SEED+17, to be diagnosed by `rediagnose`.
+//! SEED…SEED+17, to be diagnosed by `rediagnose`; `GAP_DEV_CASE_LIST=friction=0.18,none,…`
+//! writes those cases instead (a strength after `=`, as `arthrosim reality --effect`).
 //! `gap_dev DIR eval CANDIDATE θ…` scores one candidate at given parameters on the kept
 //! cases (see [`eval_at`]); `GAP_DEV_TOP=N` prints N ranked candidates in `rediagnose`.
 use anyhow::{bail, Context};
@@ -194,6 +195,15 @@ fn rediagnose_kept_cases(root: &Path) -> anyhow::Result<()> {
             eprintln!("    diverged: {:?}", r.diverged_replays);
         }
         eprintln!("    truth params: {}", truth["spec"]["injected"]);
+        eprintln!(
+            "    verdict params: {}",
+            r.verdict
+                .params
+                .iter()
+                .map(|p| format!("{}={:.4e}", p.name, p.value))
+                .collect::<Vec<_>>()
+                .join(" ")
+        );
         // GAP_DEV_TOP=N: how many ranked candidates to print (10)
         let top = std::env::var("GAP_DEV_TOP")
             .ok()
@@ -310,7 +320,14 @@ const HIDDEN_LIKE_CASES: [&str; 18] = [
 
 fn write_contact_layer_cases(root: &Path, seed0: u64, mesh: &str) -> anyhow::Result<()> {
     std::fs::create_dir_all(root)?;
-    for (i, case) in HIDDEN_LIKE_CASES.iter().enumerate() {
+    // GAP_DEV_CASE_LIST=a,b+c=0.3,…: other cases than the hidden sets' (an effect's strength
+    // after `=`, as `arthrosim reality --effect` takes it)
+    let listed = std::env::var("GAP_DEV_CASE_LIST").ok();
+    let cases: Vec<&str> = match &listed {
+        Some(l) => l.split(',').map(str::trim).collect(),
+        None => HIDDEN_LIKE_CASES.to_vec(),
+    };
+    for (i, case) in cases.iter().enumerate() {
         // `none` is read as no effect
         let effects: Vec<&str> = case.split('+').collect();
         let mut spec = gap::reality::RealitySpec::from_effects(&effects, seed0 + i as u64)?;

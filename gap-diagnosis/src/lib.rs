@@ -300,6 +300,15 @@ pub struct Verdict {
     pub contact_compliance: Option<f64>,
 }
 
+/// Wall time of a diagnosis' stages, s: the replays (baseline, knots, the contact nuisance's
+/// knot), the tilt's second stage ([`tilt_centre`]) and the fits with their held-out folds.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct StageTimes {
+    pub replays_s: f64,
+    pub centres_s: f64,
+    pub fits_s: f64,
+}
+
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Report {
     pub input: String,
@@ -314,6 +323,9 @@ pub struct Report {
     pub heldout: Heldout,
     pub verdict: Verdict,
     pub elapsed_s: f64,
+    /// Where `elapsed_s` went (a diagnosis from replays: absent when the trials came prepared).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stages: Option<StageTimes>,
     pub trial_reports: Vec<TrialReport>,
     /// Re-simulations left out as diverged (`trial: variant`); the effects needing them
     /// interpolate through their other knots.
@@ -397,15 +409,18 @@ pub fn diagnose(
     opts.check()?;
     let start = std::time::Instant::now();
     let effects = candidate_effects(exp, model, opts);
-    let data = prepare_dataset(exp, model, &effects, opts)?;
-    diagnose_data(
+    let (data, mut stages) = prepare_dataset_timed(exp, model, &effects, opts)?;
+    let mut report = diagnose_data(
         exp.dir.display().to_string(),
         model.describe(),
         &data,
         &effects,
         opts,
         start,
-    )
+    )?;
+    stages.fits_s = (report.elapsed_s - stages.replays_s - stages.centres_s).max(0.0);
+    report.stages = Some(stages);
+    Ok(report)
 }
 
 /// Every replay the diagnosis of `exp` with `effects` needs: the baseline, each effect's
@@ -417,11 +432,31 @@ pub fn prepare_dataset(
     effects: &[Effect],
     opts: &Options,
 ) -> Result<Vec<dataset::TrialData>, GapError> {
+    prepare_dataset_timed(exp, model, effects, opts).map(|(data, _)| data)
+}
+
+/// [`prepare_dataset`] with the wall time of its two stages (`fits_s` left 0).
+pub fn prepare_dataset_timed(
+    exp: &Experiment,
+    model: &dyn ForceModel,
+    effects: &[Effect],
+    opts: &Options,
+) -> Result<(Vec<dataset::TrialData>, StageTimes), GapError> {
+    let t0 = std::time::Instant::now();
     let mut data = dataset::build(exp, model, effects, &opts.build_options())?;
+    let replays_s = t0.elapsed().as_secs_f64();
     if opts.tilt_centre {
         tilt_centre::add_centres(&mut data, model, opts.nuisance_band())?;
     }
-    Ok(data)
+    let centres_s = t0.elapsed().as_secs_f64() - replays_s;
+    Ok((
+        data,
+        StageTimes {
+            replays_s,
+            centres_s,
+            fits_s: 0.0,
+        },
+    ))
 }
 
 /// The candidate effects [`diagnose`] considers for `exp` with `model`.
@@ -641,6 +676,7 @@ pub fn diagnose_data(
         heldout,
         verdict,
         elapsed_s: start.elapsed().as_secs_f64(),
+        stages: None,
         trial_reports,
         diverged_replays: data.iter().flat_map(|d| d.diverged_labels()).collect(),
         centres: tilt_centre::describe(data),

@@ -456,7 +456,20 @@ fn gap_command(args: GapArgs) -> Result<i32> {
             report.verdict.reason
         );
         for p in &report.verdict.params {
-            println!("  {p:?}");
+            println!(
+                "  {} {} = {} ± {}{}{}{}",
+                p.effect,
+                p.name,
+                gap::html::fmt_value(p.value),
+                gap::html::fmt_value(p.std),
+                if p.unit.is_empty() { "" } else { " " },
+                p.unit,
+                if p.at_bound {
+                    " (at its bound: these trials do not determine it)"
+                } else {
+                    ""
+                }
+            );
         }
         match &report.rendering_gap {
             Some(r) => println!("rendering gap: {}", r.summary),

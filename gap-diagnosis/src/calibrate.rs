@@ -832,6 +832,7 @@ mod tests {
             unit: String::new(),
             value,
             std: 0.0,
+            at_bound: false,
         }
     }
 

@@ -954,6 +954,22 @@ pub struct FittedParam {
     pub value: f64,
     /// One standard error (Gauss–Newton), same unit.
     pub std: f64,
+    /// The fit ended at a bound of the parameter's range that is not its neutral value
+    /// ([`at_bound`]): the trials do not determine it (a device's tool mass at ±0.2 kg where
+    /// the probe barely accelerates), and its value is the range's, not the specimen's.
+    #[serde(default)]
+    pub at_bound: bool,
+}
+
+/// Whether `v` lies at a bound of `p`'s range other than its neutral value (within a
+/// thousandth of the range, in the space the fit searches).
+pub fn at_bound(p: &ParamSpec, v: f64) -> bool {
+    let u = to_unit(std::slice::from_ref(p), &[v])[0];
+    let neutral = to_unit(std::slice::from_ref(p), &[p.neutral])[0];
+    const EDGE: f64 = 1e-3;
+    [0.0, 1.0]
+        .iter()
+        .any(|&b| (u - b).abs() <= EDGE && (neutral - b).abs() > EDGE)
 }
 
 /// A candidate fitted, cross-validated and scored.
@@ -1121,6 +1137,7 @@ pub fn score_candidate(
             unit: p.unit.into(),
             value: v,
             std: s,
+            at_bound: at_bound(&p, v),
         })
         .collect();
     let study: f64 = data
@@ -1231,6 +1248,23 @@ mod tests {
         let (s, acc) = scale(quad_for(1.13), Nuisance::OFF);
         assert_eq!(s, 1.0);
         assert!(acc.total().0 > 0.1);
+    }
+
+    /// A parameter at the edge of its range is flagged unless the edge is where the effect
+    /// vanishes: a tool mass at −0.2 kg is, μ at 0 is not; a log-scaled one in log space.
+    #[test]
+    fn a_parameter_at_a_bound_other_than_neutral_is_flagged() {
+        use crate::effects::Effect;
+        let spec = |e: Effect, name: &str| e.params().into_iter().find(|p| p.name == name).unwrap();
+        let mass = spec(Effect::Device, "tool_mass");
+        assert!(at_bound(&mass, -0.2) && at_bound(&mass, 0.2));
+        assert!(!at_bound(&mass, 0.05) && !at_bound(&mass, 0.0));
+        let mu = spec(Effect::Friction, "mu");
+        assert!(!at_bound(&mu, 0.0), "μ 0 is no friction, not a bound");
+        assert!(at_bound(&mu, 0.8));
+        let scale = spec(Effect::Hardening, "small_strain_scale");
+        assert!(at_bound(&scale, 0.01) && !at_bound(&scale, 0.0107));
+        assert!(!at_bound(&scale, f64::NAN));
     }
 
     /// Both nuisances profiled together recover a scale and a contact weight inside their

@@ -10,10 +10,18 @@ pub fn esc(s: &str) -> String {
 }
 
 fn fmt(v: f64) -> String {
-    if v.is_finite() {
-        format!("{v:.4}")
-    } else {
+    fmt_value(v)
+}
+
+/// A figure of the report, four decimals or, below 0.01 and from 10⁵, four significant
+/// figures (a support compliance of 3.3·10⁻⁵ m/N read 0.0000); "–" when not finite.
+pub fn fmt_value(v: f64) -> String {
+    if !v.is_finite() {
         "–".into()
+    } else if v != 0.0 && (v.abs() < 1e-2 || v.abs() >= 1e5) {
+        format!("{v:.3e}")
+    } else {
+        format!("{v:.4}")
     }
 }
 
@@ -516,10 +524,15 @@ pub fn render(r: &Report) -> String {
         for p in &r.verdict.params {
             let _ = write!(
                 h,
-                "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+                "<tr><td>{}</td><td>{}</td><td>{}{}</td><td>{}</td><td>{}</td></tr>",
                 esc(&p.effect),
                 esc(&p.name),
                 fmt(p.value),
+                if p.at_bound {
+                    " (at its bound: these trials do not determine it)"
+                } else {
+                    ""
+                },
                 fmt(p.std),
                 esc(&p.unit)
             );
@@ -616,4 +629,19 @@ pub fn render(r: &Report) -> String {
     }
     h.push_str("</body></html>");
     h
+}
+
+#[cfg(test)]
+mod tests {
+    use super::fmt_value;
+
+    /// Regression: a support compliance of 3.3·10⁻⁵ m/N per node read 0.0000 in the report.
+    #[test]
+    fn small_and_large_figures_keep_four_significant_figures() {
+        assert_eq!(fmt_value(3.2827e-5), "3.283e-5");
+        assert_eq!(fmt_value(0.6841), "0.6841");
+        assert_eq!(fmt_value(0.0), "0.0000");
+        assert_eq!(fmt_value(123456.0), "1.235e5");
+        assert_eq!(fmt_value(f64::NAN), "–");
+    }
 }

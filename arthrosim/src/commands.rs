@@ -464,11 +464,7 @@ fn gap_command(args: GapArgs) -> Result<i32> {
                 gap::html::fmt_value(p.std),
                 if p.unit.is_empty() { "" } else { " " },
                 p.unit,
-                if p.at_bound {
-                    " (at its bound: these trials do not determine it)"
-                } else {
-                    ""
-                }
+                p.bound_note()
             );
         }
         match &report.rendering_gap {

@@ -961,6 +961,18 @@ pub struct FittedParam {
     pub at_bound: bool,
 }
 
+impl FittedParam {
+    /// What a report says after the value: that the trials do not determine it when it is
+    /// [`FittedParam::at_bound`], else nothing.
+    pub fn bound_note(&self) -> &'static str {
+        if self.at_bound {
+            " (at its bound: these trials do not determine it)"
+        } else {
+            ""
+        }
+    }
+}
+
 /// Whether `v` lies at a bound of `p`'s range other than its neutral value (within a
 /// thousandth of the range, in the space the fit searches).
 pub fn at_bound(p: &ParamSpec, v: f64) -> bool {

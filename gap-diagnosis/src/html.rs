@@ -528,11 +528,7 @@ pub fn render(r: &Report) -> String {
                 esc(&p.effect),
                 esc(&p.name),
                 fmt(p.value),
-                if p.at_bound {
-                    " (at its bound: these trials do not determine it)"
-                } else {
-                    ""
-                },
+                p.bound_note(),
                 fmt(p.std),
                 esc(&p.unit)
             );

@@ -305,8 +305,12 @@ fn touch_servo_error_holds_zero_force_then_ramps_back_in() {
         // times its gap from its own clock read, the stand-in stamps the write a few µs apart
         // from it: 0.05 ms of slack (a 0.40544 N step in a stamped 1.013 ms gap failed once).
         let gap_ms = (p[1].0 - p[0].0 + 0.05).clamp(1.0, 2.0);
+        // Toward zero is never limited (the stop at the end of the run may drop the force in
+        // one write, as a fade or a fault does): only a rise or a turn is held to the rate.
+        let toward_zero =
+            norm(p[1].1) <= norm(p[0].1) && (0..3).all(|i| p[1].1[i] * p[0].1[i] >= 0.0);
         assert!(
-            step <= MAX_STEP * gap_ms,
+            toward_zero || step <= MAX_STEP * gap_ms,
             "step {step} N at {} ms ({gap_ms} ms after the previous write)",
             p[1].0
         );

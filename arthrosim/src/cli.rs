@@ -192,6 +192,11 @@ pub struct GapArgs {
     /// the tissue under the probe, up to 10 µm/N; saves one replay per trial; for comparison).
     #[arg(long)]
     pub no_contact_nuisance: bool,
+    /// Fit the stiffness and contact nuisances without the material nuisance (a mixture of the
+    /// replay's corotational law and the stable neo-Hookean one; saves one replay per trial;
+    /// for comparison).
+    #[arg(long)]
+    pub no_material_nuisance: bool,
     /// Do not re-simulate the trials at the tilt the whole experiment fits (the tilt's second
     /// stage; saves up to two replays per trial when a tilt of 1° or more is fitted; for
     /// comparison).

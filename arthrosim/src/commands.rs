@@ -349,6 +349,7 @@ fn gap_command(args: GapArgs) -> Result<i32> {
                 progress: !json,
                 nuisance: !args.no_nuisance,
                 contact_nuisance: !args.no_contact_nuisance,
+                material_nuisance: !args.no_material_nuisance,
                 tilt_centre: !args.no_tilt_centre,
                 ..gap::Options::default()
             },
@@ -371,6 +372,7 @@ fn gap_command(args: GapArgs) -> Result<i32> {
         pairs: !args.no_pairs,
         nuisance: !args.no_nuisance,
         contact_nuisance: !args.no_contact_nuisance,
+        material_nuisance: !args.no_material_nuisance,
         tilt_centre: !args.no_tilt_centre,
         ..gap::Options::default()
     };

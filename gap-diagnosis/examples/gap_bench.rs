@@ -19,6 +19,8 @@ fn diagnose_15_trials() -> anyhow::Result<()> {
     // GAP_BENCH_NO_CONTACT=1: the stiffness nuisance alone (as before the contact nuisance)
     let opts = gap_diagnosis::Options {
         contact_nuisance: std::env::var_os("GAP_BENCH_NO_CONTACT").is_none(),
+        // GAP_BENCH_NO_MATERIAL=1: without the material nuisance (one replay per trial less)
+        material_nuisance: std::env::var_os("GAP_BENCH_NO_MATERIAL").is_none(),
         // GAP_BENCH_NO_TILT_CENTRE=1: without the tilt's second stage
         tilt_centre: std::env::var_os("GAP_BENCH_NO_TILT_CENTRE").is_none(),
         ..gap_diagnosis::Options::default()

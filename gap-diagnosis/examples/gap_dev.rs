@@ -162,6 +162,8 @@ fn rediagnose_kept_cases(root: &Path) -> anyhow::Result<()> {
         // GAP_DEV_NO_CONTACT=1: without the contact nuisance
         let opts = gap::Options {
             contact_nuisance: std::env::var_os("GAP_DEV_NO_CONTACT").is_none(),
+            // GAP_DEV_NO_MATERIAL=1: without the material nuisance
+            material_nuisance: std::env::var_os("GAP_DEV_NO_MATERIAL").is_none(),
             tilt_centre: std::env::var_os("GAP_DEV_NO_TILT_CENTRE").is_none(),
             ..gap::Options::default()
         };
@@ -380,8 +382,17 @@ fn eval_at(root: &Path, cand: &str, thetas: &[String]) -> anyhow::Result<()> {
         bail!("{cand} has {np} parameters, θ {t:?} gives {}", t.len());
     }
     let nu = match numbers(&std::env::var("GAP_DEV_NUISANCE").unwrap_or("1,0".into()))?[..] {
-        [stiffness, contact] => NuisanceFit { stiffness, contact },
-        _ => bail!("GAP_DEV_NUISANCE is `scale,contact_weight`"),
+        [stiffness, contact] => NuisanceFit {
+            stiffness,
+            contact,
+            material: 0.0,
+        },
+        [stiffness, contact, material] => NuisanceFit {
+            stiffness,
+            contact,
+            material,
+        },
+        _ => bail!("GAP_DEV_NUISANCE is `scale,contact_weight[,material_weight]`"),
     };
     let show = |acc: &PhaseSse| {
         let groups: Vec<String> = acc

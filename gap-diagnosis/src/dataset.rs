@@ -54,6 +54,11 @@ pub struct TrialData {
     /// replayed (the nuisance off) or its replay diverged (`contact_knot_diverged`).
     pub contact_knot: Option<Vec<[f64; 3]>>,
     pub contact_knot_diverged: bool,
+    /// The replay with the stable neo-Hookean law instead of the corotational one: the
+    /// material nuisance's knot ([`crate::fit::MATERIAL_WEIGHT_MAX`]). None when it was not
+    /// replayed (the nuisance off) or its replay diverged (`material_knot_diverged`).
+    pub material_knot: Option<Vec<[f64; 3]>>,
+    pub material_knot_diverged: bool,
     /// Re-simulations at fitted parameters ([`Centre`]; empty: none made, or diverged).
     pub centres: Vec<Centre>,
     /// Contact normal (outward), depth (mm) and phase at the measurement times.
@@ -96,6 +101,13 @@ impl TrialData {
         }
         if self.contact_knot_diverged {
             out.push(format!("{}: {}", self.name, contact_knot_variant().label()));
+        }
+        if self.material_knot_diverged {
+            out.push(format!(
+                "{}: {}",
+                self.name,
+                material_knot_variant().label()
+            ));
         }
         out
     }
@@ -171,6 +183,8 @@ pub struct BuildOptions {
     pub progress: bool,
     /// Replay the contact nuisance's knot ([`contact_knot_variant`]) for every trial.
     pub contact_knot: bool,
+    /// Replay the material nuisance's knot ([`material_knot_variant`]) for every trial.
+    pub material_knot: bool,
 }
 
 /// The re-simulation the contact nuisance interpolates towards: the baseline with a penalty
@@ -182,6 +196,38 @@ pub fn contact_knot_variant() -> Variant {
     }
 }
 
+/// The re-simulation the material nuisance interpolates towards: the baseline with the stable
+/// neo-Hookean law instead of the linear corotational one.
+pub fn material_knot_variant() -> Variant {
+    Variant {
+        neo_hookean: true,
+        ..Variant::default()
+    }
+}
+
+/// A replay's cost per step relative to the corotational baseline's on the same mesh, as
+/// measured on the default specimen (stable neo-Hookean ×6.5); only its order matters.
+fn relative_replay_cost(v: &Variant) -> f64 {
+    let mut c = 1.0;
+    if v.neo_hookean {
+        c *= 6.5;
+    }
+    if v.fine_mesh {
+        // four times the facets, about eight times the nodes, a direct solve
+        c *= 8.0;
+    }
+    c
+}
+
+/// What a replay in [`build`] is for.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum ReplayRole {
+    Baseline,
+    Resim(Effect),
+    ContactKnot,
+    MaterialKnot,
+}
+
 /// Replay every trial at baseline and at each re-simulation the `effects` need, in parallel.
 pub fn build(
     exp: &Experiment,
@@ -190,22 +236,34 @@ pub fn build(
     opts: &BuildOptions,
 ) -> Result<Vec<TrialData>, GapError> {
     let paths: Vec<ProbePath> = exp.trials.iter().map(|t| grid_path(t, opts.dt)).collect();
-    let mut variants: Vec<(Option<Effect>, Variant)> = vec![(None, Variant::default())];
+    let mut variants: Vec<(ReplayRole, Variant)> = vec![(ReplayRole::Baseline, Variant::default())];
     for &e in effects {
         for v in e.resims() {
-            variants.push((Some(e), v));
+            variants.push((ReplayRole::Resim(e), v));
         }
     }
-    // the contact knot is the last variant (no effect of its own)
     if opts.contact_knot {
-        variants.push((None, contact_knot_variant()));
+        variants.push((ReplayRole::ContactKnot, contact_knot_variant()));
     }
-    let jobs: Vec<(usize, usize)> = (0..variants.len())
+    if opts.material_knot {
+        variants.push((ReplayRole::MaterialKnot, material_knot_variant()));
+    }
+    let mut jobs: Vec<(usize, usize)> = (0..variants.len())
         .flat_map(|v| (0..paths.len()).map(move |t| (v, t)))
         .collect();
+    // the longest first, so the two threads finish together: a neo-Hookean replay costs ~6
+    // corotational ones (its element tangent is projected per element and step), and when
+    // they came last one thread ran them alone (80 s of replays where the work was 66 s)
+    jobs.sort_by(|a, b| {
+        let cost = |&(v, t): &(usize, usize)| {
+            relative_replay_cost(&variants[v].1) * paths[t].poses.len() as f64
+        };
+        cost(b).total_cmp(&cost(a))
+    });
     let bar = progress_bar(opts.progress, jobs.len() as u64, "replaying");
     let results: Vec<Result<Replayed, GapError>> = jobs
         .par_iter()
+        .with_max_len(1)
         .map(|&(v, t)| {
             let r = replay_checked(model, &variants[v].1, &paths[t]).map_err(|e| {
                 GapError::Sim(format!(
@@ -233,15 +291,17 @@ pub fn build(
         let base = forces[0][ti].take().unwrap().forces;
         let mut resims: HashMap<Effect, Vec<Vec<[f64; 3]>>> = HashMap::new();
         let mut usable: HashMap<Effect, Vec<bool>> = HashMap::new();
-        let mut contact_knot = None;
-        for (vi, (e, _)) in variants.iter().enumerate().skip(1) {
+        let (mut contact_knot, mut material_knot) = (None, None);
+        for (vi, (role, _)) in variants.iter().enumerate().skip(1) {
             let r = forces[vi][ti].take().unwrap();
-            match e {
-                Some(e) => {
+            match role {
+                ReplayRole::Resim(e) => {
                     usable.entry(*e).or_default().push(!r.diverged());
                     resims.entry(*e).or_default().push(r.forces);
                 }
-                None => contact_knot = Some(r),
+                ReplayRole::ContactKnot => contact_knot = Some(r),
+                ReplayRole::MaterialKnot => material_knot = Some(r),
+                ReplayRole::Baseline => {}
             }
         }
         let mut td = prepare(trial, path, base, resims);
@@ -249,6 +309,10 @@ pub fn build(
         if let Some(r) = contact_knot {
             td.contact_knot_diverged = r.diverged();
             td.contact_knot = (!r.diverged()).then_some(r.forces);
+        }
+        if let Some(r) = material_knot {
+            td.material_knot_diverged = r.diverged();
+            td.material_knot = (!r.diverged()).then_some(r.forces);
         }
         out.push(td);
     }
@@ -403,6 +467,8 @@ pub fn prepare(
         extra_knots: HashMap::new(),
         contact_knot: None,
         contact_knot_diverged: false,
+        material_knot: None,
+        material_knot_diverged: false,
         centres: Vec::new(),
         normal,
         depth,

@@ -305,15 +305,15 @@ fn piecewise_knots(grid: &mut [[f64; 3]], td: &TrialData, e: Effect, x: f64, def
 /// with the nuisances `nuisance` ([`crate::fit::Nuisance`]; [`NuisanceFit::NEUTRAL`]: none).
 /// `grid` and `out` are scratch buffers (resized here).
 ///
-/// The contact nuisance moves the baseline towards the trial's contact knot by its weight w
-/// (like a re-simulated effect), and scales friction's delta by 1 + w·ρ, ρ the knot's
-/// relative change of the baseline's normal force ([`layer_change`]). The stiffness scale acts on the
-/// tissue's force after the re-simulated effects (a stiffer specimen at the same friction,
-/// tilt or support scales the whole replayed force: the replay is displacement-driven and
-/// linear in the modulus and support together) and before a device's bias and tool inertia,
-/// which are not tissue. Everything after it is affine in the force, so the prediction is
-/// affine in the stiffness s and in s × the contact weight: what lets the fits profile both
-/// out ([`crate::fit::PhaseQuad`]).
+/// The contact and material nuisances move the baseline towards the trial's contact knot and
+/// material knot by their weights w and m (like re-simulated effects), and scale friction's
+/// delta by 1 + w·ρ_c + m·ρ_m, ρ each knot's relative change of the baseline's normal force
+/// ([`layer_change`]). The stiffness scale acts on the tissue's force after the re-simulated
+/// effects (a stiffer specimen at the same friction, tilt or support scales the whole replayed
+/// force: the replay is displacement-driven and linear in the modulus and support together)
+/// and before a device's bias and tool inertia, which are not tissue. Everything after it is
+/// affine in the force, so the prediction is affine in the stiffness s and in s × each weight:
+/// what lets the fits profile all three out ([`crate::fit::PhaseQuad`]).
 pub fn predict(
     c: &Candidate,
     theta: &[f64],
@@ -330,26 +330,39 @@ pub fn predict(
     // beside a fitted 8.3 µm/N).
     grid.clear();
     let layer = td.contact_knot.as_ref().filter(|_| nuisance.contact != 0.0);
-    match layer {
-        // linear in the weight, as the nuisance's profile needs (fit::PhaseQuad)
-        Some(knot) if c.0.contains(&Effect::Friction) => {
-            grid.resize(td.base.len(), [0.0; 3]);
-            axpy_resimulated_where(grid, c, theta, td, |e| e == Effect::Friction);
-            let w = nuisance.contact;
-            for ((g, b), k) in grid.iter_mut().zip(&td.base).zip(knot) {
-                let through = 1.0 + w * layer_change(*b, *k, td.normal);
-                for q in 0..3 {
-                    g[q] = through * g[q] + b[q] + w * (k[q] - b[q]);
+    let law = td
+        .material_knot
+        .as_ref()
+        .filter(|_| nuisance.material != 0.0);
+    let (w, m) = (nuisance.contact, nuisance.material);
+    if c.0.contains(&Effect::Friction) && (layer.is_some() || law.is_some()) {
+        // linear in both weights, as the nuisances' profile needs (fit::PhaseQuad): the
+        // normal force's relative change under the layer and under the other law add
+        grid.resize(td.base.len(), [0.0; 3]);
+        axpy_resimulated_where(grid, c, theta, td, |e| e == Effect::Friction);
+        for (j, (g, b)) in grid.iter_mut().zip(&td.base).enumerate() {
+            let mut through = 1.0;
+            let mut moved = *b;
+            for (weight, knot) in [(w, layer), (m, law)] {
+                if let Some(k) = knot {
+                    through += weight * layer_change(*b, k[j], td.normal);
+                    for q in 0..3 {
+                        moved[q] += weight * (k[j][q] - b[q]);
+                    }
                 }
             }
-        }
-        _ => {
-            grid.extend_from_slice(&td.base);
-            if let Some(knot) = layer {
-                axpy(grid, nuisance.contact, knot, Some(&td.base));
+            for q in 0..3 {
+                g[q] = through * g[q] + moved[q];
             }
-            axpy_resimulated_where(grid, c, theta, td, |e| e == Effect::Friction);
         }
+    } else {
+        grid.extend_from_slice(&td.base);
+        for (weight, knot) in [(w, layer), (m, law)] {
+            if let Some(k) = knot {
+                axpy(grid, weight, k, Some(&td.base));
+            }
+        }
+        axpy_resimulated_where(grid, c, theta, td, |e| e == Effect::Friction);
     }
     // the geometric ones (tilt, support, mesh) as replayed: scaling them by the layer's
     // change too fitted the layer at twice its weight beside a tilt, and a held-out region
@@ -608,8 +621,8 @@ mod tests {
 
     /// Regression: friction's knots are replayed without the contact nuisance's layer, and its
     /// delta added to the layer's lower normal force read μ 15–25% low. Through the layer it
-    /// is μ times the lowered normal force; a geometric effect's delta (support) is added as
-    /// replayed.
+    /// is μ times the lowered normal force, and likewise through the material nuisance's other
+    /// law; a geometric effect's delta (support) is added as replayed.
     #[test]
     fn friction_passes_through_the_contact_layer() {
         use crate::dataset::prepare;
@@ -647,15 +660,19 @@ mod tests {
         let mut td = prepare(&trial, path, constant([0.0, 0.0, 10.0]), resims);
         // the layer takes 30% off the normal force
         td.contact_knot = Some(constant([0.0, 0.0, 7.0]));
-        let at = |c: Candidate, theta: &[f64], contact: f64| {
+        // the other law 20%
+        td.material_knot = Some(constant([0.0, 0.0, 8.0]));
+        let at_both = |c: Candidate, theta: &[f64], contact: f64, material: f64| {
             let (mut g, mut out) = (Vec::new(), Vec::new());
             let nu = NuisanceFit {
-                stiffness: 1.0,
                 contact,
+                material,
+                ..NuisanceFit::NEUTRAL
             };
             predict(&c, theta, &td, nu, &mut g, &mut out);
             out[n / 2]
         };
+        let at = |c: Candidate, theta: &[f64], contact: f64| at_both(c, theta, contact, 0.0);
         let close = |a: [f64; 3], b: [f64; 3]| (0..3).all(|q| (a[q] - b[q]).abs() < 1e-9);
         let friction = Candidate::single(Effect::Friction);
         // without the layer: μ 0.4 of 10 N
@@ -664,8 +681,22 @@ mod tests {
         let f = at(friction.clone(), &[0.4], 1.0);
         assert!(close(f, [2.8, 0.0, 7.0]), "{f:?}");
         // half of it: 8.5 N, and linear in the weight
-        let f = at(friction, &[0.4], 0.5);
+        let f = at(friction.clone(), &[0.4], 0.5);
         assert!(close(f, [3.4, 0.0, 8.5]), "{f:?}");
+        // through the other law alone: μ 0.4 of 8 N; through the layer and half the other
+        // law: of 10 − 3 − 1 = 6 N (the two changes add, linear in both weights)
+        let f = at_both(friction.clone(), &[0.4], 0.0, 1.0);
+        assert!(close(f, [3.2, 0.0, 8.0]), "{f:?}");
+        let f = at_both(friction, &[0.4], 1.0, 0.5);
+        assert!(close(f, [2.4, 0.0, 6.0]), "{f:?}");
+        // without friction the law's change is added like the layer's
+        let f = at_both(
+            Candidate::single(Effect::Support),
+            &[SUPPORT_KNOTS[0]],
+            0.0,
+            1.0,
+        );
+        assert!(close(f, [0.0, 0.0, 6.0]), "{f:?}");
         // the support's delta (−2 N at its first knot) is added as replayed
         let f = at(Candidate::single(Effect::Support), &[SUPPORT_KNOTS[0]], 1.0);
         assert!(close(f, [0.0, 0.0, 5.0]), "{f:?}");

@@ -237,18 +237,33 @@ pub const CONTACT_KNOT: f64 = 1.0e-5;
 /// between the baseline (0) and the knot (1), never beyond it.
 pub const CONTACT_WEIGHT_MAX: f64 = 1.0;
 
-/// The nuisances: one scale of the tissue's whole force and a contact compliance in series
-/// with it under the probe, fitted jointly with the baseline and with every candidate, in
-/// every fit (calibration folds and all trials).
+/// Largest weight of the material knot ([`NuisanceFit::material`]): the nuisance interpolates
+/// between the replay's law, linear corotational (0), and the stable neo-Hookean law (1), never
+/// beyond either.
 ///
-/// No model is the specimen: another discretisation, contact formulation or a specimen a
-/// little stiffer than its nominal modulus gives a persistent offset of the whole response.
-/// Without a term for it, that offset is the largest residual there is, and it is read as
-/// whichever effect can scale the force (`support`, `modulus`), or it hides a small effect
-/// (friction in sliding) under its own error. Fitted in every model, it is explained by none
-/// of them: an effect must explain what remains after it. The contact term is the part of
-/// that offset that a different contact discretisation gives ([`CONTACT_KNOT`]); it is fitted
-/// beside every candidate, `modulus` and `hardening` included.
+/// Why a material term: another FE code of the same specimen need not use the replay's
+/// constitutive law, and no real tissue is linear corotational. The two laws agree at small
+/// strain and part at the study's 0.6–1.2 mm presses, in depth and in the tangential response
+/// (their volumetric terms differ): a specimen replayed with the other law and no effect at all
+/// reads as `support` on the study mesh against the stiffness and contact nuisances (11–13%
+/// over the floor, README, "Friction through the contact layer"), and its stiffening is
+/// half-hidden under the law's softening (a rate of 0.08–0.10/mm fitted for 0.25). What part of
+/// the mismatch a mixture of the two laws explains is explained by no effect.
+pub const MATERIAL_WEIGHT_MAX: f64 = 1.0;
+
+/// The nuisances: one scale of the tissue's whole force, a contact compliance in series with
+/// it under the probe, and a mixture of two constitutive laws, fitted jointly with the baseline
+/// and with every candidate, in every fit (calibration folds and all trials).
+///
+/// No model is the specimen: another discretisation, contact formulation, constitutive law or
+/// a specimen a little stiffer than its nominal modulus gives a persistent offset of the whole
+/// response. Without a term for it, that offset is the largest residual there is, and it is
+/// read as whichever effect can scale the force (`support`, `modulus`), or it hides a small
+/// effect (friction in sliding) under its own error. Fitted in every model, it is explained by
+/// none of them: an effect must explain what remains after it. The contact term is the part of
+/// that offset that a different contact discretisation gives ([`CONTACT_KNOT`]), the material
+/// term the part a different law gives ([`MATERIAL_WEIGHT_MAX`]); both are fitted beside every
+/// candidate, `modulus` and `hardening` included.
 ///
 /// How `modulus` coexists with the stiffness scale: `modulus` (and `hardening`, whose
 /// small-strain scale is the same parameter) is a global stiffness scale itself, so beside it
@@ -264,26 +279,38 @@ pub struct Nuisance {
     pub hi: f64,
     /// Largest weight of the contact knot (0: the contact nuisance is off).
     pub contact_max: f64,
+    /// Largest weight of the material knot (0: the material nuisance is off).
+    pub material_max: f64,
 }
 
 impl Nuisance {
-    /// No nuisance: the scale is held at 1, no contact term (the diagnosis before issue 15).
+    /// No nuisance: the scale is held at 1, no contact or material term (the diagnosis before
+    /// issue 15).
     pub const OFF: Nuisance = Nuisance {
         lo: 1.0,
         hi: 1.0,
         contact_max: 0.0,
+        material_max: 0.0,
     };
     /// The stiffness band [1/[`NUISANCE_MAX`], [`NUISANCE_MAX`]], no contact term.
     pub const STIFFNESS: Nuisance = Nuisance {
         lo: 1.0 / NUISANCE_MAX,
         hi: NUISANCE_MAX,
         contact_max: 0.0,
+        material_max: 0.0,
     };
     /// The stiffness band and the contact term up to [`CONTACT_WEIGHT_MAX`].
     pub const STIFFNESS_AND_CONTACT: Nuisance = Nuisance {
         lo: 1.0 / NUISANCE_MAX,
         hi: NUISANCE_MAX,
         contact_max: CONTACT_WEIGHT_MAX,
+        material_max: 0.0,
+    };
+    /// All three: the stiffness band, the contact term and the material term up to
+    /// [`MATERIAL_WEIGHT_MAX`] (the default).
+    pub const ALL: Nuisance = Nuisance {
+        material_max: MATERIAL_WEIGHT_MAX,
+        ..Nuisance::STIFFNESS_AND_CONTACT
     };
     /// The nuisance as fitted beside `c` (the scale held at 1 where `c` carries its own).
     pub fn for_candidate(self, c: &Candidate) -> Nuisance {
@@ -297,22 +324,28 @@ impl Nuisance {
             self
         }
     }
-    /// The nuisance the trials can carry: the contact term only where every trial has its
-    /// knot (replayed and not diverged) and the knot differs from the baseline somewhere.
+    /// The nuisance the trials can carry: the contact and material terms only where every
+    /// trial has its knot (replayed and not diverged) and the knot differs from the baseline
+    /// somewhere.
     pub fn for_data(self, data: &[TrialData]) -> Nuisance {
-        let replayed = data.iter().all(|d| d.contact_knot.is_some());
-        // a model without a contact layer (an analytic stand-in) replays the knot as the
-        // baseline: nothing to fit, and no parameter to count
-        let visible = data
-            .iter()
-            .any(|d| d.contact_knot.as_ref().is_some_and(|k| *k != d.base));
-        if replayed && visible {
-            self
-        } else {
-            Nuisance {
-                contact_max: 0.0,
-                ..self
-            }
+        // a model without a contact layer or a second law (an analytic stand-in) replays the
+        // knot as the baseline: nothing to fit, and no parameter to count
+        let carried = |knot: fn(&TrialData) -> Option<&Vec<[f64; 3]>>| {
+            data.iter().all(|d| knot(d).is_some())
+                && data.iter().any(|d| knot(d).is_some_and(|k| *k != d.base))
+        };
+        Nuisance {
+            contact_max: if carried(|d| d.contact_knot.as_ref()) {
+                self.contact_max
+            } else {
+                0.0
+            },
+            material_max: if carried(|d| d.material_knot.as_ref()) {
+                self.material_max
+            } else {
+                0.0
+            },
+            ..self
         }
     }
     /// The stiffness scale is a free parameter.
@@ -323,25 +356,31 @@ impl Nuisance {
     pub fn contact_fitted(self) -> bool {
         self.contact_max > 0.0
     }
+    /// The material weight is a free parameter.
+    pub fn material_fitted(self) -> bool {
+        self.material_max > 0.0
+    }
     /// Free nuisance parameters (they count in the parameter penalties).
     pub fn count(self) -> usize {
-        usize::from(self.stiffness_fitted()) + usize::from(self.contact_fitted())
+        usize::from(self.stiffness_fitted())
+            + usize::from(self.contact_fitted())
+            + usize::from(self.material_fitted())
     }
-    /// The nuisances at rest: the scale at its band's low end (1 when held), no contact term.
+    /// The nuisances at rest: the scale at its band's low end (1 when held), no contact or
+    /// material term.
     pub fn held(self) -> NuisanceFit {
-        NuisanceFit {
-            stiffness: self.lo,
-            contact: 0.0,
-        }
+        NuisanceFit::scale(self.lo)
     }
 }
 
-/// Values of the nuisances ([`Nuisance`]): the tissue force's scale and the contact knot's
-/// weight (compliance `contact` × [`CONTACT_KNOT`]).
+/// Values of the nuisances ([`Nuisance`]): the tissue force's scale, the contact knot's
+/// weight (compliance `contact` × [`CONTACT_KNOT`]) and the material knot's.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct NuisanceFit {
     pub stiffness: f64,
     pub contact: f64,
+    /// Weight of the neo-Hookean replay against the corotational one (0…1).
+    pub material: f64,
 }
 
 impl NuisanceFit {
@@ -349,34 +388,50 @@ impl NuisanceFit {
     pub const NEUTRAL: NuisanceFit = NuisanceFit {
         stiffness: 1.0,
         contact: 0.0,
+        material: 0.0,
     };
     /// The scale alone.
     pub fn scale(stiffness: f64) -> NuisanceFit {
         NuisanceFit {
             stiffness,
-            contact: 0.0,
+            ..NuisanceFit::NEUTRAL
         }
     }
     /// The contact nuisance as a compliance in series under each probe ball, m/N.
     pub fn contact_compliance(self) -> f64 {
         self.contact * CONTACT_KNOT
     }
+    /// As the profile's coordinates: the scale and the scale × each weight.
+    fn coordinates(self) -> [f64; 3] {
+        let s = self.stiffness;
+        [s, s * self.contact, s * self.material]
+    }
+    /// From the profile's coordinates ([`NuisanceFit::coordinates`]).
+    fn from_coordinates(x: [f64; 3]) -> NuisanceFit {
+        let per = |v: f64| if x[0] > 0.0 { v / x[0] } else { 0.0 };
+        NuisanceFit {
+            stiffness: x[0],
+            contact: per(x[1]),
+            material: per(x[2]),
+        }
+    }
 }
 
-/// Per variance group, the residual sums of a prediction affine in the stiffness scale s and
-/// in u = s × the contact weight: residual r = s·a + u·b + c, so
-/// SSE_g = s²Σa·a + u²Σb·b + Σc·c + 2su Σa·b + 2s Σa·c + 2u Σb·c.
+/// Number of the nuisances' profile coordinates: the stiffness scale s, u = s × the contact
+/// weight and v = s × the material weight.
+const NUISANCE_DIMS: usize = 3;
+
+/// Per variance group, the residual sums of a prediction affine in the stiffness scale s, in
+/// u = s × the contact weight and in v = s × the material weight: residual r = Σ_i x_i·a_i + c
+/// with x = (s, u, v), so SSE_g = Σ_ij x_i x_j Σ a_i·a_j + 2 Σ_i x_i Σ a_i·c + Σ c·c.
 ///
-/// The prediction is affine in both ([`predict`]), so two or three predictions give the
-/// residual sums at every (s, u): the nuisances are profiled out in each objective evaluation
-/// without adding dimensions to the Nelder–Mead search.
+/// The prediction is affine in all three ([`predict`]), so up to five predictions give the
+/// residual sums at every (s, u, v): the nuisances are profiled out in each objective
+/// evaluation without adding dimensions to the Nelder–Mead search.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct PhaseQuad {
-    aa: [f64; VarGroup::COUNT],
-    ab: [f64; VarGroup::COUNT],
-    ac: [f64; VarGroup::COUNT],
-    bb: [f64; VarGroup::COUNT],
-    bc: [f64; VarGroup::COUNT],
+    aa: [[[f64; NUISANCE_DIMS]; NUISANCE_DIMS]; VarGroup::COUNT],
+    ac: [[f64; NUISANCE_DIMS]; VarGroup::COUNT],
     cc: [f64; VarGroup::COUNT],
     n: [usize; VarGroup::COUNT],
 }
@@ -393,55 +448,61 @@ const PROFILE_GRID: usize = 12;
 const CONTACT_ROUNDS: usize = 8;
 
 impl PhaseQuad {
-    /// Adds one sample's coefficient vectors: `a` multiplies the scale, `b` the scaled contact
-    /// weight, `c` is the rest (model at zero scale minus measurement).
-    fn push(&mut self, group: VarGroup, a: [f64; 3], b: [f64; 3], c: [f64; 3]) {
+    /// Adds one sample's coefficient vectors: `a[0]` multiplies the scale, `a[1]` the scaled
+    /// contact weight, `a[2]` the scaled material weight, `c` is the rest (model at zero scale
+    /// minus measurement).
+    fn push(&mut self, group: VarGroup, a: [[f64; 3]; NUISANCE_DIMS], c: [f64; 3]) {
         let g = group as usize;
-        self.aa[g] += dot(a, a);
-        self.ab[g] += dot(a, b);
-        self.ac[g] += dot(a, c);
-        self.bb[g] += dot(b, b);
-        self.bc[g] += dot(b, c);
+        for i in 0..NUISANCE_DIMS {
+            for j in 0..NUISANCE_DIMS {
+                self.aa[g][i][j] += dot(a[i], a[j]);
+            }
+            self.ac[g][i] += dot(a[i], c);
+        }
         self.cc[g] += dot(c, c);
         self.n[g] += 3;
     }
-    /// Residual sums at stiffness scale `s` and scaled contact weight `u`.
-    pub fn at(&self, s: f64, u: f64) -> PhaseSse {
+    /// Residual sums at the profile's coordinates `x` (s, u, v).
+    pub fn at(&self, x: [f64; NUISANCE_DIMS]) -> PhaseSse {
         let mut acc = PhaseSse::default();
         for g in 0..VarGroup::COUNT {
-            acc.sse[g] = (s * s * self.aa[g]
-                + u * u * self.bb[g]
-                + self.cc[g]
-                + 2.0 * (s * u * self.ab[g] + s * self.ac[g] + u * self.bc[g]))
-                .max(0.0);
+            let mut v = self.cc[g];
+            for i in 0..NUISANCE_DIMS {
+                v += 2.0 * x[i] * self.ac[g][i];
+                for j in 0..NUISANCE_DIMS {
+                    v += x[i] * x[j] * self.aa[g][i][j];
+                }
+            }
+            acc.sse[g] = v.max(0.0);
             acc.n[g] = self.n[g];
         }
         acc
     }
-    fn objective(&self, s: f64, u: f64) -> f64 {
+    fn objective(&self, x: [f64; NUISANCE_DIMS]) -> f64 {
         let n = self.n.iter().sum::<usize>() as f64;
-        self.at(s, u).log_mse_sum(n)
+        self.at(x).log_mse_sum(n)
     }
     /// The nuisances in `band` of largest likelihood (the phase-variance one, [`PhaseSse`])
     /// and the residual sums there.
     ///
-    /// The two are bounded separately: the scale is the tissue's (the band of an unrelated
-    /// stiffness offset), the contact weight the layer's. Bounding their product instead (the
-    /// response's level) lost effects whose truth had both an offset and a softer contact
-    /// (README, "A contact nuisance beside it").
+    /// The three are bounded separately: the scale is the tissue's (the band of an unrelated
+    /// stiffness offset), the contact weight the layer's, the material weight the law's.
+    /// Bounding the scale's product with the contact term instead (the response's level) lost
+    /// effects whose truth had both an offset and a softer contact (README, "A contact
+    /// nuisance beside it").
     ///
-    /// The scale alone first, by a golden section over its band with no contact term (the
-    /// profile without the contact nuisance, exactly). Then both by reweighted least squares
-    /// from there: each round takes the phases' variances at the current values and minimises
-    /// the weighted residual, a quadratic in both, exactly over their region
+    /// The scale alone first, by a golden section over its band with no other term (the
+    /// profile without them, exactly). Then all by reweighted least squares from there: each
+    /// round takes the phases' variances at the current values and minimises the weighted
+    /// residual, a quadratic in all three, exactly over their region
     /// ([`WeightedQuad::minimum`]); the fixed point of those rounds is the likelihood's
     /// stationary point. The result is the best point visited, so it is never worse than the
     /// scale alone.
     pub fn profile(&self, band: Nuisance) -> (NuisanceFit, PhaseSse) {
-        let done = |f: NuisanceFit| (f, self.at(f.stiffness, f.stiffness * f.contact));
+        let done = |f: NuisanceFit| (f, self.at(f.coordinates()));
         let s0 = if band.stiffness_fitted() {
             let (x, _) = golden_min(
-                &|x: f64| self.objective(x.exp(), 0.0),
+                &|x: f64| self.objective([x.exp(), 0.0, 0.0]),
                 band.lo.ln(),
                 band.hi.ln(),
             );
@@ -449,106 +510,186 @@ impl PhaseQuad {
         } else {
             band.lo
         };
-        let mut best = (NuisanceFit::scale(s0), self.objective(s0, 0.0));
-        if !band.contact_fitted() || self.bb.iter().all(|&v| v <= 0.0) {
+        let mut best = (NuisanceFit::scale(s0), self.objective([s0, 0.0, 0.0]));
+        // a term the data cannot see (its knot equal to the baseline wherever fitted) is off
+        let seen = |i: usize| self.aa.iter().any(|g| g[i][i] > 0.0);
+        let band = Nuisance {
+            contact_max: if seen(1) { band.contact_max } else { 0.0 },
+            material_max: if seen(2) { band.material_max } else { 0.0 },
+            ..band
+        };
+        if !band.contact_fitted() && !band.material_fitted() {
             return done(best.0);
         }
-        let (mut s, mut u) = (s0, 0.0);
+        let mut x = [s0, 0.0, 0.0];
         for _ in 0..CONTACT_ROUNDS {
-            let mse = self.at(s, u).group_mse();
-            let weighted = |v: &[f64; VarGroup::COUNT]| -> f64 {
-                (0..VarGroup::COUNT)
-                    .filter(|&g| self.n[g] > 0)
-                    .map(|g| v[g] / mse[g])
-                    .sum()
-            };
-            let q = WeightedQuad {
-                aa: weighted(&self.aa),
-                ab: weighted(&self.ab),
-                ac: weighted(&self.ac),
-                bb: weighted(&self.bb),
-                bc: weighted(&self.bc),
-            };
-            (s, u) = q.minimum(band);
-            let v = self.objective(s, u);
+            let mse = self.at(x).group_mse();
+            let mut q = WeightedQuad::default();
+            for g in (0..VarGroup::COUNT).filter(|&g| self.n[g] > 0) {
+                for i in 0..NUISANCE_DIMS {
+                    for j in 0..NUISANCE_DIMS {
+                        q.aa[i][j] += self.aa[g][i][j] / mse[g];
+                    }
+                    q.ac[i] += self.ac[g][i] / mse[g];
+                }
+            }
+            let next = q.minimum(band);
+            // a fixed point: the rounds after it repeat it
+            let settled =
+                (0..NUISANCE_DIMS).all(|i| (next[i] - x[i]).abs() <= 1e-9 * (1.0 + x[i].abs()));
+            x = next;
+            if settled {
+                break;
+            }
+            let v = self.objective(x);
             if v < best.1 {
-                best = (
-                    NuisanceFit {
-                        stiffness: s,
-                        contact: if s > 0.0 { u / s } else { 0.0 },
-                    },
-                    v,
-                );
+                best = (NuisanceFit::from_coordinates(x), v);
             }
         }
         done(best.0)
     }
 }
 
-/// One reweighting round's residual, Σ_g (s²aa + 2su·ab + u²bb + 2s·ac + 2u·bc)/MSE_g plus a
-/// constant: a quadratic in (s, u) minimised exactly over the nuisances' region.
+/// One reweighting round's residual, Σ_g (x·A_g·x + 2x·c_g)/MSE_g plus a constant: a convex
+/// quadratic in x = (s, u, v) minimised exactly over the nuisances' region.
+#[derive(Debug, Default)]
 struct WeightedQuad {
-    aa: f64,
-    ab: f64,
-    ac: f64,
-    bb: f64,
-    bc: f64,
+    aa: [[f64; NUISANCE_DIMS]; NUISANCE_DIMS],
+    ac: [f64; NUISANCE_DIMS],
+}
+
+/// The nuisances' region as half-spaces g·x ≤ h: the scale in its band, 0 ≤ u ≤
+/// `contact_max`·s and 0 ≤ v ≤ `material_max`·s (u and v are s × the weights). A term that is
+/// off has both of its weight's bounds at 0; a held scale both of its own at `lo`.
+fn nuisance_region(band: Nuisance) -> [([f64; NUISANCE_DIMS], f64); 6] {
+    [
+        ([1.0, 0.0, 0.0], band.hi),
+        ([-1.0, 0.0, 0.0], -band.lo),
+        ([0.0, -1.0, 0.0], 0.0),
+        ([-band.contact_max, 1.0, 0.0], 0.0),
+        ([0.0, 0.0, -1.0], 0.0),
+        ([-band.material_max, 0.0, 1.0], 0.0),
+    ]
 }
 
 impl WeightedQuad {
-    fn value(&self, s: f64, u: f64) -> f64 {
-        s * s * self.aa
-            + 2.0 * s * u * self.ab
-            + u * u * self.bb
-            + 2.0 * (s * self.ac + u * self.bc)
-    }
-    /// The minimum over the region: s in the band, 0 ≤ u ≤ `contact_max`·s (u = s × the
-    /// contact weight). Inside it, the stationary point; else the best of its edges, each a
-    /// one-dimensional quadratic minimised in closed form.
-    fn minimum(&self, band: Nuisance) -> (f64, f64) {
-        let (lo, hi, w_max) = (band.lo, band.hi, band.contact_max);
-        let det = self.aa * self.bb - self.ab * self.ab;
-        if band.stiffness_fitted() && det > 0.0 {
-            let s = (self.ab * self.bc - self.bb * self.ac) / det;
-            let u = (self.ab * self.ac - self.aa * self.bc) / det;
-            if (lo..=hi).contains(&s) && (0.0..=w_max * s).contains(&u) {
-                return (s, u);
+    fn value(&self, x: [f64; NUISANCE_DIMS]) -> f64 {
+        let mut v = 0.0;
+        for i in 0..NUISANCE_DIMS {
+            v += 2.0 * x[i] * self.ac[i];
+            for j in 0..NUISANCE_DIMS {
+                v += x[i] * x[j] * self.aa[i][j];
             }
         }
-        // along (s, u) = p + t·d, t ∈ [0, t_max]: the quadratic's minimum in t, clamped
-        let on_edge = |p: (f64, f64), d: (f64, f64), t_max: f64| -> (f64, f64) {
-            let curv = d.0 * d.0 * self.aa + 2.0 * d.0 * d.1 * self.ab + d.1 * d.1 * self.bb;
-            let slope = p.0 * d.0 * self.aa
-                + (p.0 * d.1 + p.1 * d.0) * self.ab
-                + p.1 * d.1 * self.bb
-                + d.0 * self.ac
-                + d.1 * self.bc;
-            let t = if curv > 0.0 {
-                (-slope / curv).clamp(0.0, t_max)
-            } else if slope < 0.0 {
-                t_max
-            } else {
-                0.0
-            };
-            (p.0 + t * d.0, p.1 + t * d.1)
-        };
-        // the scale held: the contact weight's edge only
-        let held = on_edge((lo, 0.0), (0.0, 1.0), w_max * lo);
-        if !band.stiffness_fitted() {
-            return held;
-        }
-        // the region's edges: the scale at each end of its band (u = 0 up to the knot's full
-        // weight), no contact term, and the knot's full weight
-        [
-            held,
-            on_edge((hi, 0.0), (0.0, 1.0), w_max * hi),
-            on_edge((lo, 0.0), (1.0, 0.0), hi - lo),
-            on_edge((lo, w_max * lo), (1.0, w_max), hi - lo),
-        ]
-        .into_iter()
-        .min_by(|p, q| self.value(p.0, p.1).total_cmp(&self.value(q.0, q.1)))
-        .unwrap_or((lo, 0.0))
+        v
     }
+    /// The minimum over the region ([`nuisance_region`]), exactly: a convex quadratic's
+    /// minimum over a polytope is the minimum over some face's affine hull, so every set of at
+    /// most three of its six half-spaces taken as equalities is solved (a 3–6 unknown KKT
+    /// system; 42 sets), and the feasible point of least value kept. A tiny ridge keeps a term
+    /// the data barely see from making the systems singular.
+    fn minimum(&self, band: Nuisance) -> [f64; NUISANCE_DIMS] {
+        let region = nuisance_region(band);
+        let trace: f64 = (0..NUISANCE_DIMS).map(|i| self.aa[i][i].abs()).sum();
+        let ridge = 1e-12 * trace.max(f64::MIN_POSITIVE);
+        let feasible = |x: &[f64; NUISANCE_DIMS]| {
+            region.iter().all(|(g, h)| {
+                let gx: f64 = (0..NUISANCE_DIMS).map(|i| g[i] * x[i]).sum();
+                gx <= h + 1e-9 * (1.0 + h.abs() + x[0].abs())
+            })
+        };
+        let mut best = ([band.lo, 0.0, 0.0], self.value([band.lo, 0.0, 0.0]));
+        // fewest active half-spaces first: the first feasible point whose multipliers are all
+        // ≥ 0 satisfies the KKT conditions and is the minimum (the problem is convex); the
+        // best feasible point is kept in case rounding leaves none so
+        let sets = (0..=NUISANCE_DIMS as u32)
+            .flat_map(|k| (0u32..(1 << region.len())).filter(move |a| a.count_ones() == k));
+        for active in sets {
+            // KKT: [A G'; G 0] [x; λ] = [−c; h] over the active half-spaces
+            let mut rows = [0usize; NUISANCE_DIMS];
+            let mut k_rows = 0;
+            for r in (0..region.len()).filter(|r| active & (1 << r) != 0) {
+                rows[k_rows] = r;
+                k_rows += 1;
+            }
+            let rows = &rows[..k_rows];
+            let n = NUISANCE_DIMS + rows.len();
+            let mut m = [[0.0; 2 * NUISANCE_DIMS + 1]; 2 * NUISANCE_DIMS];
+            for i in 0..NUISANCE_DIMS {
+                for j in 0..NUISANCE_DIMS {
+                    m[i][j] = self.aa[i][j] + if i == j { ridge } else { 0.0 };
+                }
+                m[i][n] = -self.ac[i];
+            }
+            for (k, &r) in rows.iter().enumerate() {
+                for i in 0..NUISANCE_DIMS {
+                    m[i][NUISANCE_DIMS + k] = region[r].0[i];
+                    m[NUISANCE_DIMS + k][i] = region[r].0[i];
+                }
+                m[NUISANCE_DIMS + k][n] = region[r].1;
+            }
+            let Some(sol) = solve_dense(&mut m, n) else {
+                continue;
+            };
+            // onto the region exactly (a held scale stays at its value, not 1 − 8e-11)
+            let s = sol[0].clamp(band.lo, band.hi);
+            let x = [
+                s,
+                sol[1].clamp(0.0, band.contact_max * s),
+                sol[2].clamp(0.0, band.material_max * s),
+            ];
+            if feasible(&[sol[0], sol[1], sol[2]]) {
+                if sol[NUISANCE_DIMS..n]
+                    .iter()
+                    .all(|&l| l >= -1e-12 * (1.0 + trace))
+                {
+                    return x;
+                }
+                let v = self.value(x);
+                if v < best.1 {
+                    best = (x, v);
+                }
+            }
+        }
+        best.0
+    }
+}
+
+/// Solves the n×n system in the augmented matrix `m` (column n the right-hand side) by
+/// Gaussian elimination with partial pivoting; None when it is singular. No allocation.
+fn solve_dense(
+    m: &mut [[f64; 2 * NUISANCE_DIMS + 1]; 2 * NUISANCE_DIMS],
+    n: usize,
+) -> Option<[f64; 2 * NUISANCE_DIMS]> {
+    let scale = (0..n)
+        .flat_map(|i| (0..n).map(move |j| (i, j)))
+        .map(|(i, j)| m[i][j].abs())
+        .fold(0.0, f64::max);
+    if !(scale > 0.0 && scale.is_finite()) {
+        return None;
+    }
+    for col in 0..n {
+        let p = (col..n).max_by(|&a, &b| m[a][col].abs().total_cmp(&m[b][col].abs()))?;
+        if m[p][col].abs() <= 1e-13 * scale {
+            return None;
+        }
+        m.swap(col, p);
+        for r in col + 1..n {
+            let f = m[r][col] / m[col][col];
+            for k in col..=n {
+                m[r][k] -= f * m[col][k];
+            }
+        }
+    }
+    let mut x = [0.0; 2 * NUISANCE_DIMS];
+    for i in (0..n).rev() {
+        let mut v = m[i][n];
+        for k in i + 1..n {
+            v -= m[i][k] * x[k];
+        }
+        x[i] = v / m[i][i];
+    }
+    x.iter().take(n).all(|v| v.is_finite()).then_some(x)
 }
 
 /// Minimum of `f` over [a, b]: the best of [`PROFILE_GRID`] + 1 evenly spaced points, then a
@@ -599,10 +740,11 @@ pub fn phase_quad(
     mask: &[Vec<bool>],
     band: Nuisance,
 ) -> PhaseQuad {
-    let (mut grid, mut one, mut zero, mut knot) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let (mut grid, mut one, mut zero) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut at_contact, mut at_material) = (Vec::new(), Vec::new());
     // without a device term the prediction is linear in the scale: the part at 0 is 0
     let affine = c.0.contains(&Effect::Device);
-    let contact = band.contact_fitted();
+    let (contact, material) = (band.contact_fitted(), band.material_fitted());
     let mut acc = PhaseQuad::default();
     for (d, m) in data.iter().zip(mask) {
         if !m.iter().any(|&b| b) {
@@ -613,21 +755,35 @@ pub fn phase_quad(
             predict(c, theta, d, NuisanceFit::scale(0.0), &mut grid, &mut zero);
         }
         if contact {
-            let at_knot = NuisanceFit {
-                stiffness: 1.0,
+            let knot = NuisanceFit {
                 contact: 1.0,
+                ..NuisanceFit::NEUTRAL
             };
-            predict(c, theta, d, at_knot, &mut grid, &mut knot);
+            predict(c, theta, d, knot, &mut grid, &mut at_contact);
+        }
+        if material {
+            let knot = NuisanceFit {
+                material: 1.0,
+                ..NuisanceFit::NEUTRAL
+            };
+            predict(c, theta, d, knot, &mut grid, &mut at_material);
         }
         for j in 0..d.t.len() {
             if m[j] {
                 let z = if affine { zero[j] } else { [0.0; 3] };
-                let b = if contact {
-                    sub(knot[j], one[j])
-                } else {
-                    [0.0; 3]
+                let towards = |on: bool, knot: &[[f64; 3]]| {
+                    if on {
+                        sub(knot[j], one[j])
+                    } else {
+                        [0.0; 3]
+                    }
                 };
-                acc.push(d.var_group[j], sub(one[j], z), b, sub(z, d.f[j]));
+                let a = [
+                    sub(one[j], z),
+                    towards(contact, &at_contact),
+                    towards(material, &at_material),
+                ];
+                acc.push(d.var_group[j], a, sub(z, d.f[j]));
             }
         }
     }
@@ -1020,6 +1176,11 @@ pub struct CandidateScore {
     /// under each probe ball, m/N ([`Nuisance`], [`CONTACT_KNOT`]); absent where it is off.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub contact_compliance: Option<f64>,
+    /// The material nuisance fitted with the candidate on all trials: the weight of the
+    /// stable neo-Hookean replay against the corotational one, 0…1 ([`MATERIAL_WEIGHT_MAX`]);
+    /// absent where it is off.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub material_weight: Option<f64>,
     /// Held-out shrink against the nuisance floor (the baseline with the stiffness nuisance
     /// fitted per fold): the larger of the phase-weighted and plain shrinks. What the verdict
     /// requires of an effect, beside its significance ([`CandidateScore::floor_gain_z`]).
@@ -1184,6 +1345,7 @@ pub fn score_candidate(
         contact_compliance: nuisance
             .contact_fitted()
             .then_some(fitted.contact_compliance()),
+        material_weight: nuisance.material_fitted().then_some(fitted.material),
         floor_shrink: 0.0,
         floor_gain_z: 0.0,
         theta,
@@ -1240,7 +1402,7 @@ mod tests {
                     VarGroup::Hold
                 };
                 // residual s·m − truth·m: a = m, c = −truth·m
-                q.push(group, *m, [0.0; 3], m.map(|v| -truth * v));
+                q.push(group, [*m, [0.0; 3], [0.0; 3]], m.map(|v| -truth * v));
             }
             q
         };
@@ -1306,7 +1468,7 @@ mod tests {
                 };
                 let truth: [f64; 3] = std::array::from_fn(|k| s_true * (m[k] + w_true * d[k]));
                 let b = if visible { *d } else { [0.0; 3] };
-                q.push(group, *m, b, truth.map(|v| -v));
+                q.push(group, [*m, b, [0.0; 3]], truth.map(|v| -v));
             }
             q
         };
@@ -1336,6 +1498,109 @@ mod tests {
         let (f, _) = quad_for(1.1, 0.0, false).profile(Nuisance::STIFFNESS_AND_CONTACT);
         assert_eq!(f.contact, 0.0);
         assert!((f.stiffness - 1.1).abs() < 1e-4, "{f:?}");
+    }
+
+    /// The three nuisances profiled together: a scale, a contact weight and a material weight
+    /// whose knots change the force differently (the layer most at the deepest press, the
+    /// other law in the tangential response) are recovered jointly; the material term stays at
+    /// 0 when it is off.
+    #[test]
+    fn the_material_nuisance_profile_finds_its_weight_beside_the_others() {
+        // per sample: the baseline m, the contact knot's change d and the material knot's e
+        let samples = [
+            ([0.0, 0.0, 2.0], [0.0, 0.0, -0.1], [0.2, 0.0, -0.1]),
+            ([0.1, 0.0, 5.0], [0.0, 0.0, -0.9], [0.5, 0.1, -0.3]),
+            ([0.0, -0.2, 9.0], [0.0, 0.05, -2.8], [0.6, -0.3, -0.4]),
+            ([0.0, 0.3, 12.0], [0.0, -0.1, -4.6], [0.9, 0.2, -0.2]),
+            ([1.0, 0.0, 6.0], [0.0, 0.0, -1.2], [-0.4, 0.0, -0.6]),
+            ([0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]),
+        ];
+        let quad_for = |s: f64, w: f64, m_true: f64| {
+            let mut q = PhaseQuad::default();
+            for (i, (m, d, e)) in samples.iter().enumerate() {
+                let group = match i {
+                    5 => VarGroup::Free,
+                    i if i % 2 == 0 => VarGroup::Hold,
+                    _ => VarGroup::Loading,
+                };
+                let truth: [f64; 3] =
+                    std::array::from_fn(|k| s * (m[k] + w * d[k] + m_true * e[k]));
+                q.push(group, [*m, *d, *e], truth.map(|v| -v));
+            }
+            q
+        };
+        let (f, acc) = quad_for(1.1, 0.45, 0.6).profile(Nuisance::ALL);
+        assert!((f.stiffness - 1.1).abs() < 1e-3, "{f:?}");
+        assert!((f.contact - 0.45).abs() < 1e-3, "{f:?}");
+        assert!((f.material - 0.6).abs() < 1e-3, "{f:?}");
+        assert!(acc.total().0 < 1e-5);
+        // beyond the law's full weight: its edge, the others still found
+        let (f, _) = quad_for(0.9, 0.3, 1.4).profile(Nuisance::ALL);
+        assert!((f.material - MATERIAL_WEIGHT_MAX).abs() < 1e-9, "{f:?}");
+        // off: 0, and the profile is the two-nuisance one
+        let (f, _) = quad_for(1.1, 0.45, 0.6).profile(Nuisance::STIFFNESS_AND_CONTACT);
+        assert_eq!(f.material, 0.0);
+        let (g, _) = quad_for(1.1, 0.45, 0.6).profile(Nuisance {
+            material_max: 0.0,
+            ..Nuisance::ALL
+        });
+        assert_eq!(f, g);
+    }
+
+    /// The exact minimum over the nuisances' region matches a fine search over it on convex
+    /// quadratics whose unconstrained minimum lies inside, on a face, on an edge and at a
+    /// corner, with each term on or off.
+    #[test]
+    fn the_weighted_minimum_is_the_region_s_least_value() {
+        let bands = [
+            Nuisance::ALL,
+            Nuisance::STIFFNESS_AND_CONTACT,
+            Nuisance::ALL.for_candidate(&Candidate::single(Effect::Modulus)),
+            Nuisance {
+                contact_max: 0.0,
+                ..Nuisance::ALL
+            },
+        ];
+        // A = LLᵀ (positive definite, correlated terms), minimum at x0: c = −A·x0
+        let l = [[2.0, 0.0, 0.0], [0.7, 1.1, 0.0], [-0.4, 0.5, 0.6]];
+        let mut a = [[0.0; 3]; 3];
+        for i in 0..3 {
+            for j in 0..3 {
+                a[i][j] = (0..3).map(|k| l[i][k] * l[j][k]).sum();
+            }
+        }
+        let targets = [
+            [1.05, 0.4, 0.3],
+            [1.5, 0.4, 0.3],
+            [1.0, -0.3, 0.5],
+            [0.6, 2.0, -1.0],
+            [1.1, 0.9, 1.5],
+        ];
+        for band in bands {
+            for x0 in targets {
+                let q = WeightedQuad {
+                    aa: a,
+                    ac: std::array::from_fn(|i| -(0..3).map(|j| a[i][j] * x0[j]).sum::<f64>()),
+                };
+                let x = q.minimum(band);
+                let mut best = f64::INFINITY;
+                let steps = 120;
+                for i in 0..=steps {
+                    let s = band.lo + (band.hi - band.lo) * i as f64 / steps as f64;
+                    for j in 0..=steps {
+                        let u = band.contact_max * s * j as f64 / steps as f64;
+                        for k in 0..=steps {
+                            let v = band.material_max * s * k as f64 / steps as f64;
+                            best = best.min(q.value([s, u, v]));
+                        }
+                    }
+                }
+                assert!(q.value(x) <= best + 1e-12, "{band:?} {x0:?}: {x:?}");
+                assert!((band.lo..=band.hi).contains(&x[0]), "{x:?}");
+                assert!((0.0..=band.contact_max * x[0]).contains(&x[1]), "{x:?}");
+                assert!((0.0..=band.material_max * x[0]).contains(&x[2]), "{x:?}");
+            }
+        }
     }
 
     #[test]

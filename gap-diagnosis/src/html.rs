@@ -459,8 +459,9 @@ fn nuisance_paragraph(r: &Report) -> String {
 /// What the stiffness nuisance is, and what it was fitted to here.
 fn stiffness_paragraph(r: &Report) -> String {
     match r.heldout.nuisance_scale {
-        Some(s) => format!(
-            "<p><b>Stiffness nuisance.</b> No model is the specimen: every candidate, and the \
+        Some(s) => {
+            format!(
+                "<p><b>Stiffness nuisance.</b> No model is the specimen: every candidate, and the \
              baseline, is fitted with one more parameter, a scale of the tissue's whole force \
              (modulus and support together) within {:.2}–{:.2}, which no effect is needed for. \
              Fitted to the baseline: <b>×{s:.3}</b>, leaving a held-out RMSE of {} N (the \
@@ -468,14 +469,41 @@ fn stiffness_paragraph(r: &Report) -> String {
              least the minimum shrink, with a per-trial held-out gain of at least two standard \
              errors. <code>modulus</code> and <code>hardening</code> carry their own scale: \
              their fitted scale is the total, and they win only beyond the band.</p>",
-            crate::fit::Nuisance::STIFFNESS.lo,
-            crate::fit::Nuisance::STIFFNESS.hi,
-            fmt(r.heldout.nuisance_rmse)
-        ),
+                crate::fit::Nuisance::STIFFNESS.lo,
+                crate::fit::Nuisance::STIFFNESS.hi,
+                fmt(r.heldout.nuisance_rmse)
+            ) + &other_nuisances(r)
+        }
         None => "<p><b>Stiffness nuisance:</b> off (effects are judged against the replay \
                  as it is).</p>"
             .to_string(),
     }
+}
+
+/// The contact and material nuisances fitted to the baseline beside the scale, where on.
+fn other_nuisances(r: &Report) -> String {
+    let mut h = String::new();
+    if let Some(c) = r.heldout.contact_compliance {
+        let _ = write!(
+            h,
+            "<p><b>Contact nuisance.</b> Another contact discretisation differs from the \
+             replay by a compliance in series under the probe; fitted beside every candidate \
+             up to {} µm/N per probe ball. Fitted to the baseline: <b>{} µm/N</b>.</p>",
+            fmt(1e6 * crate::fit::CONTACT_KNOT * crate::fit::CONTACT_WEIGHT_MAX),
+            fmt(1e6 * c)
+        );
+    }
+    if let Some(m) = r.heldout.material_weight {
+        let _ = write!(
+            h,
+            "<p><b>Material nuisance.</b> The specimen's constitutive law need not be the \
+             replay's (linear corotational): every candidate is fitted with a mixture of it and \
+             the stable neo-Hookean law, weight 0 (corotational) to 1 (neo-Hookean). Fitted \
+             to the baseline: <b>{m:.2}</b>. Calibration does not write it (a scene has one \
+             law).</p>"
+        );
+    }
+    h
 }
 
 pub fn render(r: &Report) -> String {
@@ -545,7 +573,7 @@ pub fn render(r: &Report) -> String {
     h.push_str(&group_table("by depth band", &r.localisation.by_depth_band));
     h.push_str("<h2>Which</h2>");
     h.push_str(&ranking_chart(r));
-    h.push_str("<table><tr><th>candidate</th><th>params</th><th>fit RMSE N</th><th>held-out RMSE N</th><th>shrink</th><th>shrink over the nuisance floor</th><th>paired gain, SE</th><th>ΔBIC</th><th>study-metric error N</th><th>stiffness nuisance</th><th>contact nuisance µm/N</th><th>fitted (± s.e.)</th></tr>");
+    h.push_str("<table><tr><th>candidate</th><th>params</th><th>fit RMSE N</th><th>held-out RMSE N</th><th>shrink</th><th>shrink over the nuisance floor</th><th>paired gain, SE</th><th>ΔBIC</th><th>study-metric error N</th><th>stiffness nuisance</th><th>contact nuisance µm/N</th><th>material nuisance (neo-Hookean weight)</th><th>fitted (± s.e.)</th></tr>");
     for c in &r.ranking {
         let ps: Vec<String> = c
             .params
@@ -558,8 +586,11 @@ pub fn render(r: &Report) -> String {
         let contact = c
             .contact_compliance
             .map_or("–".to_string(), |v| format!("{:.2}", 1e6 * v));
-        let _ = write!(h, "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.1}%</td><td>{:.1}%</td><td>{:.1}</td><td>{:.1}</td><td>{}</td><td>{}</td><td>{}</td><td style=\"text-align:left\">{}</td></tr>",
-            esc(&c.effect), c.n_params, fmt(c.fit_rmse), fmt(c.heldout_rmse), 100.0 * c.heldout_shrink, 100.0 * c.floor_shrink, c.floor_gain_z, c.delta_bic, fmt(c.heldout_study_error), esc(&nuisance), esc(&contact), esc(&ps.join(", ")));
+        let material = c
+            .material_weight
+            .map_or("–".to_string(), |m| format!("{m:.2}"));
+        let _ = write!(h, "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.1}%</td><td>{:.1}%</td><td>{:.1}</td><td>{:.1}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td style=\"text-align:left\">{}</td></tr>",
+            esc(&c.effect), c.n_params, fmt(c.fit_rmse), fmt(c.heldout_rmse), 100.0 * c.heldout_shrink, 100.0 * c.floor_shrink, c.floor_gain_z, c.delta_bic, fmt(c.heldout_study_error), esc(&nuisance), esc(&contact), esc(&material), esc(&ps.join(", ")));
     }
     h.push_str("</table>");
     if let Some(g) = &r.rendering_gap {

@@ -40,6 +40,7 @@ fn resimulated_rmse(exp_dir: &Path, launch: &Path, dt: f64) -> f64 {
             dt,
             progress: false,
             contact_knot: false,
+            material_knot: false,
         },
     )
     .unwrap();

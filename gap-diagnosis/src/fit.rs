@@ -466,14 +466,7 @@ impl PhaseQuad {
     pub fn at(&self, x: [f64; NUISANCE_DIMS]) -> PhaseSse {
         let mut acc = PhaseSse::default();
         for g in 0..VarGroup::COUNT {
-            let mut v = self.cc[g];
-            for i in 0..NUISANCE_DIMS {
-                v += 2.0 * x[i] * self.ac[g][i];
-                for j in 0..NUISANCE_DIMS {
-                    v += x[i] * x[j] * self.aa[g][i][j];
-                }
-            }
-            acc.sse[g] = v.max(0.0);
+            acc.sse[g] = quadratic(self.cc[g], &self.aa[g], &self.ac[g], x).max(0.0);
             acc.n[g] = self.n[g];
         }
         acc
@@ -550,6 +543,23 @@ impl PhaseQuad {
     }
 }
 
+/// `c0` + x·A·x + 2x·c: the residual sums' quadratic form in the profile's coordinates.
+fn quadratic(
+    c0: f64,
+    aa: &[[f64; NUISANCE_DIMS]; NUISANCE_DIMS],
+    ac: &[f64; NUISANCE_DIMS],
+    x: [f64; NUISANCE_DIMS],
+) -> f64 {
+    let mut v = c0;
+    for i in 0..NUISANCE_DIMS {
+        v += 2.0 * x[i] * ac[i];
+        for j in 0..NUISANCE_DIMS {
+            v += x[i] * x[j] * aa[i][j];
+        }
+    }
+    v
+}
+
 /// One reweighting round's residual, Σ_g (x·A_g·x + 2x·c_g)/MSE_g plus a constant: a convex
 /// quadratic in x = (s, u, v) minimised exactly over the nuisances' region.
 #[derive(Debug, Default)]
@@ -574,20 +584,13 @@ fn nuisance_region(band: Nuisance) -> [([f64; NUISANCE_DIMS], f64); 6] {
 
 impl WeightedQuad {
     fn value(&self, x: [f64; NUISANCE_DIMS]) -> f64 {
-        let mut v = 0.0;
-        for i in 0..NUISANCE_DIMS {
-            v += 2.0 * x[i] * self.ac[i];
-            for j in 0..NUISANCE_DIMS {
-                v += x[i] * x[j] * self.aa[i][j];
-            }
-        }
-        v
+        quadratic(0.0, &self.aa, &self.ac, x)
     }
     /// The minimum over the region ([`nuisance_region`]), exactly: a convex quadratic's
-    /// minimum over a polytope is the minimum over some face's affine hull, so every set of at
-    /// most three of its six half-spaces taken as equalities is solved (a 3–6 unknown KKT
-    /// system; 42 sets), and the feasible point of least value kept. A tiny ridge keeps a term
-    /// the data barely see from making the systems singular.
+    /// minimum over a polytope is the minimum over some face's affine hull, so sets of at most
+    /// three of its six half-spaces taken as equalities are solved (a 3–6 unknown KKT system;
+    /// up to 42 sets), fewest first, until one's point is feasible with multipliers ≥ 0. A
+    /// tiny ridge keeps a term the data barely see from making the systems singular.
     fn minimum(&self, band: Nuisance) -> [f64; NUISANCE_DIMS] {
         let region = nuisance_region(band);
         let trace: f64 = (0..NUISANCE_DIMS).map(|i| self.aa[i][i].abs()).sum();

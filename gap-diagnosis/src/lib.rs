@@ -845,10 +845,7 @@ fn decide(
             .min_by(|a, b| a.score.total_cmp(&b.score))
     };
     // what a pair removes of the best single's residual, phase-weighted or plain
-    let gain_over_best = |pair: &CandidateScore| {
-        shrink(pair.heldout_weighted_rmse, best.heldout_weighted_rmse)
-            .max(shrink(pair.heldout_rmse, best.heldout_rmse))
-    };
+    let gain_over_best = |pair: &CandidateScore| gain_over(pair, best);
     if !identified(best) {
         // two effects that hide each other: the best pair, identified on its own and well
         // ahead of every single
@@ -916,8 +913,7 @@ fn decide(
     // phase-weighted, 4% plain). Like a pair over its single, it is named only when it
     // removes [`RICHER_GAIN`] of the simpler model's residual.
     if let Some(simpler) = nested_simpler(win, ranking).filter(|c| identified(c)) {
-        let gain = shrink(win.heldout_weighted_rmse, simpler.heldout_weighted_rmse)
-            .max(shrink(win.heldout_rmse, simpler.heldout_rmse));
+        let gain = gain_over(win, simpler);
         if gain <= RICHER_GAIN {
             reason = format!(
                 "{reason}; {} removes only {:.0}% more than {} ({:.4} → {:.4} N phase-weighted), \
@@ -944,6 +940,12 @@ fn decide(
         contact_compliance: None,
         material_weight: None,
     }
+}
+
+/// What `richer` removes of `simpler`'s held-out residual, phase-weighted or plain.
+fn gain_over(richer: &CandidateScore, simpler: &CandidateScore) -> f64 {
+    shrink(richer.heldout_weighted_rmse, simpler.heldout_weighted_rmse)
+        .max(shrink(richer.heldout_rmse, simpler.heldout_rmse))
 }
 
 /// The candidate `c` is with `hardening` read as `modulus` (its rate at 0), where ranked.

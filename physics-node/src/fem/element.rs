@@ -4,6 +4,9 @@
 
 use nalgebra::{Matrix3, Quaternion, SMatrix, SymmetricEigen, UnitQuaternion, Vector3};
 
+/// The 9×9 tangent dP/dF in column-major vec(F) ordering.
+pub(crate) type Tangent9 = SMatrix<f64, 9, 9>;
+
 /// Rest data of one tet: shape-function gradients g_a (F = Σ x_a g_aᵀ) and volume.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct TetRest {
@@ -338,33 +341,9 @@ pub(crate) fn stable_neo_hookean(
     if !want_k {
         return;
     }
-    // dP/dF in column-major vec(F) ordering: μ I + λ' g gᵀ + s H_J.
-    let mut h = SMatrix::<f64, 9, 9>::identity() * mu;
-    let g = SMatrix::<f64, 9, 1>::from_column_slice(cof.as_slice());
-    h += g * g.transpose() * lam;
-    let blocks = [
-        (0, 1, -skew(&f2)),
-        (0, 2, skew(&f1)),
-        (1, 0, skew(&f2)),
-        (1, 2, -skew(&f0)),
-        (2, 0, -skew(&f1)),
-        (2, 1, skew(&f0)),
-    ];
-    for (pi, qi, m) in blocks.iter() {
-        let mut view = h.fixed_view_mut::<3, 3>(3 * pi, 3 * qi);
-        view += m * s;
-    }
+    let mut h = stable_neo_hookean_tangent(f, &cof, mu, lam, s);
     if project {
-        let eig = SymmetricEigen::new(h);
-        if eig.eigenvalues.iter().any(|&e| e < 0.0) {
-            let mut d = eig.eigenvalues;
-            for e in d.iter_mut() {
-                *e = e.max(0.0);
-            }
-            h = eig.eigenvectors
-                * SMatrix::<f64, 9, 9>::from_diagonal(&d)
-                * eig.eigenvectors.transpose();
-        }
+        project_stable_neo_hookean(f, mu, lam, s, &mut h);
     }
     // K_ab[k][l] = V Σ_{j,m} g_a[j] H[(j,k),(m,l)] g_b[m]; vec index of F_kj is 3j + k.
     for a in 0..4 {
@@ -382,5 +361,184 @@ pub(crate) fn stable_neo_hookean(
             }
             out.k[a][b] = m * v;
         }
+    }
+}
+
+/// dP/dF of the stable neo-Hookean energy in column-major vec(F) ordering:
+/// μ I + λ' g gᵀ + s H_J, with g = vec(cof F), s = λ'(J − 1) − μ and H_J the Hessian of det F.
+fn stable_neo_hookean_tangent(
+    f: &Matrix3<f64>,
+    cof: &Matrix3<f64>,
+    mu: f64,
+    lam: f64,
+    s: f64,
+) -> Tangent9 {
+    let (f0, f1, f2) = (
+        f.column(0).into_owned(),
+        f.column(1).into_owned(),
+        f.column(2).into_owned(),
+    );
+    let mut h = Tangent9::identity() * mu;
+    let g = SMatrix::<f64, 9, 1>::from_column_slice(cof.as_slice());
+    h += g * g.transpose() * lam;
+    let blocks = [
+        (0, 1, -skew(&f2)),
+        (0, 2, skew(&f1)),
+        (1, 0, skew(&f2)),
+        (1, 2, -skew(&f0)),
+        (2, 0, -skew(&f1)),
+        (2, 1, skew(&f0)),
+    ];
+    for (pi, qi, m) in blocks.iter() {
+        let mut view = h.fixed_view_mut::<3, 3>(3 * pi, 3 * qi);
+        view += m * s;
+    }
+    h
+}
+
+/// Clamps the negative eigenvalues of the stable neo-Hookean tangent `h` to zero, from its
+/// analytic eigensystem (Smith, de Goes & Kim 2018, §4.4; Smith et al. 2019). With the
+/// rotation-variant SVD F = U Σ Vᵀ (det U = det V = 1, σ₂ carries the sign of J), the
+/// tangent μ I + λ' g gᵀ + s H_J is block-diagonal in the basis U D Vᵀ:
+/// - for each axis i with (j, k) the other two, a twist (D = e_j e_kᵀ − e_k e_jᵀ) with
+///   eigenvalue μ + s σ_i and a flip (D = e_j e_kᵀ + e_k e_jᵀ) with μ − s σ_i;
+/// - on diagonal D a 3×3 block μ I + λ' c cᵀ + s [σ_k off the diagonal], c_i = σ_j σ_k.
+///
+/// Only the negative modes are subtracted (h − Σ λ_n q_n q_nᵀ), so the result is the same
+/// projection as clamping a numeric 9×9 eigendecomposition, at a 3×3 SVD's cost: that
+/// decomposition was most of a neo-Hookean replay's time.
+fn project_stable_neo_hookean(f: &Matrix3<f64>, mu: f64, lam: f64, s: f64, h: &mut Tangent9) {
+    let Some((u, sigma, v)) = rotation_variant_svd(f) else {
+        // A failed SVD (non-finite F) leaves the tangent as it is; the step's own NaN
+        // quarantine deals with the state.
+        return;
+    };
+    let mut subtract = |eigenvalue: f64, d: &Matrix3<f64>| {
+        if eigenvalue >= 0.0 {
+            return;
+        }
+        // q = vec(U D Vᵀ), column-major, unit length when D is.
+        let q_m = u * d * v.transpose();
+        let q = SMatrix::<f64, 9, 1>::from_column_slice(q_m.as_slice());
+        *h -= q * q.transpose() * eigenvalue;
+    };
+    let r = std::f64::consts::FRAC_1_SQRT_2;
+    for i in 0..3 {
+        let (j, k) = ((i + 1) % 3, (i + 2) % 3);
+        let mut twist = Matrix3::zeros();
+        twist[(j, k)] = r;
+        twist[(k, j)] = -r;
+        subtract(mu + s * sigma[i], &twist);
+        let mut flip = Matrix3::zeros();
+        flip[(j, k)] = r;
+        flip[(k, j)] = r;
+        subtract(mu - s * sigma[i], &flip);
+    }
+    let c = Vector3::new(
+        sigma[1] * sigma[2],
+        sigma[0] * sigma[2],
+        sigma[0] * sigma[1],
+    );
+    let mut scaling = Matrix3::identity() * mu + c * c.transpose() * lam;
+    for i in 0..3 {
+        let (j, k) = ((i + 1) % 3, (i + 2) % 3);
+        scaling[(j, k)] += s * sigma[i];
+        scaling[(k, j)] += s * sigma[i];
+    }
+    let eig = SymmetricEigen::new(scaling);
+    for n in 0..3 {
+        let w = eig.eigenvectors.column(n);
+        subtract(eig.eigenvalues[n], &Matrix3::from_diagonal(&w.into_owned()));
+    }
+}
+
+/// F = U Σ Vᵀ with U and V proper rotations; the last singular value takes the sign of
+/// det F. None when the SVD does not converge or F is not finite.
+fn rotation_variant_svd(f: &Matrix3<f64>) -> Option<(Matrix3<f64>, Vector3<f64>, Matrix3<f64>)> {
+    if !f.iter().all(|x| x.is_finite()) {
+        return None;
+    }
+    let svd = f.svd(true, true);
+    let mut u = svd.u?;
+    let mut v = svd.v_t?.transpose();
+    let mut sigma = svd.singular_values;
+    if u.determinant() < 0.0 {
+        u.column_mut(2).neg_mut();
+        sigma[2] = -sigma[2];
+    }
+    if v.determinant() < 0.0 {
+        v.column_mut(2).neg_mut();
+        sigma[2] = -sigma[2];
+    }
+    Some((u, sigma, v))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The oracle: clamp a numeric 9×9 eigendecomposition (what the element did before).
+    fn numeric_projection(h: &Tangent9) -> Tangent9 {
+        let eig = SymmetricEigen::new(*h);
+        let d = eig.eigenvalues.map(|e| e.max(0.0));
+        eig.eigenvectors * Tangent9::from_diagonal(&d) * eig.eigenvectors.transpose()
+    }
+
+    fn lcg(seed: &mut u64) -> f64 {
+        *seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        ((*seed >> 11) as f64) / ((1u64 << 53) as f64) * 2.0 - 1.0
+    }
+
+    #[test]
+    fn the_analytic_projection_equals_the_numeric_one() {
+        let (mu, lambda) = (1.3e6, 3.1e6);
+        let lam = lambda + mu;
+        let mut seed = 7u64;
+        let mut cases = vec![
+            Matrix3::identity(),
+            Matrix3::from_diagonal(&Vector3::new(0.8, 0.8, 1.1)),
+            Matrix3::from_diagonal(&Vector3::new(1.2, 1.2, 1.2)),
+            // Inverted along one axis, and a flat element.
+            Matrix3::from_diagonal(&Vector3::new(1.0, 0.9, -0.3)),
+            Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, 0.0)),
+        ];
+        for scale in [0.05, 0.3, 1.0] {
+            for _ in 0..40 {
+                let m = Matrix3::from_fn(|_, _| lcg(&mut seed) * scale);
+                let rot = nalgebra::Rotation3::new(Vector3::from_fn(|_, _| lcg(&mut seed) * 3.0));
+                cases.push(rot.matrix() * (Matrix3::identity() + m));
+            }
+        }
+        let mut indefinite = 0;
+        for f in &cases {
+            let cof = f.transpose().try_inverse().map_or_else(
+                || {
+                    let (f0, f1, f2) = (f.column(0), f.column(1), f.column(2));
+                    Matrix3::from_columns(&[f1.cross(&f2), f2.cross(&f0), f0.cross(&f1)])
+                },
+                |inv_t| inv_t * f.determinant(),
+            );
+            let s = lam * (f.determinant() - 1.0) - mu;
+            let h = stable_neo_hookean_tangent(f, &cof, mu, lam, s);
+            let numeric = numeric_projection(&h);
+            let mut analytic = h;
+            project_stable_neo_hookean(f, mu, lam, s, &mut analytic);
+            if SymmetricEigen::new(h).eigenvalues.min() < -1e-9 * mu {
+                indefinite += 1;
+            }
+            let err = (analytic - numeric).abs().max();
+            assert!(
+                err <= 1e-9 * h.abs().max(),
+                "F = {f}: analytic and numeric projections differ by {err:e}"
+            );
+            assert!(SymmetricEigen::new(analytic).eigenvalues.min() >= -1e-8 * mu);
+        }
+        // The cases must exercise the clamp, not only pass through definite tangents.
+        assert!(
+            indefinite > cases.len() / 4,
+            "only {indefinite} indefinite tangents"
+        );
     }
 }

@@ -11,6 +11,7 @@ use gap_diagnosis::{reality::protocol_path, Region, SimForceModel};
 use launch_config::scene::OfflineSolver;
 use launch_config::SceneConfig;
 use physics_node::fem::test_meshes::write_refined_once;
+use physics_node::mesh::Midpoints;
 
 use gap_diagnosis::signal::dot;
 
@@ -145,7 +146,8 @@ fn replay_model_against_the_refined_study_mesh() {
 
     let loaded = physics_node::mesh::load_scene_mesh(&scene.meniscus, &data).unwrap();
     let dir = std::env::temp_dir().join(format!("gap_floor_{}", std::process::id()));
-    let (_, msh, list) = write_refined_once(&loaded.mesh, &loaded.fixed_nodes, &dir).unwrap();
+    let (_, msh, list) =
+        write_refined_once(&loaded.mesh, &loaded.fixed_nodes, Midpoints::Flat, &dir).unwrap();
     let mut fine = scene.clone();
     fine.meniscus.mesh = msh.display().to_string();
     fine.meniscus.fixed = list.display().to_string();
@@ -186,18 +188,20 @@ fn replay_model_against_the_refined_study_mesh() {
 
 /// Is the refined-once reference converged? The same probings on the study mesh refined once
 /// and refined twice (every tet split into eight, twice: ~10,000 nodes), both with a direct
-/// solve, and the diagnosis' replay against the twice-refined one. A measurement for the
-/// README (issue 15, point 1: "a converged refined FE"), too slow for the suite in the dev
-/// profile: `cargo test --release --test gap_floor -- --ignored`.
-#[test]
-#[ignore = "minutes: ~10,000-node direct solves (run with --release -- --ignored)"]
-fn refined_once_against_refined_twice() {
+/// solve, and the diagnosis' replay against the twice-refined one, with the new boundary nodes
+/// on the facets or on the smooth surface (`Midpoints`). A measurement for the README (issue
+/// 15, point 1: "a converged refined FE"), too slow for the suite in the dev profile:
+/// `cargo test --release --test gap_floor -- --ignored`.
+fn refined_once_against_refined_twice(midpoints: Midpoints) {
     let Some(data) = physics_node::fem::test_meshes::study_data("gap_floor") else {
         return;
     };
     let scene = study_ball_scene();
     let loaded = physics_node::mesh::load_scene_mesh(&scene.meniscus, &data).unwrap();
-    let dir = std::env::temp_dir().join(format!("gap_floor_twice_{}", std::process::id()));
+    let dir = std::env::temp_dir().join(format!(
+        "gap_floor_twice_{midpoints:?}_{}",
+        std::process::id()
+    ));
     let on = |msh: &std::path::Path, list: &std::path::Path| {
         let mut s = scene.clone();
         s.meniscus.mesh = msh.display().to_string();
@@ -205,11 +209,17 @@ fn refined_once_against_refined_twice() {
         s.solver.offline = OfflineSolver::Direct;
         SimForceModel::from_scene(s, &data)
     };
-    let (_, msh1, list1) =
-        write_refined_once(&loaded.mesh, &loaded.fixed_nodes, &dir.join("once")).unwrap();
-    let (once, once_fixed) =
-        physics_node::fem::test_meshes::refine_once(&loaded.mesh, &loaded.fixed_nodes);
-    let (_, msh2, list2) = write_refined_once(&once, &once_fixed, &dir.join("twice")).unwrap();
+    let (once, msh1, list1) = write_refined_once(
+        &loaded.mesh,
+        &loaded.fixed_nodes,
+        midpoints,
+        &dir.join("once"),
+    )
+    .unwrap();
+    let (_, once_fixed) =
+        physics_node::mesh::refine_once(&loaded.mesh, &loaded.fixed_nodes, midpoints);
+    let (_, msh2, list2) =
+        write_refined_once(&once, &once_fixed, midpoints, &dir.join("twice")).unwrap();
     let (m1, m2) = (on(&msh1, &list1), on(&msh2, &list2));
     let replay_model = SimForceModel::from_scene(scene.clone(), &data);
     let started = std::time::Instant::now();
@@ -219,11 +229,23 @@ fn refined_once_against_refined_twice() {
     let (d12, r12) = summary(&once_twice);
     let (d02, r02) = summary(&replay_twice);
     println!(
-        "{{\"refined_once_vs_twice_mean_normal_pct\":{d12:.2},\"refined_once_vs_twice_rmse_n\":{r12:.4},\
+        "{{\"midpoints\":\"{midpoints:?}\",\"refined_once_vs_twice_mean_normal_pct\":{d12:.2},\"refined_once_vs_twice_rmse_n\":{r12:.4},\
          \"replay_vs_twice_mean_normal_pct\":{d02:.2},\"replay_vs_twice_rmse_n\":{r02:.4},\
          \"twice_nodes\":{},\"seconds\":{:.1}}}",
         m2.simulation(&Variant::default(), 0.02).unwrap().node_count(),
         started.elapsed().as_secs_f64()
     );
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+#[ignore = "minutes: ~10,000-node direct solves (run with --release -- --ignored)"]
+fn refined_once_against_refined_twice_on_the_facets() {
+    refined_once_against_refined_twice(Midpoints::Flat);
+}
+
+#[test]
+#[ignore = "minutes: ~10,000-node direct solves (run with --release -- --ignored)"]
+fn refined_once_against_refined_twice_on_the_smooth_surface() {
+    refined_once_against_refined_twice(Midpoints::Smooth);
 }

@@ -1,6 +1,7 @@
 //! The self-test as issue 15 (point 4) asks for it: every case's truth differs from the replay
 //! as an independent FE code of the same specimen would. The truth is the specimen mesh
-//! refined once (four times the contact facets, a direct solve; `RefinedTruth`) with a
+//! refined once (four times the contact facets, its new boundary nodes on the smooth surface
+//! through the specimen's vertices, a direct solve; `RefinedTruth`) with a
 //! penalty contact where the replay's is hard (`TRUTH_INTERFACE_COMPLIANCE`), its
 //! modulus and support scaled by a stiffness offset drawn within ±15%, pressed at the study's
 //! 0.5–1.2 mm; the diagnosis replays the coarse mesh as it would a real experiment. This test
@@ -24,20 +25,23 @@ use gap_diagnosis::{Region, SimForceModel};
 /// pair.
 const CASES: [&str; 5] = ["none", "modulus", "friction", "support", "modulus+sensor"];
 
-/// What the diagnosis reaches on these cases (README): 2 of 5 right with the material
-/// nuisance and `hardening` held to what it adds over `modulus` (modulus and support; none
-/// and friction read as modulus, modulus+sensor as sensor), mean held-out shrink 67.2%. Before
-/// them, 1 of 5 (support; none, modulus and friction read as hardening), 67.8%. Without the contact nuisance it was 3 of 5 (none, friction, support),
-/// 67.7%: the levelled refined truth is a tissue 2.7× stiffer in modulus behind a contact
-/// 2.7× softer than the replay's, beyond both nuisances' bands, and `hardening` (a scale
-/// without a band) fits it best (README, "A contact nuisance beside it"). (Before the truth
-/// was levelled with the replay, 1 of 5.)
-const CORRECT_REACHED: usize = 2;
+/// What the diagnosis reaches on these cases (README): 3 of 5 right since the truth's new
+/// boundary nodes lie on the smooth surface (modulus, friction and support; none read as
+/// modulus, modulus+sensor as sensor), mean held-out shrink 63.9%. With them on the facets, 2
+/// of 5 (modulus and support; friction read as modulus too), 67.2%; before the material
+/// nuisance and `hardening` held to what it adds over `modulus`, 1 of 5 (support; none,
+/// modulus and friction read as hardening), 67.8%. Without the contact nuisance it was 3 of 5
+/// (none, friction, support), 67.7%: the levelled refined truth is a tissue 2.7× stiffer in
+/// modulus behind a contact 2.7× softer than the replay's, beyond both nuisances' bands, and
+/// `hardening` (a scale without a band) fits it best (README, "A contact nuisance beside
+/// it"). (Before the truth was levelled with the replay, 1 of 5.)
+const CORRECT_REACHED: usize = 3;
 const SHRINK_REACHED: f64 = 0.6;
 
-/// The refined truth's mean normal force over the replay's, no effect: measured ×0.366 with its
-/// penalty contact (×0.411 with a hard one), held to ±10%.
-const RATIO_REACHED: [f64; 2] = [0.33, 0.40];
+/// The refined truth's mean normal force over the replay's, no effect: measured ×0.331 with its
+/// penalty contact and its boundary midpoints on the smooth surface (×0.366 on the facets,
+/// ×0.411 with a hard contact), held to ±10%.
+const RATIO_REACHED: [f64; 2] = [0.30, 0.365];
 
 #[test]
 fn selftest_on_a_refined_truth() {
@@ -62,7 +66,7 @@ fn selftest_on_a_refined_truth() {
     );
     assert!(
         s.heldout_shrink_mean >= SHRINK_REACHED,
-        "mean held-out shrink {:.3} (reached 0.660)",
+        "mean held-out shrink {:.3} (reached 0.639)",
         s.heldout_shrink_mean
     );
 }

@@ -2,19 +2,19 @@
 //! facets: how much the normal force varies from facet to facet (issue 15, point 1: "≤ 5%, as
 //! a converged reference does").
 //!
-//! The reference surface is not the mesh's own facets but a smooth one through its vertices
-//! (Phong tessellation with angle-weighted vertex normals, built in this test: the surface an
-//! independent FE with a smooth surface contact sees; the study mesh is too coarse for a local
-//! fit, 3–4 superior vertices within 5 mm of the site). The ball's centre follows it at
-//! `R − depth` along its normal from the mid-body probing site, along the body and across it,
-//! quasi-statically (direct FEM solve, converged LCP; holding each position 8 steps instead
-//! of 3 changes no number by more than 0.1%). A contact
-//! that is smooth across facets then gives a force that changes only slowly along the path,
-//! with the surface's curvature and the body's thickness; what the facets add shows as the
-//! residual about a quadratic trend over the 6 mm path. The same paths are run on the study
-//! mesh and on the mesh refined once (every tet split into 8: the same facets, four triangles
-//! each, so its own smooth surface lies close to the facets and what varies there is mostly
-//! the contact's and the elements' discretisation, not the geometry).
+//! The reference surface is not the mesh's own facets but the smooth one through its vertices
+//! (`physics_node::mesh::smooth::SmoothSurface`: Phong tessellation over angle-weighted
+//! vertex normals, sharp at the rims; the surface an independent FE with a smooth surface
+//! contact sees; the study mesh is too coarse for a local fit, 3–4 superior vertices within
+//! 5 mm of the site). The ball's centre follows it at `R − depth` along its normal from the
+//! mid-body probing site, along the body and across it, quasi-statically (direct FEM solve,
+//! converged LCP; holding each position 8 steps instead of 3 changes no number by more than
+//! 0.1%). A contact that is smooth across facets then gives a force that changes only slowly
+//! along the path, with the surface's curvature and the body's thickness; what the facets add
+//! shows as the residual about a quadratic trend over the 6 mm path. The same paths are run on
+//! the study mesh and on it refined once and twice, with the new boundary nodes on the facets
+//! (the study's facets kept, four or sixteen triangles each) or on the smooth surface
+//! (`Midpoints::Smooth`).
 //!
 //! Run with `--nocapture` to see the numbers; the README quotes them.
 
@@ -22,9 +22,9 @@ use nalgebra::{DMatrix, DVector, Point3, UnitQuaternion, Vector3};
 use parry3d_f64::math::Vector as GVec;
 use parry3d_f64::query::PointQueryWithLocation;
 use parry3d_f64::shape::TriMesh;
-use physics_node::contact::boundary_triangles;
 use physics_node::fem::test_meshes::write_refined_once;
-use physics_node::mesh::TetMesh;
+use physics_node::mesh::smooth::SmoothSurface;
+use physics_node::mesh::{refine_once, Midpoints, TetMesh};
 use physics_node::sim::Simulation;
 use std::path::Path;
 
@@ -37,64 +37,43 @@ const STEP_M: f64 = 0.05e-3;
 /// numbers to 0.1%).
 const HOLD_STEPS: usize = 3;
 
-/// The reference surface: the smooth surface through a mesh's boundary vertices, Phong
-/// tessellation (Boubekeur & Alexa 2008, shape factor 3/4) with angle-weighted vertex normals
-/// (Thürmer & Wüthrich 1998), interpolated normals. Built here from the rest mesh, apart from
-/// the contact code it measures.
-struct SmoothSurface {
-    mesh: TriMesh,
-    normals: Vec<Vector3<f64>>,
+/// The reference surface: the smooth surface through a mesh's boundary vertices
+/// ([`physics_node::mesh::smooth::SmoothSurface`], Phong tessellation over angle-weighted vertex
+/// normals; the geometry crate's, apart from the contact code it measures), with its facets in
+/// a parry TriMesh to walk on.
+struct ReferenceSurface {
+    facets: TriMesh,
+    smooth: SmoothSurface,
+    nodes: Vec<Point3<f64>>,
 }
 
-impl SmoothSurface {
-    fn new(mesh: &TetMesh) -> SmoothSurface {
-        let tris = boundary_triangles(&mesh.tets);
+impl ReferenceSurface {
+    fn new(mesh: &TetMesh) -> ReferenceSurface {
+        let smooth = SmoothSurface::new(mesh);
         let verts: Vec<_> = mesh
             .nodes
             .iter()
             .map(|p| GVec::new(p.x, p.y, p.z))
             .collect();
-        let idx: Vec<[u32; 3]> = tris.iter().map(|t| t.map(|i| i as u32)).collect();
-        let mut normals = vec![Vector3::zeros(); mesh.nodes.len()];
-        for t in &tris {
-            let [a, b, c] = t.map(|i| mesh.nodes[i].coords);
-            let face = (b - a).cross(&(c - a)).normalize();
-            for j in 0..3 {
-                let p = mesh.nodes[t[j]].coords;
-                let e1 = (mesh.nodes[t[(j + 1) % 3]].coords - p).normalize();
-                let e2 = (mesh.nodes[t[(j + 2) % 3]].coords - p).normalize();
-                normals[t[j]] += face * e1.dot(&e2).clamp(-1.0, 1.0).acos();
-            }
-        }
-        for n in normals.iter_mut() {
-            *n = n.try_normalize(0.0).unwrap_or_else(Vector3::zeros);
-        }
-        SmoothSurface {
-            mesh: TriMesh::new(verts, idx).unwrap(),
-            normals,
+        let idx: Vec<[u32; 3]> = smooth.faces.iter().map(|t| t.map(|i| i as u32)).collect();
+        ReferenceSurface {
+            facets: TriMesh::new(verts, idx).unwrap(),
+            smooth,
+            nodes: mesh.nodes.clone(),
         }
     }
 
     /// The facets' closest point to `x`, the smooth surface's point over it and its normal.
     fn project(&self, x: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>, Vector3<f64>) {
-        let (_, (t, loc)) = self
-            .mesh
+        let (proj, (t, loc)) = self
+            .facets
             .project_local_point_and_get_location(GVec::new(x.x, x.y, x.z), false);
         let w = loc.barycentric_coordinates().unwrap_or([1.0 / 3.0; 3]);
-        let l = self.mesh.indices()[t as usize];
-        let v = |k: usize| {
-            let g = self.mesh.vertices()[l[k] as usize];
-            Vector3::new(g.x, g.y, g.z)
-        };
-        let n = |k: usize| self.normals[l[k] as usize];
-        let flat = v(0) * w[0] + v(1) * w[1] + v(2) * w[2];
-        let mut phong = Vector3::zeros();
-        let mut normal = Vector3::zeros();
-        for k in 0..3 {
-            phong += w[k] * (flat - n(k) * n(k).dot(&(flat - v(k))));
-            normal += w[k] * n(k);
-        }
-        (flat, flat * 0.25 + phong * 0.75, normal.normalize())
+        (
+            Vector3::new(proj.point.x, proj.point.y, proj.point.z),
+            self.smooth.point(&self.nodes, t as usize, w),
+            self.smooth.normal(&self.nodes, t as usize, w),
+        )
     }
 }
 
@@ -108,7 +87,7 @@ fn slide(
     mesh: &TetMesh,
     site: (Vector3<f64>, Vector3<f64>),
 ) -> Vec<(f64, f64)> {
-    let surface = SmoothSurface::new(mesh);
+    let surface = ReferenceSurface::new(mesh);
     let mut sim = Simulation::new(scene, data).unwrap();
     let rot = UnitQuaternion::identity();
     let (origin, dir) = site;
@@ -220,33 +199,67 @@ fn ball_slid_across_facets_at_constant_depth() {
     let e2 = n.cross(&e1);
 
     let dir = std::env::temp_dir().join(format!("physics-node-facet-slide-{}", std::process::id()));
-    let (fine_mesh, msh, fixed_path) =
-        write_refined_once(&loaded.mesh, &loaded.fixed_nodes, &dir).unwrap();
+    // The study mesh refined once and twice, with its new boundary nodes on the facets (the
+    // same facets, four triangles each, then sixteen) or on the smooth surface
+    // (`Midpoints::Smooth`).
+    let refined = |mesh: &TetMesh, fixed: &[usize], midpoints, name: &str| {
+        let (fine, msh, list) =
+            write_refined_once(mesh, fixed, midpoints, &dir.join(name)).unwrap();
+        let (_, fine_fixed) = refine_once(mesh, fixed, midpoints);
+        let mut sc = scene.clone();
+        sc.meniscus.mesh = msh.display().to_string();
+        sc.meniscus.fixed = list.display().to_string();
+        (fine, fine_fixed, sc)
+    };
+    let (mesh, fixed) = (&loaded.mesh, &loaded.fixed_nodes);
+    let (flat_once, flat_once_fixed, flat_once_scene) = refined(mesh, fixed, Midpoints::Flat, "f1");
+    let (smooth_once, smooth_once_fixed, smooth_once_scene) =
+        refined(mesh, fixed, Midpoints::Smooth, "s1");
+    let (flat_twice, _, flat_twice_scene) =
+        refined(&flat_once, &flat_once_fixed, Midpoints::Flat, "f2");
+    let (smooth_twice, _, smooth_twice_scene) =
+        refined(&smooth_once, &smooth_once_fixed, Midpoints::Smooth, "s2");
     println!(
-        "study mesh {} nodes / {} tets, refined once {} nodes / {} tets; ball R {} mm, {} mm deep",
+        "study mesh {} nodes / {} tets, refined once {} nodes / {} tets, twice {} nodes; ball R {} mm, {} mm deep",
         loaded.mesh.nodes.len(),
         loaded.mesh.tets.len(),
-        fine_mesh.nodes.len(),
-        fine_mesh.tets.len(),
+        flat_once.nodes.len(),
+        flat_once.tets.len(),
+        flat_twice.nodes.len(),
         RADIUS_M * 1e3,
         DEPTH_M * 1e3
     );
-    let mut fine_scene = scene.clone();
-    fine_scene.meniscus.mesh = msh.display().to_string();
-    fine_scene.meniscus.fixed = fixed_path.display().to_string();
+    // (name, mesh, scene, slid across the body too: the twice-refined meshes take ~30 s a path)
+    let meshes = [
+        ("study", &loaded.mesh, &scene, true),
+        ("refined once, flat", &flat_once, &flat_once_scene, true),
+        (
+            "refined once, smooth",
+            &smooth_once,
+            &smooth_once_scene,
+            true,
+        ),
+        ("refined twice, flat", &flat_twice, &flat_twice_scene, false),
+        (
+            "refined twice, smooth",
+            &smooth_twice,
+            &smooth_twice_scene,
+            false,
+        ),
+    ];
 
     // (path, mesh) → detrended RMS / mean.
     let mut along_body = Vec::new();
     for (label, e) in [("the body", e1), ("across", e2)] {
-        for (name, mesh, sc) in [
-            ("study", &loaded.mesh, &scene),
-            ("refined once", &fine_mesh, &fine_scene),
-        ] {
+        for (name, mesh, sc, across) in meshes {
+            if label == "across" && !across {
+                continue;
+            }
             let t = std::time::Instant::now();
             let curve = slide(sc, &data, mesh, (site.point.coords, e));
             let (mean, range, rms, largest) = variation(&curve);
             println!(
-                "{name:>12} along {label}: mean {mean:.3} N, (max − min)/mean {:.1}%, detrended RMS {:.1}%, largest {:.1}% ({} positions, {:.1} s)",
+                "{name:>22} along {label}: mean {mean:.3} N, (max − min)/mean {:.1}%, detrended RMS {:.1}%, largest {:.1}% ({} positions, {:.1} s)",
                 range * 100.0,
                 rms * 100.0,
                 largest * 100.0,
@@ -256,23 +269,39 @@ fn ball_slid_across_facets_at_constant_depth() {
             let line: Vec<String> = curve.iter().map(|c| format!("{:.3}", c.1)).collect();
             println!("  F: {}", line.join(" "));
             assert!(
-                curve.iter().all(|c| c.1 > 0.0 && c.1.is_finite()),
-                "the ball must stay in contact on {name} along {label}"
+                curve.iter().all(|c| c.1.is_finite()),
+                "{name} along {label}"
             );
+            // Across the body the path reaches the study mesh's rim, a crease the smooth
+            // surface keeps (`CREASE_ANGLE_DEG`), where the ball's centre, carried along the
+            // surface normal, jumps and the ball lifts off: reported, not held.
+            let off = curve.iter().filter(|c| c.1 <= 0.0).count();
             if label == "the body" {
+                assert_eq!(
+                    off, 0,
+                    "the ball must stay in contact on {name} along {label}"
+                );
                 along_body.push((name, rms));
+            } else if off > 0 {
+                println!("  {off} positions out of contact");
             }
         }
     }
     let _ = std::fs::remove_dir_all(&dir);
-    // Reached (README): detrended RMS 9.8% (study) and 11.7% (refined once) along the body,
-    // largest residual 22% and 29%: the issue's ≤ 5% facet to facet is NOT met. Across the
-    // body the force follows the thickness (1.2 → 13 N over 6 mm), which a quadratic trend
-    // does not remove, so only the path along the body is held to a bound: what is reached,
-    // with margin, so that a rougher contact fails here.
+    // Reached (README), detrended RMS along the body: 6.6% on the study mesh; 10.5% and 10.8%
+    // refined once with its midpoints on the facets and on the smooth surface; 5.7% and 5.6%
+    // refined twice (largest residuals 18.8%, 22.0%, 22.0%, 13.6%, 11.2%). Across the body
+    // the force follows the thickness (1.2 → 13 N over 6 mm), which a quadratic trend does not
+    // remove, so only the path along the body is held to bounds: what is reached, with
+    // margin, so that a rougher contact fails here. The issue's ≤ 5% is not reached.
     for (name, rms) in along_body {
+        let bound = match name {
+            "study" => 0.10,
+            "refined once, flat" | "refined once, smooth" => 0.15,
+            _ => 0.075,
+        };
         assert!(
-            rms < 0.15,
+            rms < bound,
             "{name}: the force slid along the body varies {:.1}% RMS about its trend",
             rms * 100.0
         );

@@ -7,6 +7,7 @@
 
 use nalgebra::{Point3, UnitQuaternion, Vector3};
 use physics_node::fem::test_meshes::write_refined_once;
+use physics_node::mesh::Midpoints;
 use physics_node::sim::Simulation;
 use std::path::Path;
 
@@ -68,7 +69,7 @@ fn force_depth_curve_on_study_lateral_mesh_and_refined() {
     // Refined once, same geometry and support.
     let dir = std::env::temp_dir().join(format!("physics-node-refined-{}", std::process::id()));
     let (fine_mesh, msh, fixed_path) =
-        write_refined_once(&loaded.mesh, &loaded.fixed_nodes, &dir).unwrap();
+        write_refined_once(&loaded.mesh, &loaded.fixed_nodes, Midpoints::Flat, &dir).unwrap();
     let mut fine_scene = scene.clone();
     fine_scene.meniscus.mesh = msh.display().to_string();
     fine_scene.meniscus.fixed = fixed_path.display().to_string();

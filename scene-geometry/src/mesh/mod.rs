@@ -1,12 +1,16 @@
 //! Meshes: the tetrahedral simulation mesh, triangle surfaces (visual and collision models),
-//! readers for Gmsh MSH 4.1 / 2.2, OBJ and STL, and load-time transforms.
+//! readers for Gmsh MSH 4.1 / 2.2, OBJ and STL, load-time transforms, the smooth surface
+//! through a mesh's boundary and uniform refinement.
 //!
 //! All positions are in metres once loaded (the scene transform converts authored units).
 
+pub mod boxes;
 mod error;
 mod fixed;
 mod msh;
+mod refine;
 mod scene;
+pub mod smooth;
 mod surface_io;
 pub mod topology;
 mod transform;
@@ -14,6 +18,7 @@ mod transform;
 pub use error::MeshError;
 pub use fixed::{parse_fixed_nodes, read_fixed_nodes};
 pub use msh::{parse_msh, read_msh, MshMesh};
+pub use refine::{refine_once, Midpoints};
 pub use scene::{load_scene_mesh, resolve_data_dir, LoadedMeniscus};
 pub use surface_io::{parse_obj, parse_stl, read_obj, read_stl, read_surface};
 pub use topology::{Sliver, SLIVER_QUALITY, ZERO_VOLUME_RELATIVE};

@@ -241,8 +241,9 @@ pub enum GapCommand {
         #[arg(long)]
         json: bool,
         /// The old self-consistent mode: the truth is the replay model itself (by default it
-        /// is the specimen mesh refined once, solved directly, with a systematic stiffness
-        /// offset uniform within ±15% in every case). A fast check of the statistics.
+        /// is the specimen mesh refined once onto its smooth surface, solved directly, with a
+        /// systematic stiffness offset uniform within ±15% in every case). A fast check of the
+        /// statistics.
         #[arg(long)]
         exact: bool,
     },
@@ -263,8 +264,8 @@ pub struct RealityArgs {
     /// Truth file (must be outside the experiment folder).
     #[arg(long, value_name = "FILE")]
     pub truth: PathBuf,
-    /// The truth is the replay model itself (by default it is the specimen mesh refined once,
-    /// solved directly, its modulus and support scaled by a factor drawn from the seed within
+    /// The truth is the replay model itself (by default it is the specimen mesh refined once
+    /// onto its smooth surface, solved directly, its modulus and support scaled by a factor drawn from the seed within
     /// ±15%; the truth file records both).
     #[arg(long)]
     pub exact: bool,

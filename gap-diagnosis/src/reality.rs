@@ -105,9 +105,9 @@ pub enum TruthMesh {
     /// The replay's own mesh and solve: the truth is the diagnosis' model (the exact mode).
     #[default]
     Replay,
-    /// The specimen mesh refined once, solved directly, with a penalty contact
-    /// ([`RefinedTruth`]): another discretisation, a contact surface with four times the
-    /// facets and another contact formulation, as an independent FE code of the same specimen
+    /// The specimen mesh refined once onto its smooth surface, solved directly, with a penalty
+    /// contact ([`RefinedTruth`]): another discretisation, a smooth contact surface with four
+    /// times the facets and another contact formulation, as an independent FE code of the same specimen
     /// would differ from the replay.
     RefinedOnce,
 }

@@ -86,7 +86,9 @@ fn slide(
     data: &Path,
     mesh: &TetMesh,
     site: (Vector3<f64>, Vector3<f64>),
+    depth_m: f64,
 ) -> Vec<(f64, f64)> {
+    let radius = scene.probe.tip_radius;
     let surface = ReferenceSurface::new(mesh);
     let mut sim = Simulation::new(scene, data).unwrap();
     let rot = UnitQuaternion::identity();
@@ -118,13 +120,13 @@ fn slide(
     };
     let centre = |s: f64, depth: f64| {
         let (_, p, n) = surface_at(s);
-        (Point3::from(p + n * (RADIUS_M - depth)), n)
+        (Point3::from(p + n * (radius - depth)), n)
     };
     let s0 = -HALF_PATH_M - 0.5e-3;
     sim.teleport_probe(&physics_node::probe::pose(centre(s0, -0.05e-3).0, rot));
     // Press to depth before the path starts, then settle.
     for k in 0..30 {
-        let d = -0.05e-3 + (DEPTH_M + 0.05e-3) * ((k + 1) as f64 / 10.0).min(1.0);
+        let d = -0.05e-3 + (depth_m + 0.05e-3) * ((k + 1) as f64 / 10.0).min(1.0);
         sim.set_probe_kinematic(&physics_node::probe::pose(centre(s0, d).0, rot));
         sim.step().unwrap();
     }
@@ -132,7 +134,7 @@ fn slide(
     let mut out = Vec::new();
     for k in 1..=n_steps {
         let s = s0 + k as f64 * STEP_M;
-        let (c, n) = centre(s, DEPTH_M);
+        let (c, n) = centre(s, depth_m);
         for _ in 0..HOLD_STEPS {
             sim.set_probe_kinematic(&physics_node::probe::pose(c, rot));
             sim.step().unwrap();
@@ -167,6 +169,30 @@ fn variation(curve: &[(f64, f64)]) -> (f64, f64, f64, f64) {
     (mean, (hi - lo) / mean, rms / mean, res.amax() / mean)
 }
 
+/// The middle mid-body probing site and the two path directions in its tangent plane: along
+/// the body (the line of the mid-body sites), where the thickness changes slowly, and across.
+fn mid_body_paths(
+    loaded: &physics_node::mesh::LoadedMeniscus,
+) -> (
+    physics_node::geometry::ProbingSite,
+    Vector3<f64>,
+    Vector3<f64>,
+) {
+    let mid: Vec<_> = loaded
+        .probing_sites
+        .iter()
+        .filter(|s| s.region == 2)
+        .collect();
+    let site = mid[mid.len() / 2];
+    // Along the body (the line of the mid-body sites, in the middle site's tangent plane),
+    // where the thickness changes slowly, and across it.
+    let n = site.normal.normalize();
+    let along = mid[mid.len() - 1].point - mid[0].point;
+    let e1 = (along - n * n.dot(&along)).normalize();
+    let e2 = n.cross(&e1);
+    (*site, e1, e2)
+}
+
 #[test]
 fn ball_slid_across_facets_at_constant_depth() {
     let Some(data) = physics_node::fem::test_meshes::study_data("facet_slide") else {
@@ -185,18 +211,7 @@ fn ball_slid_across_facets_at_constant_depth() {
     scene.probe.tip_radius = RADIUS_M;
     scene.solver.kind = launch_config::scene::SolverKind::Direct;
     let loaded = physics_node::mesh::load_scene_mesh(&scene.meniscus, &data).unwrap();
-    let mid: Vec<_> = loaded
-        .probing_sites
-        .iter()
-        .filter(|s| s.region == 2)
-        .collect();
-    let site = mid[mid.len() / 2];
-    // Along the body (the line of the mid-body sites, in the middle site's tangent plane),
-    // where the thickness changes slowly, and across it.
-    let n = site.normal.normalize();
-    let along = mid[mid.len() - 1].point - mid[0].point;
-    let e1 = (along - n * n.dot(&along)).normalize();
-    let e2 = n.cross(&e1);
+    let (site, e1, e2) = mid_body_paths(&loaded);
 
     let dir = std::env::temp_dir().join(format!("physics-node-facet-slide-{}", std::process::id()));
     // The study mesh refined once and twice, with its new boundary nodes on the facets (the
@@ -256,7 +271,7 @@ fn ball_slid_across_facets_at_constant_depth() {
                 continue;
             }
             let t = std::time::Instant::now();
-            let curve = slide(sc, &data, mesh, (site.point.coords, e));
+            let curve = slide(sc, &data, mesh, (site.point.coords, e), DEPTH_M);
             let (mean, range, rms, largest) = variation(&curve);
             println!(
                 "{name:>22} along {label}: mean {mean:.3} N, (max − min)/mean {:.1}%, detrended RMS {:.1}%, largest {:.1}% ({} positions, {:.1} s)",
@@ -303,6 +318,60 @@ fn ball_slid_across_facets_at_constant_depth() {
         assert!(
             rms < bound,
             "{name}: the force slid along the body varies {:.1}% RMS about its trend",
+            rms * 100.0
+        );
+    }
+}
+
+/// The trainee's side of the same question: the built-in hook on the default session's scene
+/// (the embedded `default.toml`: the calibrated tissue on `default:lateral:44x3x2`, its soft
+/// support, stiffening and contact; no study data), its tip held 1.5 mm under the smooth
+/// surface (a firm press on the calibrated tissue, ~0.36 N before the device's force scale)
+/// and slid along the body and across it. What varies about the trend is what a hand sliding
+/// at a steady depth would feel as bumps from the facets (README, "Facet to facet").
+#[test]
+fn the_default_hook_slid_across_facets() {
+    const HOOK_DEPTH_M: f64 = 1.5e-3;
+    let scene = launch_config::load_str(
+        launch_config::DEFAULT_LAUNCH,
+        launch_config::DEFAULT_LAUNCH_ORIGIN,
+    )
+    .unwrap()
+    .scene;
+    assert_eq!(scene.probe.model, "default", "the built-in hook");
+    let data = launch_config::data_dir();
+    let loaded = physics_node::mesh::load_scene_mesh(&scene.meniscus, &data).unwrap();
+    let (site, e1, e2) = mid_body_paths(&loaded);
+    // Reached (README): 0.8% RMS about the trend along the body (largest 2.0%), 4.4% across
+    // it (largest 9.1%, where the path's slope turns): the calibrated tissue's soft support
+    // takes most of the press, so the facets' local compliance barely shows. Held to what is
+    // reached, with margin.
+    for (label, e, bound) in [("the body", e1, 0.03), ("across", e2, 0.08)] {
+        let curve = slide(
+            &scene,
+            &data,
+            &loaded.mesh,
+            (site.point.coords, e),
+            HOOK_DEPTH_M,
+        );
+        let (mean, range, rms, largest) = variation(&curve);
+        println!(
+            "default hook ({}, {} nodes) along {label}: mean {mean:.3} N, (max − min)/mean {:.1}%, detrended RMS {:.1}%, largest {:.1}%",
+            scene.meniscus.mesh,
+            loaded.mesh.nodes.len(),
+            range * 100.0,
+            rms * 100.0,
+            largest * 100.0
+        );
+        let line: Vec<String> = curve.iter().map(|c| format!("{:.3}", c.1)).collect();
+        println!("  F: {}", line.join(" "));
+        assert!(
+            curve.iter().all(|c| c.1 > 0.0 && c.1.is_finite()),
+            "the hook must stay in contact along {label}"
+        );
+        assert!(
+            rms < bound,
+            "the hook slid along {label} varies {:.1}% RMS about its trend",
             rms * 100.0
         );
     }

@@ -164,8 +164,8 @@ pub const TRUTH_INTERFACE_COMPLIANCE: f64 = 5.0e-6;
 /// are), so four times the contact facets under the probe, solved directly every step. Its
 /// new boundary nodes lie on the smooth surface through the specimen's vertices
 /// ([`Midpoints::Smooth`]): a real tissue is smooth where the specimen mesh is its chord
-/// polygon, and an independent FE code with a smooth surface contact slides over it without
-/// the facets' bumps. The truth's surface therefore stands out of the specimen's between its
+/// polygon, and an independent FE code whose contact projects onto a smoothed surface meets
+/// that surface (README, "Facet to facet"). The truth's surface therefore stands out of the specimen's between its
 /// vertices (at most 0.37 mm on the built-in coarse mesh, 0.54 mm on the study's, where their
 /// 3–4 mm facets bend most); the probing sites and the protocol are the specimen's.
 /// The mesh files live in a folder of its own, removed when it is dropped.

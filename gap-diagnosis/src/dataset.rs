@@ -39,6 +39,10 @@ pub struct TrialData {
     pub depth_grid: Vec<f64>,
     /// Baseline replay on the grid.
     pub base: Vec<[f64; 3]>,
+    /// The baseline replay diverged (the physics flagged a step, [`Replayed::diverged`]). It
+    /// is reported in `diverged_replays`; the trial is still fitted on it, as every other
+    /// prediction is relative to it and nothing replaces it.
+    pub base_diverged: bool,
     /// Re-simulations per effect, in the order of `Effect::resims`. A diverged one (the
     /// physics flagged a faulty step: [`Replayed::diverged`]) is replaced by the baseline and
     /// flagged in `resim_ok`.
@@ -88,6 +92,9 @@ impl TrialData {
     /// Labels (`trial: variant`) of the re-simulations found diverged.
     pub fn diverged_labels(&self) -> Vec<String> {
         let mut out = Vec::new();
+        if self.base_diverged {
+            out.push(format!("{}: {}", self.name, Variant::default().label()));
+        }
         let mut effects: Vec<&Effect> = self.resim_ok.keys().collect();
         effects.sort();
         for e in effects {
@@ -288,7 +295,9 @@ pub fn build(
     }
     let mut out = Vec::with_capacity(paths.len());
     for (ti, (trial, path)) in exp.trials.iter().zip(paths).enumerate() {
-        let base = forces[0][ti].take().unwrap().forces;
+        let base = forces[0][ti].take().unwrap();
+        let base_diverged = base.diverged();
+        let base = base.forces;
         let mut resims: HashMap<Effect, Vec<Vec<[f64; 3]>>> = HashMap::new();
         let mut usable: HashMap<Effect, Vec<bool>> = HashMap::new();
         let (mut contact_knot, mut material_knot) = (None, None);
@@ -305,6 +314,7 @@ pub fn build(
             }
         }
         let mut td = prepare(trial, path, base, resims);
+        td.base_diverged = base_diverged;
         flag_diverged(&mut td, &usable);
         if let Some(r) = contact_knot {
             td.contact_knot_diverged = r.diverged();
@@ -469,11 +479,82 @@ pub fn prepare(
         contact_knot_diverged: false,
         material_knot: None,
         material_knot_diverged: false,
+        base_diverged: false,
         centres: Vec::new(),
         normal,
         depth,
         phase,
         var_group,
         base_at_t,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::experiment::load_experiment;
+    use crate::model::Replayed;
+    use crate::reality::{flat_sites, write_experiment_with, RealitySpec};
+
+    /// A model whose replays at `faulty` are flagged by "the physics"; no contact otherwise.
+    struct FlagsOne {
+        faulty: Variant,
+    }
+    impl ForceModel for FlagsOne {
+        fn replay_untilted(&self, _: &Variant, p: &ProbePath) -> Result<Vec<[f64; 3]>, GapError> {
+            Ok(vec![[0.0; 3]; p.poses.len()])
+        }
+        fn replay_untilted_checked(
+            &self,
+            v: &Variant,
+            p: &ProbePath,
+        ) -> Result<Replayed, GapError> {
+            Ok(Replayed {
+                forces: self.replay_untilted(v, p)?,
+                faulty_steps: u64::from(*v == self.faulty),
+            })
+        }
+        fn describe(&self) -> String {
+            "flags one variant".into()
+        }
+    }
+
+    /// Regression: a baseline replay the physics flagged was used without a word (only the
+    /// re-simulations and the nuisances' knots were checked); it is now named in
+    /// `diverged_replays` like they are.
+    #[test]
+    fn a_diverged_baseline_is_reported() {
+        let sites = flat_sites();
+        let dir = std::env::temp_dir().join(format!("dataset_baseline_{}", std::process::id()));
+        let mut spec = RealitySpec::from_effects(&["none"], 4).unwrap();
+        spec.probings_per_region = 1;
+        let truth = FlagsOne {
+            faulty: Variant::default(),
+        };
+        write_experiment_with(&spec, &truth, &sites, &dir.join("exp"), &dir.join("t.json"))
+            .unwrap();
+        let exp = load_experiment(&dir.join("exp"), &crate::data_dir()).unwrap();
+        let _ = std::fs::remove_dir_all(&dir);
+        let opts = BuildOptions {
+            dt: 0.02,
+            progress: false,
+            contact_knot: true,
+            material_knot: false,
+        };
+        let data = build(&exp, &truth, &[], &opts).unwrap();
+        assert_eq!(data.len(), 3);
+        for d in &data {
+            assert!(d.base_diverged);
+            assert_eq!(d.diverged_labels(), vec![format!("{}: baseline", d.name)]);
+        }
+        // the knot flagged instead: the baseline is clean
+        let knot = FlagsOne {
+            faulty: contact_knot_variant(),
+        };
+        let data = build(&exp, &knot, &[], &opts).unwrap();
+        for d in &data {
+            assert!(!d.base_diverged && d.contact_knot_diverged);
+            assert_eq!(d.diverged_labels().len(), 1);
+        }
     }
 }

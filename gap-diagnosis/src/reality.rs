@@ -657,6 +657,21 @@ mod strength_tests {
     }
 }
 
+/// One probing site per region on a flat, level specimen 10 mm apart (tests that need sites
+/// without a mesh).
+#[cfg(test)]
+pub(crate) fn flat_sites() -> Vec<Site> {
+    Region::ALL
+        .into_iter()
+        .enumerate()
+        .map(|(i, region)| Site {
+            region,
+            point: [0.01 * i as f64, 0.0, 0.005],
+            normal: [0.0, 0.0, 1.0],
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod protocol_tests {
     use super::*;
@@ -678,15 +693,7 @@ mod protocol_tests {
     /// range.
     #[test]
     fn probings_press_the_study_depths() {
-        let sites: Vec<Site> = Region::ALL
-            .into_iter()
-            .enumerate()
-            .map(|(i, region)| Site {
-                region,
-                point: [0.01 * i as f64, 0.0, 0.005],
-                normal: [0.0, 0.0, 1.0],
-            })
-            .collect();
+        let sites = flat_sites();
         let dir = std::env::temp_dir().join(format!("reality_depths_{}", std::process::id()));
         let spec = RealitySpec::from_effects(&["none"], 4).unwrap();
         write_experiment_with(

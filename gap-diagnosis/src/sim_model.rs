@@ -4,8 +4,7 @@ use super::model::{ForceModel, ProbePath, Replayed, Variant};
 use super::GapError;
 use launch_config::scene::OfflineSolver;
 use launch_config::SceneConfig;
-use physics_node::fem::test_meshes::write_refined_once;
-use physics_node::mesh::Midpoints;
+use physics_node::mesh::{write_refined_once, Midpoints};
 use physics_node::sim::Simulation;
 use std::path::{Path, PathBuf};
 

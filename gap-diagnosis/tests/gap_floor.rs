@@ -10,8 +10,7 @@ use gap_diagnosis::model::{replay, Variant};
 use gap_diagnosis::{reality::protocol_path, Region, SimForceModel};
 use launch_config::scene::OfflineSolver;
 use launch_config::SceneConfig;
-use physics_node::fem::test_meshes::write_refined_once;
-use physics_node::mesh::Midpoints;
+use physics_node::mesh::{write_refined_once, Midpoints};
 
 use gap_diagnosis::signal::dot;
 

@@ -2,33 +2,11 @@
 
 use nalgebra::Point3;
 
-// The structured boxes live with the meshes (the geometry crate's tests use them too).
+// The structured boxes and the mesh writers live with the meshes (the geometry crate's tests
+// use the boxes too, and the gap diagnosis writes its refined truth's mesh).
 pub use crate::mesh::boxes::{box_mesh, graded_box_mesh};
-use crate::mesh::{refine_once, Midpoints, TetMesh};
-
-/// Writes a tet mesh as Gmsh 2.2 ASCII (scenes read their meshes from files).
-pub fn write_msh22(mesh: &TetMesh, path: &std::path::Path) -> std::io::Result<()> {
-    use std::fmt::Write as _;
-    let mut s = String::from("$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n");
-    let _ = writeln!(s, "{}", mesh.nodes.len());
-    for (i, p) in mesh.nodes.iter().enumerate() {
-        let _ = writeln!(s, "{} {:.17e} {:.17e} {:.17e}", i + 1, p.x, p.y, p.z);
-    }
-    let _ = writeln!(s, "$EndNodes\n$Elements\n{}", mesh.tets.len());
-    for (i, t) in mesh.tets.iter().enumerate() {
-        let _ = writeln!(
-            s,
-            "{} 4 2 0 1 {} {} {} {}",
-            i + 1,
-            t[0] + 1,
-            t[1] + 1,
-            t[2] + 1,
-            t[3] + 1
-        );
-    }
-    s += "$EndElements\n";
-    std::fs::write(path, s)
-}
+use crate::mesh::TetMesh;
+pub use crate::mesh::{write_msh22, write_refined_once};
 
 /// Indices of the nodes whose position satisfies `pred`.
 pub fn nodes_where(mesh: &TetMesh, pred: impl Fn(&Point3<f64>) -> bool) -> Vec<usize> {
@@ -101,24 +79,4 @@ pub fn study_data(test: &str) -> Option<std::path::PathBuf> {
         d.display()
     );
     None
-}
-
-/// A scene's mesh refined once ([`refine_once`], its boundary midpoints as `midpoints` says)
-/// and written into `dir` as Gmsh 2.2 with its fixed-node list, so a scene can name it
-/// (`[scene.meniscus] mesh`, `fixed`). Returns the refined mesh, the `.msh` path and the
-/// fixed-node list path.
-pub fn write_refined_once(
-    mesh: &TetMesh,
-    fixed: &[usize],
-    midpoints: Midpoints,
-    dir: &std::path::Path,
-) -> std::io::Result<(TetMesh, std::path::PathBuf, std::path::PathBuf)> {
-    let (fine, fine_fixed) = refine_once(mesh, fixed, midpoints);
-    std::fs::create_dir_all(dir)?;
-    let msh = dir.join("refined_once.msh");
-    write_msh22(&fine, &msh)?;
-    let list = dir.join("refined_once_fixed.txt");
-    let held: Vec<String> = fine_fixed.iter().map(|i| i.to_string()).collect();
-    std::fs::write(&list, held.join(" "))?;
-    Ok((fine, msh, list))
 }

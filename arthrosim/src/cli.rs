@@ -265,8 +265,8 @@ pub struct RealityArgs {
     #[arg(long, value_name = "FILE")]
     pub truth: PathBuf,
     /// The truth is the replay model itself (by default it is the specimen mesh refined once
-    /// onto its smooth surface, solved directly, its modulus and support scaled by a factor drawn from the seed within
-    /// ±15%; the truth file records both).
+    /// onto its smooth surface, solved directly, its modulus and support scaled by a factor
+    /// drawn from the seed within ±15%; the truth file records both).
     #[arg(long)]
     pub exact: bool,
 }

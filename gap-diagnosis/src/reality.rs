@@ -107,8 +107,8 @@ pub enum TruthMesh {
     Replay,
     /// The specimen mesh refined once onto its smooth surface, solved directly, with a penalty
     /// contact ([`RefinedTruth`]): another discretisation, a smooth contact surface with four
-    /// times the facets and another contact formulation, as an independent FE code of the same specimen
-    /// would differ from the replay.
+    /// times the facets and another contact formulation, as an independent FE code of the
+    /// same specimen would differ from the replay.
     RefinedOnce,
 }
 

@@ -164,10 +164,10 @@ pub const TRUTH_INTERFACE_COMPLIANCE: f64 = 5.0e-6;
 /// new boundary nodes lie on the smooth surface through the specimen's vertices
 /// ([`Midpoints::Smooth`]): a real tissue is smooth where the specimen mesh is its chord
 /// polygon, and an independent FE code whose contact projects onto a smoothed surface meets
-/// that surface (README, "Facet to facet"). The truth's surface therefore stands out of the specimen's between its
-/// vertices (at most 0.37 mm on the built-in coarse mesh, 0.54 mm on the study's, where their
-/// 3–4 mm facets bend most); the probing sites and the protocol are the specimen's.
-/// The mesh files live in a folder of its own, removed when it is dropped.
+/// that surface (README, "Facet to facet"). The truth's surface therefore stands out of the
+/// specimen's between its vertices (at most 0.37 mm on the built-in coarse mesh, 0.54 mm on
+/// the study's, where their 3–4 mm facets bend most); the probing sites and the protocol are
+/// the specimen's. The mesh files live in a folder of its own, removed when it is dropped.
 #[derive(Debug)]
 pub struct RefinedTruth {
     refined: SimForceModel,
@@ -216,15 +216,14 @@ impl RefinedTruth {
                 .map_err(|e| GapError::Sim(format!("specimen {}: {e}", m.mesh)))
         };
         let loaded = load(&specimen.scene.meniscus)?;
-        let (_, msh, list) =
-            write_refined_once(&loaded.mesh, &loaded.fixed_nodes, Midpoints::Smooth, &dir)
-                .map_err(|e| remove(GapError::Io(dir.clone(), e)))?;
+        let files = write_refined_once(&loaded.mesh, &loaded.fixed_nodes, Midpoints::Smooth, &dir)
+            .map_err(|e| remove(GapError::Io(dir.clone(), e)))?;
         let mut scene = specimen.scene.clone();
-        scene.meniscus.mesh = msh.display().to_string();
+        scene.meniscus.mesh = files.msh.display().to_string();
         scene.meniscus.fixed = if loaded.fixed_nodes.is_empty() {
             "none".into()
         } else {
-            list.display().to_string()
+            files.fixed_list.display().to_string()
         };
         // the refined nodes are written in the world frame, where the specimen's transform
         // already put them

@@ -145,11 +145,11 @@ fn replay_model_against_the_refined_study_mesh() {
 
     let loaded = physics_node::mesh::load_scene_mesh(&scene.meniscus, &data).unwrap();
     let dir = std::env::temp_dir().join(format!("gap_floor_{}", std::process::id()));
-    let (_, msh, list) =
+    let files =
         write_refined_once(&loaded.mesh, &loaded.fixed_nodes, Midpoints::Flat, &dir).unwrap();
     let mut fine = scene.clone();
-    fine.meniscus.mesh = msh.display().to_string();
-    fine.meniscus.fixed = list.display().to_string();
+    fine.meniscus.mesh = files.msh.display().to_string();
+    fine.meniscus.fixed = files.fixed_list.display().to_string();
     fine.solver.offline = OfflineSolver::Direct;
     let reference = SimForceModel::from_scene(fine, &data);
     let (n_coarse, n_fine) = (
@@ -201,25 +201,22 @@ fn refined_once_against_refined_twice(midpoints: Midpoints) {
         "gap_floor_twice_{midpoints:?}_{}",
         std::process::id()
     ));
-    let on = |msh: &std::path::Path, list: &std::path::Path| {
+    let on = |files: &physics_node::mesh::RefinedFiles| {
         let mut s = scene.clone();
-        s.meniscus.mesh = msh.display().to_string();
-        s.meniscus.fixed = list.display().to_string();
+        s.meniscus.mesh = files.msh.display().to_string();
+        s.meniscus.fixed = files.fixed_list.display().to_string();
         s.solver.offline = OfflineSolver::Direct;
         SimForceModel::from_scene(s, &data)
     };
-    let (once, msh1, list1) = write_refined_once(
+    let once = write_refined_once(
         &loaded.mesh,
         &loaded.fixed_nodes,
         midpoints,
         &dir.join("once"),
     )
     .unwrap();
-    let (_, once_fixed) =
-        physics_node::mesh::refine_once(&loaded.mesh, &loaded.fixed_nodes, midpoints);
-    let (_, msh2, list2) =
-        write_refined_once(&once, &once_fixed, midpoints, &dir.join("twice")).unwrap();
-    let (m1, m2) = (on(&msh1, &list1), on(&msh2, &list2));
+    let twice = write_refined_once(&once.mesh, &once.fixed, midpoints, &dir.join("twice")).unwrap();
+    let (m1, m2) = (on(&once), on(&twice));
     let replay_model = SimForceModel::from_scene(scene.clone(), &data);
     let started = std::time::Instant::now();
     let once_twice = compare_over_protocol(&m1, &m2, &scene, ("refined once", "refined twice"));

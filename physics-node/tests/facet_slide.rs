@@ -24,7 +24,7 @@ use parry3d_f64::query::PointQueryWithLocation;
 use parry3d_f64::shape::TriMesh;
 use physics_node::fem::test_meshes::write_refined_once;
 use physics_node::mesh::smooth::SmoothSurface;
-use physics_node::mesh::{refine_once, Midpoints, TetMesh};
+use physics_node::mesh::{Midpoints, TetMesh};
 use physics_node::sim::Simulation;
 use std::path::Path;
 
@@ -218,13 +218,11 @@ fn ball_slid_across_facets_at_constant_depth() {
     // same facets, four triangles each, then sixteen) or on the smooth surface
     // (`Midpoints::Smooth`).
     let refined = |mesh: &TetMesh, fixed: &[usize], midpoints, name: &str| {
-        let (fine, msh, list) =
-            write_refined_once(mesh, fixed, midpoints, &dir.join(name)).unwrap();
-        let (_, fine_fixed) = refine_once(mesh, fixed, midpoints);
+        let files = write_refined_once(mesh, fixed, midpoints, &dir.join(name)).unwrap();
         let mut sc = scene.clone();
-        sc.meniscus.mesh = msh.display().to_string();
-        sc.meniscus.fixed = list.display().to_string();
-        (fine, fine_fixed, sc)
+        sc.meniscus.mesh = files.msh.display().to_string();
+        sc.meniscus.fixed = files.fixed_list.display().to_string();
+        (files.mesh, files.fixed, sc)
     };
     let (mesh, fixed) = (&loaded.mesh, &loaded.fixed_nodes);
     let (flat_once, flat_once_fixed, flat_once_scene) = refined(mesh, fixed, Midpoints::Flat, "f1");

@@ -68,11 +68,11 @@ fn force_depth_curve_on_study_lateral_mesh_and_refined() {
 
     // Refined once, same geometry and support.
     let dir = std::env::temp_dir().join(format!("physics-node-refined-{}", std::process::id()));
-    let (fine_mesh, msh, fixed_path) =
+    let files =
         write_refined_once(&loaded.mesh, &loaded.fixed_nodes, Midpoints::Flat, &dir).unwrap();
     let mut fine_scene = scene.clone();
-    fine_scene.meniscus.mesh = msh.display().to_string();
-    fine_scene.meniscus.fixed = fixed_path.display().to_string();
+    fine_scene.meniscus.mesh = files.msh.display().to_string();
+    fine_scene.meniscus.fixed = files.fixed_list.display().to_string();
     let fine = curve(&fine_scene, &data, &site);
     let _ = std::fs::remove_dir_all(&dir);
 
@@ -83,8 +83,8 @@ fn force_depth_curve_on_study_lateral_mesh_and_refined() {
     println!(
         "study lateral mesh: {} nodes, refined: {} nodes / {} tets; site {:?} normal {:?}",
         loaded.mesh.nodes.len(),
-        fine_mesh.nodes.len(),
-        fine_mesh.tets.len(),
+        files.mesh.nodes.len(),
+        files.mesh.tets.len(),
         site.0,
         site.1
     );

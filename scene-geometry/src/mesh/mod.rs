@@ -19,7 +19,7 @@ mod transform;
 pub use error::MeshError;
 pub use fixed::{parse_fixed_nodes, read_fixed_nodes};
 pub use msh::{parse_msh, read_msh, MshMesh};
-pub use msh_write::{write_msh22, write_refined_once};
+pub use msh_write::{write_msh22, write_refined_once, RefinedFiles};
 pub use refine::{refine_once, Midpoints};
 pub use scene::{load_scene_mesh, resolve_data_dir, LoadedMeniscus};
 pub use surface_io::{parse_obj, parse_stl, read_obj, read_stl, read_surface};

@@ -30,16 +30,26 @@ pub fn write_msh22(mesh: &TetMesh, path: &Path) -> std::io::Result<()> {
     std::fs::write(path, s)
 }
 
+/// A refined mesh and the files a scene names it by.
+#[derive(Debug, Clone)]
+pub struct RefinedFiles {
+    pub mesh: TetMesh,
+    /// Its held nodes.
+    pub fixed: Vec<usize>,
+    /// The Gmsh 2.2 file (`[scene.meniscus] mesh`).
+    pub msh: PathBuf,
+    /// The held-node list (`[scene.meniscus] fixed`).
+    pub fixed_list: PathBuf,
+}
+
 /// A scene's mesh refined once ([`refine_once`], its boundary midpoints as `midpoints` says)
-/// and written into `dir` as Gmsh 2.2 with its fixed-node list, so a scene can name it
-/// (`[scene.meniscus] mesh`, `fixed`). Returns the refined mesh, the `.msh` path and the
-/// fixed-node list path.
+/// and written into `dir` as Gmsh 2.2 with its fixed-node list, so a scene can name it.
 pub fn write_refined_once(
     mesh: &TetMesh,
     fixed: &[usize],
     midpoints: Midpoints,
     dir: &Path,
-) -> std::io::Result<(TetMesh, PathBuf, PathBuf)> {
+) -> std::io::Result<RefinedFiles> {
     let (fine, fine_fixed) = refine_once(mesh, fixed, midpoints);
     std::fs::create_dir_all(dir)?;
     let msh = dir.join("refined_once.msh");
@@ -47,7 +57,12 @@ pub fn write_refined_once(
     let list = dir.join("refined_once_fixed.txt");
     let held: Vec<String> = fine_fixed.iter().map(|i| i.to_string()).collect();
     std::fs::write(&list, held.join(" "))?;
-    Ok((fine, msh, list))
+    Ok(RefinedFiles {
+        mesh: fine,
+        fixed: fine_fixed,
+        msh,
+        fixed_list: list,
+    })
 }
 
 #[cfg(test)]
@@ -61,12 +76,17 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("msh_write_{}", std::process::id()));
         let mesh = box_mesh(0.02, 0.01, 0.005, 3, 2, 1);
         let held: Vec<usize> = (0..12).collect(); // the bottom layer (4 × 3 nodes)
-        let (fine, msh, list) = write_refined_once(&mesh, &held, Midpoints::Flat, &dir).unwrap();
-        let read = read_msh(&msh).unwrap();
-        let fixed = crate::mesh::read_fixed_nodes(&list, fine.nodes.len()).unwrap();
+        let files = write_refined_once(&mesh, &held, Midpoints::Flat, &dir).unwrap();
+        let read = read_msh(&files.msh).unwrap();
+        let fixed = crate::mesh::read_fixed_nodes(&files.fixed_list, files.mesh.nodes.len());
         let _ = std::fs::remove_dir_all(&dir);
-        assert_eq!(read.mesh, fine, "17 significant digits round-trip exactly");
+        assert_eq!(
+            read.mesh, files.mesh,
+            "17 significant digits round-trip exactly"
+        );
+        let fixed = fixed.unwrap();
         assert_eq!(fixed, refine_once(&mesh, &held, Midpoints::Flat).1);
+        assert_eq!(fixed, files.fixed);
         assert!(!fixed.is_empty());
     }
 }

@@ -37,39 +37,6 @@ fn from_g(v: GVec) -> Vector3<f64> {
     Vector3::new(v.x, v.y, v.z)
 }
 
-/// Outward boundary triangles of a positively oriented tet mesh (faces used by one tet only),
-/// in a deterministic order (by tet, then local face).
-pub fn boundary_triangles(tets: &[[usize; 4]]) -> Vec<[usize; 3]> {
-    // Outward faces of a positive tet [0,1,2,3].
-    const FACES: [[usize; 3]; 4] = [[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]];
-    let mut keyed: Vec<([usize; 3], usize, usize)> = Vec::with_capacity(tets.len() * 4);
-    for (t, tet) in tets.iter().enumerate() {
-        for (f, face) in FACES.iter().enumerate() {
-            let mut key = [tet[face[0]], tet[face[1]], tet[face[2]]];
-            key.sort_unstable();
-            keyed.push((key, t, f));
-        }
-    }
-    keyed.sort_unstable();
-    let mut out = Vec::new();
-    let mut i = 0;
-    while i < keyed.len() {
-        let mut j = i + 1;
-        while j < keyed.len() && keyed[j].0 == keyed[i].0 {
-            j += 1;
-        }
-        if j - i == 1 {
-            let (_, t, f) = keyed[i];
-            let face = FACES[f];
-            out.push((t, f, [tets[t][face[0]], tets[t][face[1]], tets[t][face[2]]]));
-        }
-        i = j;
-    }
-    let mut out: Vec<_> = out;
-    out.sort_unstable_by_key(|&(t, f, _)| (t, f));
-    out.into_iter().map(|(_, _, tri)| tri).collect()
-}
-
 /// The deforming boundary surface used for collision: a deformable parry TriMesh refitted each
 /// step, plus face normals and adjacency for pseudo-normals.
 pub struct TissueSurface {
@@ -733,7 +700,7 @@ mod tests {
     #[test]
     fn boundary_of_a_box_is_closed_and_outward() {
         let mesh = box_mesh(0.02, 0.01, 0.005, 4, 3, 2);
-        let tris = boundary_triangles(&mesh.tets);
+        let tris = mesh.boundary_faces();
         // 2 triangles per boundary quad.
         assert_eq!(tris.len(), 2 * 2 * (4 * 3 + 4 * 2 + 3 * 2));
         let centre = Vector3::new(0.01, 0.005, 0.0025);
@@ -764,7 +731,7 @@ mod tests {
     fn a_full_candidate_list_keeps_the_features_under_the_sphere() {
         // 24 mm × 24 mm top face of 0.5 mm quads, at z = 5 mm.
         let mesh = box_mesh(0.024, 0.024, 0.005, 48, 48, 1);
-        let surface = TissueSurface::new(boundary_triangles(&mesh.tets), &mesh.nodes).unwrap();
+        let surface = TissueSurface::new(mesh.boundary_faces(), &mesh.nodes).unwrap();
         // The ball's centre above the middle of the face, the ball 0.1 mm into the tissue.
         let cfg = launch_config::scene::ProbeConfig {
             model: "sphere".into(),

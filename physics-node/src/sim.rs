@@ -12,7 +12,7 @@
 //! bit-identical outputs.
 
 use crate::compliance::{direction, ComplianceCache, ConstraintCorrection, Filling, RestSolver};
-use crate::contact::{boundary_triangles, ContactDetector, ContactParams, TissueSurface};
+use crate::contact::{ContactDetector, ContactParams, TissueSurface};
 use crate::error::PhysicsError;
 use crate::fem::{FemModel, FemSettings, Material, RestCompliance, StrainStiffening};
 use crate::geometry::ProbingSite;
@@ -284,7 +284,7 @@ impl Simulation {
             .rest_compliance(scene.dt, BLOCK_COLUMNS)
             .map_err(|e| PhysicsError::Fem(e.to_string()))?;
 
-        let triangles = boundary_triangles(&mesh.tets);
+        let triangles = mesh.boundary_faces();
         fem.set_support_length(support_length(&mesh, &triangles, &fixed));
         let mut surface = TissueSurface::new(triangles.clone(), &mesh.nodes)
             .ok_or_else(|| PhysicsError::Mesh("tet mesh has no boundary surface".into()))?;

@@ -1,7 +1,6 @@
 //! Tet-mesh geometry and topology: orientation, quality, volume, bounding box, boundary
 //! surface, inferior nodes.
 
-use std::collections::HashMap;
 use std::path::Path;
 
 use nalgebra::{Point3, Vector3};
@@ -137,24 +136,32 @@ impl TetMesh {
     }
 
     /// Faces used by exactly one tet, outward and counter-clockwise (for positive tets),
-    /// as node-index triples.
+    /// as node-index triples, sorted. The one definition of the boundary: the collision
+    /// surface, the smooth surface, the canonical frame and the visual surface all start here.
     pub fn boundary_faces(&self) -> Vec<[usize; 3]> {
-        let mut count: HashMap<[usize; 3], (u32, [usize; 3])> =
-            HashMap::with_capacity(self.tets.len() * 2);
+        // Sorted keys rather than a hash map: deterministic, and no hashing of 4·tets faces.
+        let mut keyed: Vec<([usize; 3], [usize; 3])> = Vec::with_capacity(self.tets.len() * 4);
         for tet in &self.tets {
             for f in TET_FACES {
                 let face = [tet[f[0]], tet[f[1]], tet[f[2]]];
                 let mut key = face;
                 key.sort_unstable();
-                count.entry(key).or_insert((0, face)).0 += 1;
+                keyed.push((key, face));
             }
         }
-        let mut faces: Vec<[usize; 3]> = count
-            .into_values()
-            .filter(|(n, _)| *n == 1)
-            .map(|(_, f)| f)
-            .collect();
-        // Deterministic order regardless of hashing.
+        keyed.sort_unstable();
+        let mut faces = Vec::new();
+        let mut i = 0;
+        while i < keyed.len() {
+            let mut j = i + 1;
+            while j < keyed.len() && keyed[j].0 == keyed[i].0 {
+                j += 1;
+            }
+            if j - i == 1 {
+                faces.push(keyed[i].1);
+            }
+            i = j;
+        }
         faces.sort_unstable();
         faces
     }

@@ -95,19 +95,13 @@ impl TissueSurface {
         }
         edges.sort_unstable();
         let mut neighbors = vec![[NO_TRIANGLE; 3]; local.len()];
-        let mut i = 0;
-        while i < edges.len() {
-            let mut j = i + 1;
-            while j < edges.len() && edges[j].0 == edges[i].0 {
-                j += 1;
-            }
-            if j - i == 2 {
-                let (_, ta, ka) = edges[i];
-                let (_, tb, kb) = edges[i + 1];
+        // A manifold edge is shared by exactly two triangles; open and non-manifold edges
+        // get no neighbour.
+        for run in edges.chunk_by(|a, b| a.0 == b.0) {
+            if let [(_, ta, ka), (_, tb, kb)] = *run {
                 neighbors[ta as usize][ka as usize] = tb;
                 neighbors[tb as usize][kb as usize] = ta;
             }
-            i = j;
         }
         let mut counts = vec![0u32; nodes.len() + 1];
         for l in &local {

@@ -150,18 +150,12 @@ impl TetMesh {
             }
         }
         keyed.sort_unstable();
-        let mut faces = Vec::new();
-        let mut i = 0;
-        while i < keyed.len() {
-            let mut j = i + 1;
-            while j < keyed.len() && keyed[j].0 == keyed[i].0 {
-                j += 1;
-            }
-            if j - i == 1 {
-                faces.push(keyed[i].1);
-            }
-            i = j;
-        }
+        // A face is on the boundary when no other tet shares its key.
+        let mut faces: Vec<[usize; 3]> = keyed
+            .chunk_by(|a, b| a.0 == b.0)
+            .filter(|run| run.len() == 1)
+            .map(|run| run[0].1)
+            .collect();
         faces.sort_unstable();
         faces
     }

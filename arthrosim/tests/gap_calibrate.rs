@@ -236,6 +236,12 @@ fn the_default_scene_tissue_keys_come_from_the_cadaver_table() {
     let d = &default.scene;
     // The embedded default's tissue keys are this command's output (issue 13, point 2).
     assert_tissue_keys_pinned(&written.scene, d, "the default launch file");
+    // Regression: the verdict's contact nuisance over the replay's modulus factor (at its 0.01
+    // bound) was written as a 70 µm/N layer under the probe; the table fit supersedes it.
+    assert_eq!(
+        written.scene.contact.interface_compliance, d.contact.interface_compliance,
+        "a table calibration keeps the base's contact layer: {msg}"
+    );
     // everything but the tissue keys is the default launch file's
     let mut same = written.clone();
     same.scene.material.modulus_scale = d.material.modulus_scale;

@@ -69,6 +69,9 @@ pub const TISSUE_KEYS: &[&str] = &[
     "scene.material.strain_stiffening",
 ];
 
+/// The key [`apply_contact_nuisance`] writes.
+pub const CONTACT_LAYER_KEY: &str = "scene.contact.interface_compliance";
+
 /// `scene` with every key of [`TISSUE_KEYS`] at its neutral value.
 pub fn neutral_tissue(scene: &SceneConfig) -> SceneConfig {
     let mut s = scene.clone();
@@ -427,7 +430,7 @@ pub fn apply_contact_nuisance(scene: &mut SceneConfig, c: f64, scaled: f64) -> V
     scene.contact.interface_compliance = (before + c) / scaled;
     vec![SceneChange::Set {
         effect: "nuisance".into(),
-        key: "scene.contact.interface_compliance".into(),
+        key: CONTACT_LAYER_KEY.into(),
         before: format!("{before}"),
         after: format!("{}", scene.contact.interface_compliance),
         from: format!(
@@ -568,7 +571,8 @@ pub fn calibrate_input(
 /// render it as physics: the support stiffness and stiffening rate are fitted to the table
 /// by probe curves of the scene itself (`physics_node::tissue_fit` at `site`, the mid body
 /// unless the user chose another region; displacement as measured, first row the offset),
-/// and replace what the verdict's effects set for the tissue keys. The diagnosis' `hardening` is a force × exp(rate · depth) fit in
+/// and replace what the verdict's effects set for the tissue keys (its contact nuisance
+/// layer too: the base's `interface_compliance` is kept). The diagnosis' `hardening` is a force × exp(rate · depth) fit in
 /// the replay, not a scene key; the fit is what makes the written scene reproduce the table.
 fn apply_table_fit(
     cal: &mut Calibration,
@@ -582,6 +586,11 @@ fn apply_table_fit(
         msg,
     };
     let table = ForceTable::load(file).map_err(|e| bad(e.to_string()))?;
+    // The verdict's contact nuisance is superseded as its stiffness nuisance is: both say how
+    // stiff the tissue feels under the probe, and the table fit decides that. Left in, it is
+    // the nuisance over the replay's modulus factor (near its 0.01 bound on a stiff scene
+    // against the table): a 70 µm/N layer the table does not ask for.
+    cal.launch.scene.contact.interface_compliance = cal.input_scene.contact.interface_compliance;
     let scene = neutral_tissue(&cal.launch.scene);
     let fit = physics_node::tissue_fit::fit_table(&scene, data_dir, &table, site)
         .map_err(|e| bad(format!("fitting the scene's tissue to the table: {e}")))?;
@@ -604,7 +613,9 @@ fn apply_table_fit(
     out.material.strain_stiffening = fit.strain_stiffening;
     // The verdict's own tissue changes (and its notes on hardening) are superseded.
     cal.changes.retain(|c| match c {
-        SceneChange::Set { key, .. } => !TISSUE_KEYS.contains(&key.as_str()),
+        SceneChange::Set { key, .. } => {
+            !TISSUE_KEYS.contains(&key.as_str()) && key != CONTACT_LAYER_KEY
+        }
         SceneChange::Note { effect, .. } => effect != Effect::Hardening.name(),
     });
     let set = |key: &str, before: f64, after: f64| SceneChange::Set {

@@ -8,8 +8,9 @@
 //! position gives the contact point (barycentric on a triangle) and the outward normal; the
 //! violation is then evaluated at the free-motion positions along that normal. A probe point
 //! that is found inside the closed surface (angle-weighted pseudo-normal test, Bærentzen &
-//! Aanæs 2005) keeps the triangle it was tracked on (or a neighbour of it) instead of jumping
-//! to the nearest — possibly opposite — side of a thin meniscus.
+//! Aanæs 2005) keeps the close features that face the side it was tracked on, and the tracked
+//! triangle (or a neighbour of it) when it went through it, instead of jumping to the nearest
+//! — possibly opposite — side of a thin or crushed meniscus.
 
 use crate::probe::Probe;
 use nalgebra::{Point3, Vector3};
@@ -318,6 +319,7 @@ impl ContactDetector {
         self.candidates.clear();
         self.contacts.clear();
         let margin = (self.params.alarm_distance - self.params.contact_distance).max(0.0);
+        let nodes = (positions, free_positions);
         for i in 0..probe.spheres.len() {
             let radius = if probe.spheres[i].radius > 0.0 {
                 probe.spheres[i].radius
@@ -349,7 +351,8 @@ impl ContactDetector {
                     self.tracked[i] = NO_TRIANGLE;
                     continue;
                 }
-                self.push_tracked(i, t, radius, &p0, &pf, surface, positions, free_positions);
+                let first = self.candidates.len();
+                self.push_tracked(i, first, t, radius, (&p0, &pf), surface, nodes);
                 continue;
             };
             let c = from_g(proj.point);
@@ -357,72 +360,40 @@ impl ContactDetector {
             let pseudo = surface.pseudo_normal(tri, &location);
             let inside = pseudo.dot(&to_point) < 0.0;
             if inside && self.tracked[i] != NO_TRIANGLE {
+                // The nearest feature says inside. Either the point went through the tracked
+                // side, or the tissue under a deep press is crushed so thin that the far side
+                // (the held inferior face) is nearer than the dent the probe sits in. Keeping
+                // only the tracked triangle in the second case made the contact count
+                // alternate 1 ↔ 13 step to step and the force 48 ↔ 108 N
+                // (`tests/deep_press_chatter.rs`): keep every close feature on the probe's
+                // side, and the tracked triangle as well when the point is behind it.
                 let t = self.tracked[i];
-                self.push_tracked(i, t, radius, &p0, &pf, surface, positions, free_positions);
+                let side = surface.face_normal(t);
+                let first = self.candidates.len();
+                let probe = (&p0, &pf);
+                self.push_close_features(
+                    i,
+                    first,
+                    radius,
+                    reach,
+                    probe,
+                    Some(&side),
+                    surface,
+                    nodes,
+                );
+                self.keep_closest(first);
+                let (ct, _) = surface.project_on_triangle(t, &p0);
+                if self.candidates.len() == first || side.dot(&(p0 - ct)) < 0.0 {
+                    self.push_tracked(i, first, t, radius, probe, surface, nodes);
+                } else {
+                    self.track_most_violated(i, first);
+                }
                 continue;
             }
             // Outside: one contact per close surface feature (a sphere in a dent touches
             // several triangles; only the nearest would make it rock between them).
             let first = self.candidates.len();
-            let lo = p0 - Vector3::repeat(reach);
-            let hi = p0 + Vector3::repeat(reach);
-            let aabb = Aabb::new(to_g(&lo), to_g(&hi));
-            for t in surface.trimesh.bvh().intersect_aabb(&aabb) {
-                if surface.rigid[t as usize] {
-                    continue;
-                }
-                let tri_shape = surface.trimesh.triangle(t);
-                let (proj, loc) = tri_shape.project_local_point_and_get_location(to_g(&p0), false);
-                let c = from_g(proj.point);
-                let d = p0 - c;
-                let dist = d.norm();
-                if dist > reach {
-                    continue;
-                }
-                let normal = match loc {
-                    TrianglePointLocation::OnFace(..) | TrianglePointLocation::OnSolid => {
-                        let n = surface.face_normal(t);
-                        // Behind this face's plane while outside the solid: a far side.
-                        if n.dot(&d) < 0.0 {
-                            continue;
-                        }
-                        n
-                    }
-                    _ => {
-                        let pseudo = surface.pseudo_normal(t, &loc);
-                        if pseudo.dot(&d) < 0.0 {
-                            continue;
-                        }
-                        if dist > 1e-9 {
-                            d / dist
-                        } else {
-                            pseudo
-                                .try_normalize(0.0)
-                                .unwrap_or_else(|| surface.face_normal(t))
-                        }
-                    }
-                };
-                // Edges and vertices are reported by every triangle sharing them: keep one.
-                if self.already_found(first, &c, &normal) {
-                    continue;
-                }
-                let weights = loc.barycentric_coordinates().unwrap_or([1.0 / 3.0; 3]);
-                self.push(
-                    i,
-                    first,
-                    t,
-                    weights,
-                    normal,
-                    radius,
-                    &c,
-                    &p0,
-                    &pf,
-                    surface,
-                    positions,
-                    free_positions,
-                    false,
-                );
-            }
+            self.push_close_features(i, first, radius, reach, (&p0, &pf), None, surface, nodes);
             self.keep_closest(first);
             if self.candidates.len() == first && !surface.rigid[tri as usize] {
                 // Nothing but the nearest feature (numerically on an edge of a far side):
@@ -514,27 +485,126 @@ impl ContactDetector {
                     .pseudo_normal(t, &loc)
                     .try_normalize(0.0)
                     .unwrap_or_else(|| support.face_normal(t));
-                if self.already_found(first, &c, &normal) {
-                    continue;
-                }
-                let weights = loc.barycentric_coordinates().unwrap_or([1.0 / 3.0; 3]);
-                self.push(
+                self.push_feature(
                     i,
                     first,
                     t,
-                    weights,
+                    &loc,
                     normal,
                     radius,
                     &c,
-                    &p0,
-                    &pf,
+                    (&p0, &pf),
                     support,
-                    positions,
-                    free_positions,
+                    (positions, free_positions),
                     true,
                 );
             }
             self.keep_closest(first);
+        }
+    }
+
+    /// Pushes one contact per surface feature within `reach` of sphere `i` whose outward
+    /// normal faces the sphere's centre (candidates of this sphere start at `first`). With
+    /// `side`, features facing away from it are left out.
+    #[allow(clippy::too_many_arguments)]
+    fn push_close_features(
+        &mut self,
+        i: usize,
+        first: usize,
+        radius: f64,
+        reach: f64,
+        probe: (&Vector3<f64>, &Vector3<f64>),
+        side: Option<&Vector3<f64>>,
+        surface: &TissueSurface,
+        nodes: (&[Point3<f64>], &[Point3<f64>]),
+    ) {
+        let p0 = probe.0;
+        let lo = p0 - Vector3::repeat(reach);
+        let hi = p0 + Vector3::repeat(reach);
+        let aabb = Aabb::new(to_g(&lo), to_g(&hi));
+        for t in surface.trimesh.bvh().intersect_aabb(&aabb) {
+            if surface.rigid[t as usize] {
+                continue;
+            }
+            let tri_shape = surface.trimesh.triangle(t);
+            let (proj, loc) = tri_shape.project_local_point_and_get_location(to_g(p0), false);
+            let c = from_g(proj.point);
+            let d = p0 - c;
+            let dist = d.norm();
+            if dist > reach {
+                continue;
+            }
+            let normal = match loc {
+                TrianglePointLocation::OnFace(..) | TrianglePointLocation::OnSolid => {
+                    let n = surface.face_normal(t);
+                    // Behind this face's plane while outside the solid: a far side.
+                    if n.dot(&d) < 0.0 {
+                        continue;
+                    }
+                    n
+                }
+                _ => {
+                    let pseudo = surface.pseudo_normal(t, &loc);
+                    if pseudo.dot(&d) < 0.0 {
+                        continue;
+                    }
+                    if dist > 1e-9 {
+                        d / dist
+                    } else {
+                        pseudo
+                            .try_normalize(0.0)
+                            .unwrap_or_else(|| surface.face_normal(t))
+                    }
+                }
+            };
+            // Facing away from the side the probe is tracked on: the far side of a
+            // thin, crushed part of the tissue.
+            if side.is_some_and(|s| normal.dot(s) <= 0.0) {
+                continue;
+            }
+            self.push_feature(
+                i, first, t, &loc, normal, radius, &c, probe, surface, nodes, false,
+            );
+        }
+    }
+
+    /// Pushes the contact at the feature a projection landed on (point `c`, location `loc` on
+    /// triangle `t`) unless this sphere already has it: edges and vertices are reported by
+    /// every triangle sharing them. `probe` is the sphere's centre at the start of the step and
+    /// after free motion, `nodes` the tissue positions at the same two instants.
+    #[allow(clippy::too_many_arguments)]
+    fn push_feature(
+        &mut self,
+        i: usize,
+        first: usize,
+        t: u32,
+        loc: &TrianglePointLocation,
+        normal: Vector3<f64>,
+        radius: f64,
+        c: &Vector3<f64>,
+        probe: (&Vector3<f64>, &Vector3<f64>),
+        surface: &TissueSurface,
+        nodes: (&[Point3<f64>], &[Point3<f64>]),
+        support: bool,
+    ) {
+        if self.already_found(first, c, &normal) {
+            return;
+        }
+        let weights = loc.barycentric_coordinates().unwrap_or([1.0 / 3.0; 3]);
+        self.push(
+            i, first, t, weights, normal, radius, c, probe.0, probe.1, surface, nodes.0, nodes.1,
+            support,
+        );
+    }
+
+    /// Tracks sphere `i` on its most violated candidate (those from `first` on).
+    fn track_most_violated(&mut self, i: usize, first: usize) {
+        if let Some(k) = self.candidates[first..].iter().min_by(|a, b| {
+            a.gap_start
+                .total_cmp(&b.gap_start)
+                .then(a.triangle.cmp(&b.triangle))
+        }) {
+            self.tracked[i] = k.triangle;
         }
     }
 
@@ -553,19 +623,21 @@ impl ContactDetector {
     }
 
     /// Sphere `i` is inside the surface at the start of the step: keep it on its tracked
-    /// triangle or the neighbour across the edge it slid over.
+    /// triangle or the neighbour across the edge it slid over, unless that one is among the
+    /// sphere's candidates already (those from `first` on).
     #[allow(clippy::too_many_arguments)]
     fn push_tracked(
         &mut self,
         i: usize,
+        first: usize,
         t: u32,
         radius: f64,
-        p0: &Vector3<f64>,
-        pf: &Vector3<f64>,
+        probe: (&Vector3<f64>, &Vector3<f64>),
         surface: &TissueSurface,
-        positions: &[Point3<f64>],
-        free_positions: &[Point3<f64>],
+        nodes: (&[Point3<f64>], &[Point3<f64>]),
     ) {
+        let (p0, pf) = probe;
+        let (positions, free_positions) = nodes;
         // Best of the triangle and its edge neighbours: smallest in-plane clamp distance.
         let mut best = (t, f64::INFINITY);
         for cand in core::iter::once(t).chain(surface.neighbors[t as usize].iter().copied()) {
@@ -581,7 +653,11 @@ impl ContactDetector {
             }
         }
         let t = best.0;
-        let first = self.candidates.len();
+        // Found already among this sphere's close features: one row per feature.
+        if self.candidates[first..].iter().any(|k| k.triangle == t) {
+            self.tracked[i] = t;
+            return;
+        }
         let (c, w) = surface.project_on_triangle(t, p0);
         let n = surface.face_normal(t);
         self.push(

@@ -4,10 +4,6 @@
 //! the ball's centre than the dent the ball sat in; the nearest-feature test then called the
 //! centre inside the tissue, and detection kept only the tracked triangle for that step. The
 //! gap diagnosis' deep replay knots carried it unflagged (3–5% of the proxy sets' replays).
-//!
-//! Ignored on main: the detection that passes it (branch `contact-inside-features`) also
-//! moves the calibration of the default scene (README, Known open problems). Run it with
-//! `--ignored` to see the chatter.
 
 use physics_node::probe_curve::{self, ProbeCurveOptions, Region};
 
@@ -24,8 +20,6 @@ fn swings(forces: &[f64]) -> Vec<usize> {
 }
 
 #[test]
-#[ignore = "known open problem: the fix (branch contact-inside-features) moves the default \
-            scene's calibration off its shipped keys; see README, Known open problems"]
 fn a_ball_crushing_the_anterior_horn_does_not_chatter() {
     let Some(data) = physics_node::fem::test_meshes::study_data("deep_press_chatter") else {
         return;

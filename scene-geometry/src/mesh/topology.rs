@@ -241,25 +241,6 @@ impl SurfaceMesh {
         face_normal(&self.vertices[a], &self.vertices[b], &self.vertices[c])
     }
 
-    /// Area-weighted unit normals per vertex.
-    pub fn vertex_normals(&self) -> Vec<Vector3<f64>> {
-        let mut n = vec![Vector3::zeros(); self.vertices.len()];
-        for &[a, b, c] in &self.triangles {
-            let w =
-                (self.vertices[b] - self.vertices[a]).cross(&(self.vertices[c] - self.vertices[a]));
-            n[a] += w;
-            n[b] += w;
-            n[c] += w;
-        }
-        for v in &mut n {
-            let len = v.norm();
-            if len > 0.0 {
-                *v /= len;
-            }
-        }
-        n
-    }
-
     pub fn bounding_box(&self) -> (Point3<f64>, Point3<f64>) {
         bounding_box(&self.vertices)
     }

@@ -86,7 +86,10 @@ pub struct Summary {
     pub overruns: u64,
     pub contact_ticks: u64,
     pub max_rendered_n: f64,
+    /// Ticks with a fault other than the clamp or the rate limit.
     pub fault_ticks: u64,
+    /// Every fault bit seen (`msgs::fault`), so a count says which faults it holds.
+    pub faults_seen: u32,
     pub restarts: u64,
     pub invalid_frames: u64,
     pub realtime: bool,
@@ -441,6 +444,7 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
         contact_ticks: stats.contact_ticks,
         max_rendered_n: stats.max_rendered_n,
         fault_ticks: stats.fault_ticks,
+        faults_seen: stats.faults_seen,
         restarts: renderer.restarts,
         invalid_frames: renderer.invalid_frames,
         realtime: realtime.fifo && realtime.locked,

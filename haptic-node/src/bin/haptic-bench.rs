@@ -240,6 +240,7 @@ fn main() -> anyhow::Result<()> {
         "contact_ticks": s["contact_ticks"],
         "max_rendered_n": s["max_rendered_n"],
         "fault_ticks": s["fault_ticks"],
+        "faults_seen": s["faults_seen"],
         "realtime": s["realtime"],
         "loadavg_1m_before": host.loadavg_1m_before,
         "loadavg_1m_after": host.loadavg_1m_after,

@@ -638,8 +638,17 @@ pub fn diagnose_data(
     if let Some(set) = separability::indistinguishable(&verdict.effect, &ranking, data) {
         let rivals: Vec<String> = set.candidates[1..]
             .iter()
-            .zip(set.excess_mse.iter().zip(&set.excess_se))
-            .map(|(c, (m, se))| format!("{c} (held-out MSE {m:+.4} ± {se:.4} N² per trial)"))
+            .zip(set.gain.iter().zip(&set.gain_se))
+            .map(|(c, (g, se))| {
+                if *se > 0.0 {
+                    format!(
+                        "{c} (paired gain over it {:.1} SE: {g:+.3} ± {se:.3})",
+                        g / se
+                    )
+                } else {
+                    format!("{c} (their held-out predictions differ in fewer than two trials)")
+                }
+            })
             .collect();
         verdict.reason.push_str(&format!(
             "; on held-out trials it cannot be told apart from {} ({})",

@@ -1,12 +1,18 @@
 //! Which candidates the held-out data cannot tell apart from the verdict (issue 15 point 2).
 //!
-//! Every candidate predicts each trial from a fit on the other folds. Per trial, the mean
-//! squared held-out residual of a rival minus the verdict's is one paired difference; over
-//! the trials these differences have a mean and a standard error. A rival whose mean is not
-//! at least two standard errors above zero explains the held-out data as well as the verdict
-//! within the data's own between-trial scatter: the report names it beside the verdict
-//! (`verdict.indistinguishable`) with what kind of trial would separate the two. The verdict's
-//! effect itself is not changed here.
+//! Every candidate predicts each trial from a fit on the other folds. The evidence between the
+//! verdict and a rival is the statistic the verdict's own significance uses ([`gain_over`]):
+//! per trial, the log ratio of their phase-weighted held-out losses where their predictions
+//! differ, with its mean and standard error over the trials. A rival over which the verdict's
+//! gain is not at least two standard errors above zero explains the held-out data as well as
+//! the verdict within the data's own between-trial scatter: the report names it beside the
+//! verdict (`verdict.indistinguishable`) with what kind of trial would separate the two. The
+//! verdict's effect itself is not changed here.
+//!
+//! Until 2026-11-28 this compared plain per-trial held-out MSE instead, a second measure of the
+//! same evidence: unweighted, the deepest probings' model error set its scatter, and the
+//! report listed 8–22 rivals, some of them better than the verdict on it by 4 standard errors
+//! while worse on the measure that chose the verdict.
 
 use crate::dataset::TrialData;
 use crate::effects::Effect;
@@ -32,10 +38,10 @@ pub struct Indistinguishable {
     /// The verdict first, then each rival within [`SEPARATION_SE`] standard errors, best
     /// first (e.g. `["support", "modulus"]`, reported as `support ~ modulus`).
     pub candidates: Vec<String>,
-    /// Per rival: its held-out mean squared error above the verdict's, N², and the standard
-    /// error of that difference over trials.
-    pub excess_mse: Vec<f64>,
-    pub excess_se: Vec<f64>,
+    /// Per rival: the verdict's held-out gain over it ([`gain_over`], mean log loss ratio per
+    /// trial) and the standard error of that gain over trials.
+    pub gain: Vec<f64>,
+    pub gain_se: Vec<f64>,
     /// What kind of experiment would tell each rival from the verdict.
     pub separate_by: Vec<String>,
 }
@@ -45,27 +51,6 @@ impl Indistinguishable {
     pub fn label(&self) -> String {
         self.candidates.join(" ~ ")
     }
-}
-
-/// Mean squared held-out residual of each trial (all axes), N².
-fn trial_mse(c: &CandidateScore, data: &[TrialData]) -> Option<Vec<f64>> {
-    if c.heldout_pred.len() != data.len() {
-        return None;
-    }
-    data.iter()
-        .zip(&c.heldout_pred)
-        .map(|(d, pred)| {
-            if pred.len() != d.f.len() || d.f.is_empty() {
-                return None;
-            }
-            let sse: f64 =
-                d.f.iter()
-                    .zip(pred)
-                    .map(|(m, p)| (0..3).map(|k| (m[k] - p[k]).powi(2)).sum::<f64>())
-                    .sum();
-            Some(sse / d.f.len() as f64)
-        })
-        .collect()
 }
 
 /// Rivals of `verdict` (a candidate of `ranking`) the held-out data cannot separate from it.
@@ -80,7 +65,6 @@ pub fn indistinguishable(
         return None;
     }
     let win = ranking.iter().find(|c| c.effect == verdict)?;
-    let win_mse = trial_mse(win, data)?;
     let mut rivals: Vec<(f64, f64, &CandidateScore)> = ranking
         .iter()
         .filter(|c| c.effect != verdict)
@@ -90,7 +74,8 @@ pub fn indistinguishable(
         // a rival with more effects that fits no better loses on parsimony, as in the verdict
         .filter(|c| effects_of(&c.effect).len() <= effects_of(verdict).len())
         .filter_map(|c| {
-            let (mean, se) = paired_excess(&win_mse, &trial_mse(c, data)?);
+            // the rival as the null model, as the floor is for the verdict's own gain
+            let (mean, se) = gain_over(c, win, data)?;
             (!told_apart(mean, se)).then_some((mean, se, c))
         })
         .collect();
@@ -104,8 +89,8 @@ pub fn indistinguishable(
     };
     for (mean, se, c) in rivals {
         out.candidates.push(c.effect.clone());
-        out.excess_mse.push(mean);
-        out.excess_se.push(se);
+        out.gain.push(mean);
+        out.gain_se.push(se);
         out.separate_by
             .push(separating_experiment(verdict, &c.effect));
     }
@@ -180,7 +165,7 @@ pub fn gain_over(
     Some(paired_excess(&c_loss, &floor_loss))
 }
 
-/// Mean and standard error over trials of `rival − verdict` (per-trial held-out MSE).
+/// Mean and standard error over trials of `rival − verdict` (per-trial held-out losses).
 fn paired_excess(verdict: &[f64], rival: &[f64]) -> (f64, f64) {
     let n = verdict.len().min(rival.len()) as f64;
     let diff: Vec<f64> = rival.iter().zip(verdict).map(|(r, w)| r - w).collect();
@@ -189,7 +174,7 @@ fn paired_excess(verdict: &[f64], rival: &[f64]) -> (f64, f64) {
     (mean, (var / n).sqrt())
 }
 
-/// The rival is worse than the verdict by more than the trials' scatter explains.
+/// The verdict's gain over the rival is more than the trials' scatter explains.
 fn told_apart(mean: f64, se: f64) -> bool {
     mean >= SEPARATION_SE * se && mean > 0.0
 }

@@ -572,8 +572,9 @@ pub fn calibrate_input(
 /// by probe curves of the scene itself (`physics_node::tissue_fit` at `site`, the mid body
 /// unless the user chose another region; displacement as measured, first row the offset),
 /// and replace what the verdict's effects set for the tissue keys (its contact nuisance
-/// layer too: the base's `interface_compliance` is kept). The diagnosis' `hardening` is a force × exp(rate · depth) fit in
-/// the replay, not a scene key; the fit is what makes the written scene reproduce the table.
+/// layer too: the base's `interface_compliance` is kept). The diagnosis' `hardening` is a
+/// force × exp(rate · depth) fit in the replay, not a scene key; the fit is what makes the
+/// written scene reproduce the table.
 fn apply_table_fit(
     cal: &mut Calibration,
     file: &Path,

@@ -165,10 +165,11 @@ pub fn gain_over(
     Some(paired_excess(&c_loss, &floor_loss))
 }
 
-/// Mean and standard error over trials of `rival − verdict` (per-trial held-out losses).
-fn paired_excess(verdict: &[f64], rival: &[f64]) -> (f64, f64) {
-    let n = verdict.len().min(rival.len()) as f64;
-    let diff: Vec<f64> = rival.iter().zip(verdict).map(|(r, w)| r - w).collect();
+/// Mean and standard error over trials of `other − reference` (per-trial held-out losses):
+/// `other`'s excess loss over `reference`.
+fn paired_excess(reference: &[f64], other: &[f64]) -> (f64, f64) {
+    let n = reference.len().min(other.len()) as f64;
+    let diff: Vec<f64> = other.iter().zip(reference).map(|(o, r)| o - r).collect();
     let mean = diff.iter().sum::<f64>() / n;
     let var = diff.iter().map(|d| (d - mean).powi(2)).sum::<f64>() / (n - 1.0).max(1.0);
     (mean, (var / n).sqrt())

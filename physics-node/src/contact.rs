@@ -203,6 +203,13 @@ impl TissueSurface {
     }
 
     /// Closest point of `p` on triangle `t`: (point, barycentric weights).
+    /// `p` lies behind triangle `t`'s plane at its closest point: a probe tracked on `t` went
+    /// through it.
+    fn behind(&self, t: u32, p: &Vector3<f64>) -> bool {
+        let (c, _) = self.project_on_triangle(t, p);
+        self.face_normal(t).dot(&(p - c)) < 0.0
+    }
+
     fn project_on_triangle(&self, t: u32, p: &Vector3<f64>) -> (Vector3<f64>, [f64; 3]) {
         let tri = self.trimesh.triangle(t);
         let (proj, loc) = tri.project_local_point_and_get_location(to_g(p), false);
@@ -346,8 +353,7 @@ impl ContactDetector {
                 // Nothing within reach of a point that was tracked: it is far outside
                 // (lifted off), unless it went through; the tracked side decides.
                 let t = self.tracked[i];
-                let (c, _) = surface.project_on_triangle(t, &p0);
-                if surface.face_normal(t).dot(&(p0 - c)) >= 0.0 {
+                if !surface.behind(t, &p0) {
                     self.tracked[i] = NO_TRIANGLE;
                     continue;
                 }
@@ -382,8 +388,7 @@ impl ContactDetector {
                     nodes,
                 );
                 self.keep_closest(first);
-                let (ct, _) = surface.project_on_triangle(t, &p0);
-                if self.candidates.len() == first || side.dot(&(p0 - ct)) < 0.0 {
+                if self.candidates.len() == first || surface.behind(t, &p0) {
                     self.push_tracked(i, first, t, radius, probe, surface, nodes);
                 } else {
                     self.track_most_violated(i, first);
@@ -408,20 +413,17 @@ impl ContactDetector {
                         .try_normalize(0.0)
                         .unwrap_or_else(|| surface.face_normal(tri)),
                 };
-                let weights = location.barycentric_coordinates().unwrap_or([1.0 / 3.0; 3]);
-                self.push(
+                self.push_feature(
                     i,
                     first,
                     tri,
-                    weights,
+                    &location,
                     normal,
                     radius,
                     &c,
-                    &p0,
-                    &pf,
+                    (&p0, &pf),
                     surface,
-                    positions,
-                    free_positions,
+                    nodes,
                     false,
                 );
             } else if self.candidates[first..].iter().any(|k| k.triangle == tri) {

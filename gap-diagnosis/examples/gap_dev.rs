@@ -146,6 +146,7 @@ fn rediagnose_kept_cases(root: &Path) -> anyhow::Result<()> {
     let dirs = case_dirs(root)?;
     let data = gap::data_dir();
     let (mut ok, mut n, mut shrink, mut neff) = (0, 0, 0.0, 0);
+    let (mut graded, mut within) = (0, 0);
     let t_all = std::time::Instant::now();
     for dir in dirs {
         let name = dir.file_name().unwrap().to_string_lossy().to_string();
@@ -197,6 +198,21 @@ fn rediagnose_kept_cases(root: &Path) -> anyhow::Result<()> {
             eprintln!("    diverged: {:?}", r.diverged_replays);
         }
         eprintln!("    truth params: {}", truth["spec"]["injected"]);
+        // The parameter goal, graded as `gap selftest` grades it.
+        let injected: Vec<gap::reality::Injected> =
+            serde_json::from_value(truth["spec"]["injected"].clone())?;
+        for g in gap::recovery::recovery(&injected, &r.verdict.params) {
+            graded += 1;
+            within += g.within_tolerance() as usize;
+            eprintln!(
+                "    recovery {} {}: fitted {:.4} for {:.4} (error {:.1}%)",
+                g.effect,
+                g.name,
+                g.fitted,
+                g.truth,
+                100.0 * g.relative_error
+            );
+        }
         eprintln!(
             "    verdict params: {}",
             r.verdict
@@ -230,7 +246,7 @@ fn rediagnose_kept_cases(root: &Path) -> anyhow::Result<()> {
         }
     }
     eprintln!(
-        "{ok}/{n} correct, mean shrink {:.1}% ({:.1} s)",
+        "{ok}/{n} correct, mean shrink {:.1}%, fitted strengths within 15% {within}/{graded} ({:.1} s)",
         100.0 * shrink / neff.max(1) as f64,
         t_all.elapsed().as_secs_f64()
     );

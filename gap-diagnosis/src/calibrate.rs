@@ -838,14 +838,7 @@ mod tests {
     use super::*;
 
     fn param(e: Effect, name: &str, value: f64) -> FittedParam {
-        FittedParam {
-            effect: e.name().into(),
-            name: name.into(),
-            unit: String::new(),
-            value,
-            std: 0.0,
-            at_bound: false,
-        }
+        FittedParam::given(e.name(), name, value)
     }
 
     /// The contact nuisance is written as a penalty layer scaled back by the calibrated modulus

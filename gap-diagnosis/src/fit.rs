@@ -1121,6 +1121,19 @@ pub struct FittedParam {
 }
 
 impl FittedParam {
+    /// A value given rather than fitted (no uncertainty, not at a bound): what a test hands to
+    /// the code that reads a verdict's parameters.
+    pub fn given(effect: &str, name: &str, value: f64) -> FittedParam {
+        FittedParam {
+            effect: effect.into(),
+            name: name.into(),
+            unit: String::new(),
+            value,
+            std: 0.0,
+            at_bound: false,
+        }
+    }
+
     /// What a report says after the value: that the trials do not determine it when it is
     /// [`FittedParam::at_bound`], else nothing.
     pub fn bound_note(&self) -> &'static str {

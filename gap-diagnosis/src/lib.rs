@@ -50,6 +50,7 @@ pub mod html;
 pub mod metrics;
 pub mod model;
 pub mod reality;
+pub mod recovery;
 pub mod replay;
 pub mod selftest;
 pub mod separability;

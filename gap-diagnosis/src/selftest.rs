@@ -4,6 +4,7 @@ use super::model::{ForceModel, Variant};
 use super::reality::{
     stiffness_offset, write_experiment_with, RealitySpec, Site, TruthMesh, STIFFNESS_OFFSET,
 };
+use super::recovery::{recovery, Recovery, RECOVERY_TOLERANCE};
 use super::sim_model::SimForceModel;
 use super::{diagnose, GapError, Options};
 use serde::{Deserialize, Serialize};
@@ -95,6 +96,10 @@ pub struct CaseResult {
     pub heldout_shrink: f64,
     /// Held-out shrink of the true candidate (None for `none` or when not ranked).
     pub true_candidate_shrink: Option<f64>,
+    /// Each strength of an injected effect the verdict names, against its fit
+    /// ([`crate::recovery`]).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub recovery: Vec<Recovery>,
     pub elapsed_s: f64,
 }
 
@@ -121,6 +126,12 @@ pub struct SelftestSummary {
     pub accuracy: f64,
     /// Mean held-out shrink of the verdicts over cases with an injected effect.
     pub heldout_shrink_mean: f64,
+    /// Injected strengths graded ([`crate::recovery`]: those of effects the verdict names)
+    /// and how many of them were fitted within [`RECOVERY_TOLERANCE`] of the truth.
+    #[serde(default)]
+    pub params_graded: usize,
+    #[serde(default)]
+    pub params_within_tolerance: usize,
     pub seed: u64,
     /// [`SelftestOptions::stiffness_offset`] of the run (0: the exact mode).
     #[serde(default)]
@@ -135,7 +146,10 @@ impl SelftestResult {
     pub fn summary(&self) -> SelftestSummary {
         let correct = self.cases.iter().filter(|c| c.correct).count();
         let eff: Vec<&CaseResult> = self.cases.iter().filter(|c| c.truth != "none").collect();
+        let graded = self.cases.iter().flat_map(|c| &c.recovery);
         SelftestSummary {
+            params_graded: graded.clone().count(),
+            params_within_tolerance: graded.filter(|r| r.within_tolerance()).count(),
             cases: self.cases.len(),
             correct,
             accuracy: correct as f64 / self.cases.len().max(1) as f64,
@@ -167,6 +181,22 @@ impl SelftestResult {
                     .map_or("–".to_string(), |v| format!("×{v:.3}")),
                 c.elapsed_s
             );
+            for r in &c.recovery {
+                let _ = writeln!(
+                    s,
+                    "          {} {}: fitted {:.4} for {:.4} (error {:.1}%{})",
+                    r.effect,
+                    r.name,
+                    r.fitted,
+                    r.truth,
+                    100.0 * r.relative_error,
+                    if r.within_tolerance() {
+                        ""
+                    } else {
+                        ", outside 15%"
+                    }
+                );
+            }
         }
         let mut labels: Vec<String> = self
             .cases
@@ -201,12 +231,15 @@ impl SelftestResult {
         let sm = self.summary();
         let _ = writeln!(
             s,
-            "\n{}/{} correct ({:.0}%), mean held-out shrink {:.1}%, stiffness offset ±{:.0}%, \
-             truth mesh {}",
+            "\n{}/{} correct ({:.0}%), mean held-out shrink {:.1}%, fitted strengths within {:.0}% \
+             of the truth {}/{}, stiffness offset ±{:.0}%, truth mesh {}",
             sm.correct,
             sm.cases,
             100.0 * sm.accuracy,
             100.0 * sm.heldout_shrink_mean,
+            100.0 * RECOVERY_TOLERANCE,
+            sm.params_within_tolerance,
+            sm.params_graded,
             100.0 * sm.stiffness_offset,
             match sm.truth_mesh {
                 TruthMesh::Replay => "the replay's",
@@ -315,6 +348,7 @@ pub fn selftest_with(
             found,
             heldout_shrink: report.verdict.heldout_shrink,
             true_candidate_shrink: true_shrink,
+            recovery: recovery(&spec.injected, &report.verdict.params),
             elapsed_s: start.elapsed().as_secs_f64(),
         };
         if opts.verbose {

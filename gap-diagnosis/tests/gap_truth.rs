@@ -69,6 +69,33 @@ fn selftest_on_a_refined_truth() {
         "mean held-out shrink {:.3} (reached 0.639)",
         s.heldout_shrink_mean
     );
+    // Every effect named right is graded on its strengths (`gap_diagnosis::recovery`): the
+    // truth's parameter names must meet the fit's, or the 15% goal goes unmeasured.
+    for c in r.cases.iter().filter(|c| c.correct && c.truth != "none") {
+        for e in c
+            .truth
+            .split('+')
+            .filter(|e| gap_diagnosis::recovery::grades(e))
+        {
+            assert!(
+                c.recovery.iter().any(|g| g.effect == e),
+                "case {} ({}): {e} is named but its strength is not graded: {:?}",
+                c.case,
+                c.truth,
+                c.recovery
+            );
+        }
+        assert!(
+            c.recovery.iter().all(|g| g.relative_error.is_finite()),
+            "case {}: {:?}",
+            c.case,
+            c.recovery
+        );
+    }
+    eprintln!(
+        "fitted strengths within 15% of the truth: {} of {}",
+        s.params_within_tolerance, s.params_graded
+    );
 }
 
 /// How far the refined truth is from the replay with no effect and no offset, before and

@@ -198,7 +198,8 @@ fn rediagnose_kept_cases(root: &Path) -> anyhow::Result<()> {
             eprintln!("    diverged: {:?}", r.diverged_replays);
         }
         eprintln!("    truth params: {}", truth["spec"]["injected"]);
-        // The parameter goal, graded as `gap selftest` grades it.
+        // The parameter goal, graded as `gap selftest` grades it (these truths apply
+        // their support as injected: no levelling).
         let injected: Vec<gap::reality::Injected> =
             serde_json::from_value(truth["spec"]["injected"].clone())?;
         for g in gap::recovery::recovery(&injected, &r.verdict.params) {

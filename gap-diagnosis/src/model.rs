@@ -117,6 +117,13 @@ pub trait ForceModel: Sync + Send {
     fn has_refinement(&self) -> bool {
         true
     }
+    /// What a variant's support stiffness (N/m per node of the replay's mesh) is, in those
+    /// units, once this model has applied it: 1 for a model that takes it as it is. A truth
+    /// levelled with the replay stiffens its support with its tissue, and the diagnosis then
+    /// sees, and should fit, the levelled support ([`crate::recovery`] grades against it).
+    fn support_scale(&self) -> f64 {
+        1.0
+    }
 }
 
 /// A replay's forces and how many of its steps the model flagged as faulty.

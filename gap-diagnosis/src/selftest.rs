@@ -2,7 +2,8 @@
 use super::experiment::load_experiment;
 use super::model::{ForceModel, Variant};
 use super::reality::{
-    stiffness_offset, write_experiment_with, RealitySpec, Site, TruthMesh, STIFFNESS_OFFSET,
+    stiffness_offset, write_experiment_with, Injected, RealitySpec, Site, TruthMesh,
+    STIFFNESS_OFFSET,
 };
 use super::recovery::{recovery, Recovery, RECOVERY_TOLERANCE};
 use super::sim_model::SimForceModel;
@@ -250,6 +251,19 @@ impl SelftestResult {
     }
 }
 
+/// The injected strengths as the truth model applied them, in the replay's units: a levelled
+/// truth's support is its injected stiffness × the levelling ([`ForceModel::support_scale`]),
+/// which is what a diagnosis of it should fit.
+fn as_applied(injected: &[Injected], truth_model: &dyn ForceModel) -> Vec<Injected> {
+    let mut out = injected.to_vec();
+    for inj in &mut out {
+        if let Some(k) = inj.params.get_mut("support_stiffness") {
+            *k *= truth_model.support_scale();
+        }
+    }
+    out
+}
+
 /// Labels of the first `n` cases.
 pub fn case_labels(n: usize, opts: &SelftestOptions) -> Vec<String> {
     let cycle: Vec<String> = opts
@@ -348,7 +362,10 @@ pub fn selftest_with(
             found,
             heldout_shrink: report.verdict.heldout_shrink,
             true_candidate_shrink: true_shrink,
-            recovery: recovery(&spec.injected, &report.verdict.params),
+            recovery: recovery(
+                &as_applied(&spec.injected, truth_model),
+                &report.verdict.params,
+            ),
             elapsed_s: start.elapsed().as_secs_f64(),
         };
         if opts.verbose {

@@ -333,6 +333,11 @@ impl ForceModel for RefinedTruth {
         };
         self.refined.replay_untilted_checked(&v, path)
     }
+    /// The support is levelled with the tissue (`replay_untilted_checked`; the per-node factor
+    /// only spreads the same total over the refined mesh's nodes).
+    fn support_scale(&self) -> f64 {
+        self.level
+    }
     fn describe(&self) -> String {
         format!(
             "{} refined once onto its smooth surface ({} nodes from {}; support ×{:.3} per \

@@ -86,6 +86,9 @@ impl ReferenceSurface {
     }
 }
 
+/// A quantity along the path: (s m, value).
+type Curve = Vec<(f64, f64)>;
+
 /// Normal force along the path (s, force N), and the ball's geometric indentation into the
 /// mesh's own facets at rest along it, raised to the 3/2 of a Hertz contact (s, m^1.5): how
 /// much of the force's variation the faceted geometry alone would explain. The path walks the
@@ -98,7 +101,7 @@ fn slide(
     mesh: &TetMesh,
     site: (Vector3<f64>, Vector3<f64>),
     depth_m: f64,
-) -> (Vec<(f64, f64)>, Vec<(f64, f64)>) {
+) -> (Curve, Curve) {
     let radius = scene.probe.tip_radius;
     let surface = ReferenceSurface::new(mesh);
     let mut sim = Simulation::new(scene, data).unwrap();

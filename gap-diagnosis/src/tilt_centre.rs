@@ -59,7 +59,7 @@ pub fn add_centres(
     };
     if has(data, Effect::Support) {
         let pair = Candidate::pair(Effect::Tilt, Effect::Support);
-        let inits: Vec<Vec<f64>> = [SUPPORT_KNOTS[0], SUPPORT_KNOTS[1]]
+        let inits: Vec<Vec<f64>> = [SUPPORT_KNOTS[0], SUPPORT_KNOTS[SUPPORT_KNOTS.len() - 1]]
             .iter()
             .map(|&c| vec![angles[0], angles[1], c])
             .collect();

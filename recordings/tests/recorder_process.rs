@@ -86,6 +86,13 @@ fn recorder_process_records_every_sample_at_full_rate() {
     assert_eq!(rec["contact_frames"].as_u64(), Some(steps), "{rec}");
     assert_eq!(rec["device_states_dropped"].as_u64(), Some(0), "{rec}");
     assert_eq!(rec["contact_frames_dropped"].as_u64(), Some(0), "{rec}");
+    // Every surface is either received or counted missing (its queue is short: a starved
+    // recorder loses the oldest, and says so).
+    assert_eq!(
+        rec["surface_frames"].as_u64().unwrap() + rec["surface_frames_dropped"].as_u64().unwrap(),
+        surfaces,
+        "{rec}"
+    );
     assert!(ticks >= 2500, "publisher too slow: {ticks} ticks in 3 s");
 
     let file = dir.join("session.mcap");

@@ -205,14 +205,7 @@ fn rediagnose_kept_cases(root: &Path) -> anyhow::Result<()> {
         for g in gap::recovery::recovery(&injected, &r.verdict.params) {
             graded += 1;
             within += g.within_tolerance() as usize;
-            eprintln!(
-                "    recovery {} {}: fitted {:.4} for {:.4} (error {:.1}%)",
-                g.effect,
-                g.name,
-                g.fitted,
-                g.truth,
-                100.0 * g.relative_error
-            );
+            eprintln!("    recovery {g}");
         }
         eprintln!(
             "    verdict params: {}",

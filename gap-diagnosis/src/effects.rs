@@ -79,7 +79,7 @@ pub const FRICTION_KNOTS: [f64; 2] = [0.15, 0.4];
 /// middle knot costs one replay per trial.
 pub const SUPPORT_KNOTS: [f64; 3] = [2.5e-4, 5.0e-4, 1.0e-3];
 /// The largest support knot: one unit of support in a centre's distance.
-const SUPPORT_SPAN: f64 = SUPPORT_KNOTS[SUPPORT_KNOTS.len() - 1];
+pub const SUPPORT_SPAN: f64 = SUPPORT_KNOTS[SUPPORT_KNOTS.len() - 1];
 
 impl Effect {
     pub const ALL: [Effect; 9] = [
@@ -272,9 +272,9 @@ fn axpy(dst: &mut [[f64; 3]], a: f64, x: &[[f64; 3]], y: Option<&[[f64; 3]]>) {
 }
 
 /// Piecewise-linear interpolation in a parameter between re-simulated knots: the baseline at
-/// 0, the two default knots, and any knots calibration added at fitted values
+/// 0, the effect's default knots, and any knots calibration added at fitted values
 /// ([`TrialData::extra_knots`]); beyond the last knot, the last segment extended. A diverged
-/// knot is left out (with two default knots: the secant through the other one).
+/// knot is left out (the segment then spans its neighbours).
 fn piecewise_knots(grid: &mut [[f64; 3]], td: &TrialData, e: Effect, x: f64, defaults: &[f64]) {
     let r = td.resim(e);
     let mut knots: Vec<(f64, &[[f64; 3]])> = Vec::with_capacity(4);

@@ -43,8 +43,30 @@ impl Recovery {
     }
 }
 
-/// The strengths each effect is graded on: (name, the truth's parameters, the fit's
-/// parameters). A vector's components are listed together; the support is inverted.
+/// One line: `friction mu: fitted 0.2429 for 0.2881 (error 15.7%)`; the alternate form
+/// (`{:#}`) adds `, outside 15%` inside the parentheses where it is.
+impl std::fmt::Display for Recovery {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let outside = if f.alternate() && !self.within_tolerance() {
+            ", outside 15%"
+        } else {
+            ""
+        };
+        write!(
+            f,
+            "{} {}: fitted {:.4} for {:.4} (error {:.1}%{outside})",
+            self.effect,
+            self.name,
+            self.fitted,
+            self.truth,
+            100.0 * self.relative_error
+        )
+    }
+}
+
+/// The strengths each effect is graded on: (name, its parameters, named alike in the truth
+/// and the fit). A vector's components are listed together; the support's fit is inverted
+/// ([`fitted_value`]).
 fn strengths(effect: &str) -> &'static [(&'static str, &'static [&'static str])] {
     match effect {
         "modulus" => &[("modulus_scale", &["modulus_scale"])],

@@ -183,20 +183,7 @@ impl SelftestResult {
                 c.elapsed_s
             );
             for r in &c.recovery {
-                let _ = writeln!(
-                    s,
-                    "          {} {}: fitted {:.4} for {:.4} (error {:.1}%{})",
-                    r.effect,
-                    r.name,
-                    r.fitted,
-                    r.truth,
-                    100.0 * r.relative_error,
-                    if r.within_tolerance() {
-                        ""
-                    } else {
-                        ", outside 15%"
-                    }
-                );
+                let _ = writeln!(s, "          {r:#}");
             }
         }
         let mut labels: Vec<String> = self

@@ -15,7 +15,7 @@
 //! left 31.7 N RMS where the baseline left 13.4 N). The pair gets its own centre, replayed
 //! tilted on the fitted support.
 use super::dataset::{replay_trials, Centre, TrialData};
-use super::effects::{axpy_resimulated, Candidate, Effect, SUPPORT_KNOTS};
+use super::effects::{axpy_resimulated, Candidate, Effect, SUPPORT_KNOTS, SUPPORT_SPAN};
 use super::fit::{default_free, fit, Nuisance};
 use super::model::{ForceModel, Variant};
 use super::GapError;
@@ -59,7 +59,7 @@ pub fn add_centres(
     };
     if has(data, Effect::Support) {
         let pair = Candidate::pair(Effect::Tilt, Effect::Support);
-        let inits: Vec<Vec<f64>> = [SUPPORT_KNOTS[0], SUPPORT_KNOTS[SUPPORT_KNOTS.len() - 1]]
+        let inits: Vec<Vec<f64>> = [SUPPORT_KNOTS[0], SUPPORT_SPAN]
             .iter()
             .map(|&c| vec![angles[0], angles[1], c])
             .collect();

@@ -202,7 +202,6 @@ impl TissueSurface {
         }
     }
 
-    /// Closest point of `p` on triangle `t`: (point, barycentric weights).
     /// `p` lies behind triangle `t`'s plane at its closest point: a probe tracked on `t` went
     /// through it.
     fn behind(&self, t: u32, p: &Vector3<f64>) -> bool {
@@ -210,6 +209,7 @@ impl TissueSurface {
         self.face_normal(t).dot(&(p - c)) < 0.0
     }
 
+    /// Closest point of `p` on triangle `t`: (point, barycentric weights).
     fn project_on_triangle(&self, t: u32, p: &Vector3<f64>) -> (Vector3<f64>, [f64; 3]) {
         let tri = self.trimesh.triangle(t);
         let (proj, loc) = tri.project_local_point_and_get_location(to_g(p), false);

@@ -56,6 +56,7 @@ pub mod selftest;
 pub mod separability;
 pub mod session;
 pub mod signal;
+pub mod strength;
 pub mod tilt_centre;
 
 pub use effects::{Candidate, Effect};
@@ -778,7 +779,9 @@ fn z_score(mean: f64, se: f64) -> f64 {
 
 /// The verdict: the best-ranked candidate if it beats the nuisance floor (the baseline with
 /// the stiffness nuisance fitted, [`fit::Nuisance`]) clearly and significantly; a pair only
-/// when the best single leaves a residual well above noise and the pair removes much of it.
+/// when the best single leaves a residual well above noise and the pair removes much of it
+/// (the best pair by held-out score that does). Candidates are weighed at strengths worth
+/// naming only ([`strength`]).
 ///
 /// An effect is identified when, against the floor, (a) its held-out shrink is at least
 /// `min_shrink`, phase-weighted or plain; (b) its penalised fit on all trials is better by
@@ -786,7 +789,10 @@ fn z_score(mean: f64, se: f64) -> f64 {
 /// held-out residuals on effective values, with the parameter penalty: a held-out likelihood
 /// ratio) is better by [`STRONG_EVIDENCE`] too; and (d) with `paired` (enough trials), its
 /// per-trial held-out gain ([`separability::gain_over`]) is positive on average: the gain
-/// holds across the trials the effect acts on, not on a few against the rest. Without the
+/// holds across the trials the effect acts on, not on a few against the rest; and (e) every
+/// effect it names has a fitted strength worth naming ([`strength::negligible`]: a modulus
+/// scale outside the nuisance's band, a Prony g1 of 5% or more, …), so a pair is not named
+/// for a second effect the nuisances and the model error leave room for. Without the
 /// floor a persistent stiffness offset, which every model has against a real specimen, was
 /// read as `support` or `modulus`.
 ///
@@ -828,15 +834,23 @@ fn decide(
             "held-out residual {r0:.4} N{nuisance_note} is within noise ({noise:.4} N)"
         ));
     }
-    let best = match singles.first() {
+    // the best single at a strength worth naming: a hardening fitted at a negligible rate is
+    // the modulus below it, not a reason to name nothing
+    let best = match singles
+        .iter()
+        .find(|c| !strength::any_negligible(&c.effect, &c.params))
+        .or(singles.first())
+    {
         Some(b) => b,
         None => return none("no candidate could be assessed".into()),
     };
+    // (e): every effect it names at a strength worth naming ([`strength`])
     let identified = |c: &CandidateScore| {
         c.floor_shrink >= min_shrink
             && c.bic - floor.bic <= -STRONG_EVIDENCE
             && c.score - floor.score <= -STRONG_EVIDENCE
             && (!paired || c.floor_gain_z > 0.0)
+            && !strength::any_negligible(&c.effect, &c.params)
     };
     let evidence = |c: &CandidateScore| {
         format!(
@@ -848,40 +862,48 @@ fn decide(
             c.bic - floor.bic
         )
     };
-    let best_pair = || {
-        ranking
+    // Pairs best first by held-out score, each at strengths worth naming. A pair is named
+    // when it passes; the best-scored one may fail where the next passes: on the refined
+    // truth a friction+device case's best pair was hardening+device, 12% over `device` (the
+    // truth's other discretisation taken up as a stiffening), and friction+device, 22% over
+    // it and second in score, was never weighed.
+    let pairs_by_score = || {
+        let mut pairs: Vec<&CandidateScore> = ranking
             .iter()
-            .filter(|c| c.effect.contains('+'))
-            .min_by(|a, b| a.score.total_cmp(&b.score))
+            .filter(|c| c.effect.contains('+') && !strength::any_negligible(&c.effect, &c.params))
+            .collect();
+        pairs.sort_by(|a, b| a.score.total_cmp(&b.score));
+        pairs
     };
     // what a pair removes of the best single's residual, phase-weighted or plain
     let gain_over_best = |pair: &CandidateScore| gain_over(pair, best);
     if !identified(best) {
         // two effects that hide each other: the best pair, identified on its own and well
         // ahead of every single
-        if let Some(pair) = best_pair().filter(|_| pairs_allowed) {
-            if identified(pair) && gain_over_best(pair) > RICHER_GAIN && pair.score < best.score {
-                return Verdict {
-                    effect: pair.effect.clone(),
-                    heldout_shrink: pair.heldout_shrink,
-                    params: pair.params.clone(),
-                    reason: format!(
-                        "no single effect shrinks the held-out RMSE clearly (best {}: {}); \
+        let passing = pairs_by_score().into_iter().find(|pair| {
+            identified(pair) && gain_over_best(pair) > RICHER_GAIN && pair.score < best.score
+        });
+        if let Some(pair) = passing.filter(|_| pairs_allowed) {
+            return Verdict {
+                effect: pair.effect.clone(),
+                heldout_shrink: pair.heldout_shrink,
+                params: pair.params.clone(),
+                reason: format!(
+                    "no single effect shrinks the held-out RMSE clearly (best {}: {}); \
                          the pair {} does: {:.4} → {:.4} N ({})",
-                        best.effect,
-                        evidence(best),
-                        pair.effect,
-                        r0,
-                        pair.heldout_rmse,
-                        evidence(pair)
-                    ),
-                    indistinguishable: Vec::new(),
-                    separate_by: Vec::new(),
-                    nuisance_scale: None,
-                    contact_compliance: None,
-                    material_weight: None,
-                };
-            }
+                    best.effect,
+                    evidence(best),
+                    pair.effect,
+                    r0,
+                    pair.heldout_rmse,
+                    evidence(pair)
+                ),
+                indistinguishable: Vec::new(),
+                separate_by: Vec::new(),
+                nuisance_scale: None,
+                contact_compliance: None,
+                material_weight: None,
+            };
         }
         return none(format!(
             "best candidate {} does not beat the nuisance floor {r0:.4} N: {}",
@@ -898,23 +920,24 @@ fn decide(
         evidence(best)
     );
     if pairs_allowed && best.heldout_rmse > 1.3 * noise {
-        if let Some(pair) = best_pair() {
+        let passing = pairs_by_score()
+            .into_iter()
+            .find(|pair| gain_over_best(pair) > RICHER_GAIN && pair.score < best.score);
+        if let Some(pair) = passing {
             let gain = gain_over_best(pair);
-            if gain > RICHER_GAIN && pair.score < best.score {
-                reason = format!(
-                    "{} leaves {:.4} N phase-weighted ({:.4} N plain, noise {:.4} N); the pair {} \
+            reason = format!(
+                "{} leaves {:.4} N phase-weighted ({:.4} N plain, noise {:.4} N); the pair {} \
                      removes {:.0}% more ({:.4} N phase-weighted, {:.4} N plain)",
-                    best.effect,
-                    best.heldout_weighted_rmse,
-                    best.heldout_rmse,
-                    noise,
-                    pair.effect,
-                    100.0 * gain,
-                    pair.heldout_weighted_rmse,
-                    pair.heldout_rmse
-                );
-                win = pair;
-            }
+                best.effect,
+                best.heldout_weighted_rmse,
+                best.heldout_rmse,
+                noise,
+                pair.effect,
+                100.0 * gain,
+                pair.heldout_weighted_rmse,
+                pair.heldout_rmse
+            );
+            win = pair;
         }
     }
     // `hardening` is `modulus` with one more parameter (its stiffening rate; at 0 they are
@@ -1146,5 +1169,111 @@ mod tests {
             Some("modulus+friction")
         );
         assert!(nested_simpler(&simpler, &[pair]).is_none());
+    }
+
+    fn fitted(mut c: CandidateScore, params: &[(&str, &str, f64)]) -> CandidateScore {
+        c.params = params
+            .iter()
+            .map(|&(e, n, v)| fit::FittedParam::given(e, n, v))
+            .collect();
+        c
+    }
+
+    /// Regression: a `hardening` case of the study-mesh proxy set (seed 300, case 2) read
+    /// `hardening+viscoelastic` through a Prony term of g1 0.017 at τ1's 50 ms bound, which
+    /// removed 29% of hardening's held-out residual.
+    #[test]
+    fn a_pair_is_not_named_for_a_negligible_second_effect() {
+        let floor = scored("none", 3.4569, 0.33, 0.0);
+        let hardening = fitted(
+            scored("hardening", 0.6995, 0.1381, 3158.4),
+            &[("hardening", "stiffening_rate", 0.2442)],
+        );
+        let pair_with = |g1: f64| {
+            fitted(
+                scored("hardening+viscoelastic", 0.4966, 0.1138, 3456.4),
+                &[
+                    ("hardening", "stiffening_rate", 0.2442),
+                    ("viscoelastic", "prony_g1", g1),
+                    ("viscoelastic", "prony_tau1", 0.05),
+                ],
+            )
+        };
+        let decide_with = |pair: CandidateScore| {
+            let singles = vec![hardening.clone()];
+            let ranking = vec![pair, hardening.clone()];
+            decide(&singles, &ranking, &floor, 0.025, 0.08, true, true)
+        };
+        let v = decide_with(pair_with(0.0169));
+        assert_eq!(v.effect, "hardening", "{}", v.reason);
+        // a relaxation of a fifth of the force is named
+        let v = decide_with(pair_with(0.2));
+        assert_eq!(v.effect, "hardening+viscoelastic", "{}", v.reason);
+    }
+
+    /// Regression: with negligible strengths not named, a `modulus` case of the study-mesh
+    /// proxy set (seed 300, case 1) read `none`: its best single was `hardening` at a rate of
+    /// 0.006/mm, and `modulus` ×0.567 behind it was never weighed.
+    #[test]
+    fn a_single_at_a_negligible_strength_gives_way_to_the_next() {
+        let floor = scored("none", 0.8615, 0.33, 0.0);
+        let hardening = fitted(
+            scored("hardening", 0.1633, 0.0457, 4916.3),
+            &[
+                ("hardening", "small_strain_scale", 0.565),
+                ("hardening", "stiffening_rate", 0.0057),
+            ],
+        );
+        let modulus = fitted(
+            scored("modulus", 0.1699, 0.0516, 4729.0),
+            &[("modulus", "modulus_scale", 0.567)],
+        );
+        let singles = vec![hardening, modulus];
+        let v = decide(&singles, &singles, &floor, 0.0235, 0.08, true, true);
+        assert_eq!(v.effect, "modulus", "{}", v.reason);
+        // inside the stiffness nuisance's band a modulus is not named either
+        let inside = fitted(
+            scored("modulus", 0.1699, 0.0516, 4729.0),
+            &[("modulus", "modulus_scale", 1.1)],
+        );
+        let singles = vec![singles[0].clone(), inside];
+        let v = decide(&singles, &singles, &floor, 0.0235, 0.08, true, true);
+        assert_eq!(v.effect, "none", "{}", v.reason);
+    }
+
+    /// Regression: a friction+device case of the refined truth (seed 1, case 11) read `device`.
+    /// Its best pair by score, hardening+device, removed 12% of device's residual (under the
+    /// 20% a pair needs); friction+device, second in score, removed 22% and was never weighed.
+    #[test]
+    fn a_pair_that_passes_behind_one_that_fails_is_named() {
+        let floor = scored("none", 5.1554, 0.6, 0.0);
+        let bias = [
+            ("device", "bias_x", -0.111),
+            ("device", "bias_y", 0.439),
+            ("device", "bias_z", -0.205),
+        ];
+        let device = fitted(scored("device", 4.8103, 0.4376, 1277.6), &bias);
+        let stiffening = fitted(
+            scored("hardening+device", 4.2505, 0.3817, 1490.1),
+            &[&[("hardening", "stiffening_rate", 0.447)][..], &bias].concat(),
+        );
+        let friction = fitted(
+            scored("friction+device", 3.7558, 0.3857, 1473.4),
+            &[&[("friction", "mu", 0.117)][..], &bias].concat(),
+        );
+        // against the floor phase-weighted, as reported
+        let against = |mut c: CandidateScore, shrink: f64| {
+            c.floor_shrink = shrink;
+            c
+        };
+        let (device, stiffening, friction) = (
+            against(device, 0.684),
+            against(stiffening, 0.732),
+            against(friction, 0.730),
+        );
+        let singles = vec![device.clone()];
+        let ranking = vec![stiffening, friction, device];
+        let v = decide(&singles, &ranking, &floor, 0.029, 0.08, true, true);
+        assert_eq!(v.effect, "friction+device", "{}", v.reason);
     }
 }

@@ -24,9 +24,9 @@ use super::GapError;
 /// baseline knot, and no re-simulation is made.
 pub const MIN_CENTRE_DEG: f64 = 1.0;
 
-/// Below this fitted support compliance (m/N per node; a tenth of the stiffer default knot)
-/// the tilt+support pair uses the tilt's own centre.
-pub const MIN_CENTRE_SUPPORT: f64 = 0.1 * SUPPORT_KNOTS[0];
+/// Below this fitted support compliance (m/N per node) the tilt+support pair uses the tilt's
+/// own centre: the support is negligible ([`crate::strength::MIN_SUPPORT_COMPLIANCE`]).
+pub const MIN_CENTRE_SUPPORT: f64 = crate::strength::MIN_SUPPORT_COMPLIANCE;
 
 /// At most this many re-simulations per trial and centre: the fit with the first centre moves
 /// towards the true parameters (the interpolation's error shrinks near the centre), and

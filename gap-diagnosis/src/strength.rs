@@ -1,0 +1,172 @@
+//! The smallest strength of each effect worth naming.
+//!
+//! A candidate's fit can lower the held-out error with a strength no researcher would act on
+//! and the protocol does not resolve: on the study-mesh proxy set a `hardening` case read
+//! `hardening+viscoelastic` through a Prony term of g1 = 0.017 relaxing in 50 ms (the lower
+//! bound of τ1, two samples at 38 Hz), which took up a transient of the truth's other contact
+//! formulation; on the refined truth a `hardening+friction` case read `modulus+friction`
+//! with a modulus scale of 1.23, inside the band an unrelated stiffness offset can take
+//! ([`crate::fit::NUISANCE_MAX`]). Neither names an effect of the specimen. A verdict names an
+//! effect only at a strength above these; below them the effect is what the model error,
+//! the noise and the nuisances already leave room for.
+//!
+//! Each bound is a small fraction of the strengths an effect has when it matters (the study's
+//! and the hidden cases' ranges, `reality::draw`) and above what the study's protocol
+//! resolves: 0.5–1.2 mm presses, ~38 Hz sampling, ~0.02 N of sensor noise.
+
+use crate::effects::{Effect, SUPPORT_KNOTS};
+use crate::fit::{FittedParam, NUISANCE_MAX};
+
+/// Stiffening rate, 1/mm: 6% more force at the study's deepest 1.2 mm press (drawn: 0.25–0.45).
+pub const MIN_STIFFENING_RATE: f64 = 0.05;
+/// Prony g1: 5% of the force relaxes (drawn: 0.3–0.5).
+pub const MIN_PRONY_G1: f64 = 0.05;
+/// Coulomb μ (drawn: 0.2–0.5; a hidden case 0.18).
+pub const MIN_FRICTION: f64 = 0.05;
+/// Tilt, degrees, both axes together (drawn: 4–8°).
+pub const MIN_TILT_DEG: f64 = 1.0;
+/// Device force bias, N: two and a half times the sensor noise (drawn: 0.2–0.5 N).
+pub const MIN_BIAS_N: f64 = 0.05;
+/// Support compliance, m/N per node: a tenth of the stiffest knot's (40,000 N/m per node, as
+/// good as rigid under a meniscus; drawn: 700–2,000 N/m).
+pub const MIN_SUPPORT_COMPLIANCE: f64 = 0.1 * SUPPORT_KNOTS[0];
+/// Sensor delay or low-pass time constant, s: a fifth of a sample at 38 Hz (drawn: 20–120 ms).
+pub const MIN_SENSOR_S: f64 = 0.005;
+
+/// `effect`'s fitted strength in `params` is below what is worth naming (see the module).
+/// `mesh` has no strength and is never negligible; an effect with none of its parameters in
+/// `params` is not judged (false).
+pub fn negligible(effect: Effect, params: &[FittedParam]) -> bool {
+    let value = |name: &str| {
+        params
+            .iter()
+            .find(|p| p.effect == effect.name() && p.name == name)
+            .map(|p| p.value)
+    };
+    let below = |name: &str, min: f64| value(name).is_some_and(|v| v.abs() < min);
+    match effect {
+        // a scale inside the band is what the stiffness nuisance is for
+        Effect::Modulus => {
+            value("modulus_scale").is_some_and(|s| (1.0 / NUISANCE_MAX..=NUISANCE_MAX).contains(&s))
+        }
+        Effect::Hardening => below("stiffening_rate", MIN_STIFFENING_RATE),
+        Effect::Viscoelastic => below("prony_g1", MIN_PRONY_G1),
+        Effect::Friction => below("mu", MIN_FRICTION),
+        Effect::Tilt => match (value("tilt_x"), value("tilt_y")) {
+            (Some(x), Some(y)) => x.hypot(y) < MIN_TILT_DEG,
+            _ => false,
+        },
+        Effect::Device => match (value("bias_x"), value("bias_y"), value("bias_z")) {
+            (Some(x), Some(y), Some(z)) => (x * x + y * y + z * z).sqrt() < MIN_BIAS_N,
+            _ => false,
+        },
+        Effect::Support => below("support_compliance", MIN_SUPPORT_COMPLIANCE),
+        Effect::Sensor => match (value("delay"), value("lowpass_tau")) {
+            (Some(d), Some(l)) => d.abs().max(l.abs()) < MIN_SENSOR_S,
+            _ => false,
+        },
+        Effect::Mesh => false,
+    }
+}
+
+/// Some effect of the `+`-joined `candidate` has a negligible fitted strength in `params`.
+pub fn any_negligible(candidate: &str, params: &[FittedParam]) -> bool {
+    candidate
+        .split('+')
+        .filter_map(Effect::parse)
+        .any(|e| negligible(e, params))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn given(effect: &str, pairs: &[(&str, f64)]) -> Vec<FittedParam> {
+        pairs
+            .iter()
+            .map(|&(n, v)| FittedParam::given(effect, n, v))
+            .collect()
+    }
+
+    #[test]
+    fn a_fast_small_relaxation_beside_hardening_is_negligible() {
+        // the study-mesh proxy's hardening case: g1 0.017 at τ1's lower bound
+        let mut p = given(
+            "hardening",
+            &[("small_strain_scale", 0.965), ("stiffening_rate", 0.244)],
+        );
+        p.extend(given(
+            "viscoelastic",
+            &[("prony_g1", 0.0169), ("prony_tau1", 0.05)],
+        ));
+        assert!(!negligible(Effect::Hardening, &p));
+        assert!(negligible(Effect::Viscoelastic, &p));
+        assert!(any_negligible("hardening+viscoelastic", &p));
+        assert!(!any_negligible("hardening", &p));
+    }
+
+    #[test]
+    fn a_modulus_inside_the_nuisance_band_is_negligible_outside_it_is_not() {
+        assert!(negligible(
+            Effect::Modulus,
+            &given("modulus", &[("modulus_scale", 1.2276)])
+        ));
+        assert!(negligible(
+            Effect::Modulus,
+            &given("modulus", &[("modulus_scale", 0.81)])
+        ));
+        assert!(!negligible(
+            Effect::Modulus,
+            &given("modulus", &[("modulus_scale", 1.3)])
+        ));
+        assert!(!negligible(
+            Effect::Modulus,
+            &given("modulus", &[("modulus_scale", 0.7)])
+        ));
+    }
+
+    #[test]
+    fn vectors_are_judged_by_their_length() {
+        let tilt = given("tilt", &[("tilt_x", 0.8), ("tilt_y", 0.7)]);
+        assert!(!negligible(Effect::Tilt, &tilt), "1.06° together");
+        let tilt = given("tilt", &[("tilt_x", 0.6), ("tilt_y", 0.7)]);
+        assert!(negligible(Effect::Tilt, &tilt));
+        let bias = given(
+            "device",
+            &[("bias_x", 0.03), ("bias_y", -0.03), ("bias_z", 0.03)],
+        );
+        assert!(!negligible(Effect::Device, &bias), "0.052 N together");
+        let bias = given(
+            "device",
+            &[("bias_x", 0.001), ("bias_y", 0.0), ("bias_z", -0.001)],
+        );
+        assert!(negligible(Effect::Device, &bias));
+    }
+
+    #[test]
+    fn a_sensor_counts_by_its_larger_time_and_a_mesh_never_is_negligible() {
+        let s = given("sensor", &[("delay", 0.0), ("lowpass_tau", 0.0007)]);
+        assert!(negligible(Effect::Sensor, &s));
+        let s = given("sensor", &[("delay", 0.0), ("lowpass_tau", 0.02)]);
+        assert!(!negligible(Effect::Sensor, &s));
+        assert!(!negligible(Effect::Mesh, &[]));
+        // not fitted here: not judged
+        assert!(!negligible(Effect::Friction, &s));
+    }
+
+    #[test]
+    fn a_stiff_support_and_small_friction_are_negligible() {
+        let p = given("support", &[("support_compliance", 5.2e-6)]);
+        assert!(negligible(Effect::Support, &p));
+        let p = given("support", &[("support_compliance", 7.5e-4)]);
+        assert!(!negligible(Effect::Support, &p));
+        assert!(negligible(
+            Effect::Friction,
+            &given("friction", &[("mu", 0.0017)])
+        ));
+        assert!(!negligible(
+            Effect::Friction,
+            &given("friction", &[("mu", 0.18)])
+        ));
+    }
+}

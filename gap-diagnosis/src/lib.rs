@@ -634,6 +634,7 @@ pub fn diagnose_data(
         &floor,
         noise,
         opts.min_shrink,
+        nuisance,
         data.len() >= 3,
         data.len() >= separability::MIN_TRIALS,
     );
@@ -813,6 +814,7 @@ fn decide(
     floor: &CandidateScore,
     noise: f64,
     min_shrink: f64,
+    band: Nuisance,
     pairs_allowed: bool,
     paired: bool,
 ) -> Verdict {
@@ -838,7 +840,7 @@ fn decide(
     // the modulus below it, not a reason to name nothing
     let best = match singles
         .iter()
-        .find(|c| !strength::any_negligible(&c.effect, &c.params))
+        .find(|c| !strength::any_negligible(&c.effect, &c.params, band))
         .or(singles.first())
     {
         Some(b) => b,
@@ -850,7 +852,7 @@ fn decide(
             && c.bic - floor.bic <= -STRONG_EVIDENCE
             && c.score - floor.score <= -STRONG_EVIDENCE
             && (!paired || c.floor_gain_z > 0.0)
-            && !strength::any_negligible(&c.effect, &c.params)
+            && !strength::any_negligible(&c.effect, &c.params, band)
     };
     let evidence = |c: &CandidateScore| {
         format!(
@@ -870,7 +872,9 @@ fn decide(
     let pairs_by_score = || {
         let mut pairs: Vec<&CandidateScore> = ranking
             .iter()
-            .filter(|c| c.effect.contains('+') && !strength::any_negligible(&c.effect, &c.params))
+            .filter(|c| {
+                c.effect.contains('+') && !strength::any_negligible(&c.effect, &c.params, band)
+            })
             .collect();
         pairs.sort_by(|a, b| a.score.total_cmp(&b.score));
         pairs
@@ -1153,7 +1157,16 @@ mod tests {
         let modulus = scored("modulus", 0.1699, 0.0516, 4729.0);
         let decide_between = |hardening: CandidateScore| {
             let singles = vec![hardening, modulus.clone()];
-            decide(&singles, &singles, &floor, 0.02, 0.08, true, true)
+            decide(
+                &singles,
+                &singles,
+                &floor,
+                0.02,
+                0.08,
+                Nuisance::ALL,
+                true,
+                true,
+            )
         };
         let v = decide_between(scored("hardening", 0.1633, 0.0457, 4916.0));
         assert_eq!(v.effect, "modulus", "{}", v.reason);
@@ -1202,7 +1215,16 @@ mod tests {
         let decide_with = |pair: CandidateScore| {
             let singles = vec![hardening.clone()];
             let ranking = vec![pair, hardening.clone()];
-            decide(&singles, &ranking, &floor, 0.025, 0.08, true, true)
+            decide(
+                &singles,
+                &ranking,
+                &floor,
+                0.025,
+                0.08,
+                Nuisance::ALL,
+                true,
+                true,
+            )
         };
         let v = decide_with(pair_with(0.0169));
         assert_eq!(v.effect, "hardening", "{}", v.reason);
@@ -1229,7 +1251,16 @@ mod tests {
             &[("modulus", "modulus_scale", 0.567)],
         );
         let singles = vec![hardening, modulus];
-        let v = decide(&singles, &singles, &floor, 0.0235, 0.08, true, true);
+        let v = decide(
+            &singles,
+            &singles,
+            &floor,
+            0.0235,
+            0.08,
+            Nuisance::ALL,
+            true,
+            true,
+        );
         assert_eq!(v.effect, "modulus", "{}", v.reason);
         // inside the stiffness nuisance's band a modulus is not named either
         let inside = fitted(
@@ -1237,7 +1268,16 @@ mod tests {
             &[("modulus", "modulus_scale", 1.1)],
         );
         let singles = vec![singles[0].clone(), inside];
-        let v = decide(&singles, &singles, &floor, 0.0235, 0.08, true, true);
+        let v = decide(
+            &singles,
+            &singles,
+            &floor,
+            0.0235,
+            0.08,
+            Nuisance::ALL,
+            true,
+            true,
+        );
         assert_eq!(v.effect, "none", "{}", v.reason);
     }
 
@@ -1273,7 +1313,16 @@ mod tests {
         );
         let singles = vec![device.clone()];
         let ranking = vec![stiffening, friction, device];
-        let v = decide(&singles, &ranking, &floor, 0.029, 0.08, true, true);
+        let v = decide(
+            &singles,
+            &ranking,
+            &floor,
+            0.029,
+            0.08,
+            Nuisance::ALL,
+            true,
+            true,
+        );
         assert_eq!(v.effect, "friction+device", "{}", v.reason);
     }
 }

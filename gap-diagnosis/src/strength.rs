@@ -15,7 +15,7 @@
 //! resolves: 0.5–1.2 mm presses, ~38 Hz sampling, ~0.02 N of sensor noise.
 
 use crate::effects::{Effect, SUPPORT_KNOTS};
-use crate::fit::{FittedParam, NUISANCE_MAX};
+use crate::fit::{FittedParam, Nuisance};
 
 /// Stiffening rate, 1/mm: 6% more force at the study's deepest 1.2 mm press (drawn: 0.25–0.45).
 pub const MIN_STIFFENING_RATE: f64 = 0.05;
@@ -33,10 +33,12 @@ pub const MIN_SUPPORT_COMPLIANCE: f64 = 0.1 * SUPPORT_KNOTS[0];
 /// Sensor delay or low-pass time constant, s: a fifth of a sample at 38 Hz (drawn: 20–120 ms).
 pub const MIN_SENSOR_S: f64 = 0.005;
 
-/// `effect`'s fitted strength in `params` is below what is worth naming (see the module).
-/// `mesh` has no strength and is never negligible; an effect with none of its parameters in
-/// `params` is not judged (false).
-pub fn negligible(effect: Effect, params: &[FittedParam]) -> bool {
+/// `effect`'s fitted strength in `params` is below what is worth naming (see the module), the
+/// diagnosis fitting the nuisances of `band`: a modulus scale is negligible inside the band
+/// the stiffness nuisance takes (with the nuisance off, only at exactly 1). `mesh` has no
+/// strength and is never negligible; an effect with none of its parameters in `params` is not
+/// judged (false).
+pub fn negligible(effect: Effect, params: &[FittedParam], band: Nuisance) -> bool {
     let value = |name: &str| {
         params
             .iter()
@@ -46,9 +48,7 @@ pub fn negligible(effect: Effect, params: &[FittedParam]) -> bool {
     let below = |name: &str, min: f64| value(name).is_some_and(|v| v.abs() < min);
     match effect {
         // a scale inside the band is what the stiffness nuisance is for
-        Effect::Modulus => {
-            value("modulus_scale").is_some_and(|s| (1.0 / NUISANCE_MAX..=NUISANCE_MAX).contains(&s))
-        }
+        Effect::Modulus => value("modulus_scale").is_some_and(|s| (band.lo..=band.hi).contains(&s)),
         Effect::Hardening => below("stiffening_rate", MIN_STIFFENING_RATE),
         Effect::Viscoelastic => below("prony_g1", MIN_PRONY_G1),
         Effect::Friction => below("mu", MIN_FRICTION),
@@ -69,17 +69,20 @@ pub fn negligible(effect: Effect, params: &[FittedParam]) -> bool {
     }
 }
 
-/// Some effect of the `+`-joined `candidate` has a negligible fitted strength in `params`.
-pub fn any_negligible(candidate: &str, params: &[FittedParam]) -> bool {
+/// Some effect of the `+`-joined `candidate` has a negligible fitted strength in `params`
+/// ([`negligible`]).
+pub fn any_negligible(candidate: &str, params: &[FittedParam], band: Nuisance) -> bool {
     candidate
         .split('+')
         .filter_map(Effect::parse)
-        .any(|e| negligible(e, params))
+        .any(|e| negligible(e, params, band))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    const ALL: Nuisance = Nuisance::ALL;
 
     fn given(effect: &str, pairs: &[(&str, f64)]) -> Vec<FittedParam> {
         pairs
@@ -99,74 +102,67 @@ mod tests {
             "viscoelastic",
             &[("prony_g1", 0.0169), ("prony_tau1", 0.05)],
         ));
-        assert!(!negligible(Effect::Hardening, &p));
-        assert!(negligible(Effect::Viscoelastic, &p));
-        assert!(any_negligible("hardening+viscoelastic", &p));
-        assert!(!any_negligible("hardening", &p));
+        assert!(!negligible(Effect::Hardening, &p, ALL));
+        assert!(negligible(Effect::Viscoelastic, &p, ALL));
+        assert!(any_negligible("hardening+viscoelastic", &p, ALL));
+        assert!(!any_negligible("hardening", &p, ALL));
     }
 
     #[test]
     fn a_modulus_inside_the_nuisance_band_is_negligible_outside_it_is_not() {
-        assert!(negligible(
-            Effect::Modulus,
-            &given("modulus", &[("modulus_scale", 1.2276)])
-        ));
-        assert!(negligible(
-            Effect::Modulus,
-            &given("modulus", &[("modulus_scale", 0.81)])
-        ));
-        assert!(!negligible(
-            Effect::Modulus,
-            &given("modulus", &[("modulus_scale", 1.3)])
-        ));
-        assert!(!negligible(
-            Effect::Modulus,
-            &given("modulus", &[("modulus_scale", 0.7)])
-        ));
+        let modulus = |s: f64| given("modulus", &[("modulus_scale", s)]);
+        assert!(negligible(Effect::Modulus, &modulus(1.2276), ALL));
+        assert!(negligible(Effect::Modulus, &modulus(0.81), ALL));
+        assert!(!negligible(Effect::Modulus, &modulus(1.3), ALL));
+        assert!(!negligible(Effect::Modulus, &modulus(0.7), ALL));
+    }
+
+    /// Regression: with the nuisance off, a stiffness offset of ×1.14 read `none`: its modulus
+    /// was judged against a band no fit had taken up (`gap_stats`).
+    #[test]
+    fn without_the_nuisance_any_modulus_change_counts() {
+        let modulus = |s: f64| given("modulus", &[("modulus_scale", s)]);
+        assert!(!negligible(Effect::Modulus, &modulus(1.14), Nuisance::OFF));
+        assert!(negligible(Effect::Modulus, &modulus(1.0), Nuisance::OFF));
     }
 
     #[test]
     fn vectors_are_judged_by_their_length() {
         let tilt = given("tilt", &[("tilt_x", 0.8), ("tilt_y", 0.7)]);
-        assert!(!negligible(Effect::Tilt, &tilt), "1.06° together");
+        assert!(!negligible(Effect::Tilt, &tilt, ALL), "1.06° together");
         let tilt = given("tilt", &[("tilt_x", 0.6), ("tilt_y", 0.7)]);
-        assert!(negligible(Effect::Tilt, &tilt));
+        assert!(negligible(Effect::Tilt, &tilt, ALL));
         let bias = given(
             "device",
             &[("bias_x", 0.03), ("bias_y", -0.03), ("bias_z", 0.03)],
         );
-        assert!(!negligible(Effect::Device, &bias), "0.052 N together");
+        assert!(!negligible(Effect::Device, &bias, ALL), "0.052 N together");
         let bias = given(
             "device",
             &[("bias_x", 0.001), ("bias_y", 0.0), ("bias_z", -0.001)],
         );
-        assert!(negligible(Effect::Device, &bias));
+        assert!(negligible(Effect::Device, &bias, ALL));
     }
 
     #[test]
     fn a_sensor_counts_by_its_larger_time_and_a_mesh_never_is_negligible() {
         let s = given("sensor", &[("delay", 0.0), ("lowpass_tau", 0.0007)]);
-        assert!(negligible(Effect::Sensor, &s));
+        assert!(negligible(Effect::Sensor, &s, ALL));
         let s = given("sensor", &[("delay", 0.0), ("lowpass_tau", 0.02)]);
-        assert!(!negligible(Effect::Sensor, &s));
-        assert!(!negligible(Effect::Mesh, &[]));
+        assert!(!negligible(Effect::Sensor, &s, ALL));
+        assert!(!negligible(Effect::Mesh, &[], ALL));
         // not fitted here: not judged
-        assert!(!negligible(Effect::Friction, &s));
+        assert!(!negligible(Effect::Friction, &s, ALL));
     }
 
     #[test]
     fn a_stiff_support_and_small_friction_are_negligible() {
         let p = given("support", &[("support_compliance", 5.2e-6)]);
-        assert!(negligible(Effect::Support, &p));
+        assert!(negligible(Effect::Support, &p, ALL));
         let p = given("support", &[("support_compliance", 7.5e-4)]);
-        assert!(!negligible(Effect::Support, &p));
-        assert!(negligible(
-            Effect::Friction,
-            &given("friction", &[("mu", 0.0017)])
-        ));
-        assert!(!negligible(
-            Effect::Friction,
-            &given("friction", &[("mu", 0.18)])
-        ));
+        assert!(!negligible(Effect::Support, &p, ALL));
+        let mu = |m: f64| given("friction", &[("mu", m)]);
+        assert!(negligible(Effect::Friction, &mu(0.0017), ALL));
+        assert!(!negligible(Effect::Friction, &mu(0.18), ALL));
     }
 }

@@ -632,11 +632,13 @@ pub fn diagnose_data(
         &singles,
         &ranking,
         &floor,
-        noise,
-        opts.min_shrink,
-        nuisance,
-        data.len() >= 3,
-        data.len() >= separability::MIN_TRIALS,
+        &Weighing {
+            noise,
+            min_shrink: opts.min_shrink,
+            band: nuisance,
+            pairs_allowed: data.len() >= 3,
+            paired: data.len() >= separability::MIN_TRIALS,
+        },
     );
     if let Some(set) = separability::indistinguishable(&verdict.effect, &ranking, data) {
         let rivals: Vec<String> = set.candidates[1..]
@@ -778,6 +780,22 @@ fn z_score(mean: f64, se: f64) -> f64 {
     }
 }
 
+/// What a verdict weighs the candidates with, beside their scores ([`decide`]).
+#[derive(Debug, Clone, Copy)]
+struct Weighing {
+    /// The sensor noise, N: a floor within 15% of it leaves nothing to explain.
+    noise: f64,
+    /// Held-out shrink over the floor an effect must reach ([`Options::min_shrink`]).
+    min_shrink: f64,
+    /// The nuisances fitted: a modulus inside their stiffness band is no effect
+    /// ([`strength::negligible`]).
+    band: Nuisance,
+    /// Enough trials to weigh pairs.
+    pairs_allowed: bool,
+    /// Enough trials for the per-trial paired gain.
+    paired: bool,
+}
+
 /// The verdict: the best-ranked candidate if it beats the nuisance floor (the baseline with
 /// the stiffness nuisance fitted, [`fit::Nuisance`]) clearly and significantly; a pair only
 /// when the best single leaves a residual well above noise and the pair removes much of it
@@ -812,12 +830,15 @@ fn decide(
     singles: &[CandidateScore],
     ranking: &[CandidateScore],
     floor: &CandidateScore,
-    noise: f64,
-    min_shrink: f64,
-    band: Nuisance,
-    pairs_allowed: bool,
-    paired: bool,
+    weighing: &Weighing,
 ) -> Verdict {
+    let Weighing {
+        noise,
+        min_shrink,
+        band,
+        pairs_allowed,
+        paired,
+    } = *weighing;
     let none = |reason: String| Verdict {
         effect: "none".into(),
         heldout_shrink: 0.0,
@@ -1157,16 +1178,7 @@ mod tests {
         let modulus = scored("modulus", 0.1699, 0.0516, 4729.0);
         let decide_between = |hardening: CandidateScore| {
             let singles = vec![hardening, modulus.clone()];
-            decide(
-                &singles,
-                &singles,
-                &floor,
-                0.02,
-                0.08,
-                Nuisance::ALL,
-                true,
-                true,
-            )
+            decide(&singles, &singles, &floor, &weighing(0.02))
         };
         let v = decide_between(scored("hardening", 0.1633, 0.0457, 4916.0));
         assert_eq!(v.effect, "modulus", "{}", v.reason);
@@ -1182,6 +1194,17 @@ mod tests {
             Some("modulus+friction")
         );
         assert!(nested_simpler(&simpler, &[pair]).is_none());
+    }
+
+    /// The default weighing with enough trials for pairs and paired gains.
+    fn weighing(noise: f64) -> Weighing {
+        Weighing {
+            noise,
+            min_shrink: 0.08,
+            band: Nuisance::ALL,
+            pairs_allowed: true,
+            paired: true,
+        }
     }
 
     fn fitted(mut c: CandidateScore, params: &[(&str, &str, f64)]) -> CandidateScore {
@@ -1215,16 +1238,7 @@ mod tests {
         let decide_with = |pair: CandidateScore| {
             let singles = vec![hardening.clone()];
             let ranking = vec![pair, hardening.clone()];
-            decide(
-                &singles,
-                &ranking,
-                &floor,
-                0.025,
-                0.08,
-                Nuisance::ALL,
-                true,
-                true,
-            )
+            decide(&singles, &ranking, &floor, &weighing(0.025))
         };
         let v = decide_with(pair_with(0.0169));
         assert_eq!(v.effect, "hardening", "{}", v.reason);
@@ -1251,16 +1265,7 @@ mod tests {
             &[("modulus", "modulus_scale", 0.567)],
         );
         let singles = vec![hardening, modulus];
-        let v = decide(
-            &singles,
-            &singles,
-            &floor,
-            0.0235,
-            0.08,
-            Nuisance::ALL,
-            true,
-            true,
-        );
+        let v = decide(&singles, &singles, &floor, &weighing(0.0235));
         assert_eq!(v.effect, "modulus", "{}", v.reason);
         // inside the stiffness nuisance's band a modulus is not named either
         let inside = fitted(
@@ -1268,16 +1273,7 @@ mod tests {
             &[("modulus", "modulus_scale", 1.1)],
         );
         let singles = vec![singles[0].clone(), inside];
-        let v = decide(
-            &singles,
-            &singles,
-            &floor,
-            0.0235,
-            0.08,
-            Nuisance::ALL,
-            true,
-            true,
-        );
+        let v = decide(&singles, &singles, &floor, &weighing(0.0235));
         assert_eq!(v.effect, "none", "{}", v.reason);
     }
 
@@ -1313,16 +1309,7 @@ mod tests {
         );
         let singles = vec![device.clone()];
         let ranking = vec![stiffening, friction, device];
-        let v = decide(
-            &singles,
-            &ranking,
-            &floor,
-            0.029,
-            0.08,
-            Nuisance::ALL,
-            true,
-            true,
-        );
+        let v = decide(&singles, &ranking, &floor, &weighing(0.029));
         assert_eq!(v.effect, "friction+device", "{}", v.reason);
     }
 }

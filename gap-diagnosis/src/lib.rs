@@ -915,7 +915,7 @@ fn decide(
                 params: pair.params.clone(),
                 reason: format!(
                     "no single effect shrinks the held-out RMSE clearly (best {}: {}); \
-                         the pair {} does: {:.4} → {:.4} N ({})",
+                     the pair {} does: {:.4} → {:.4} N ({})",
                     best.effect,
                     evidence(best),
                     pair.effect,
@@ -952,7 +952,7 @@ fn decide(
             let gain = gain_over_best(pair);
             reason = format!(
                 "{} leaves {:.4} N phase-weighted ({:.4} N plain, noise {:.4} N); the pair {} \
-                     removes {:.0}% more ({:.4} N phase-weighted, {:.4} N plain)",
+                 removes {:.0}% more ({:.4} N phase-weighted, {:.4} N plain)",
                 best.effect,
                 best.heldout_weighted_rmse,
                 best.heldout_rmse,

@@ -66,8 +66,8 @@ impl std::fmt::Display for Recovery {
 
 /// The strengths each effect is graded on: (name, its parameters, named alike in the truth
 /// and the fit). A vector's components are listed together; the support's fit is inverted
-/// ([`fitted_value`]).
-fn strengths(effect: &str) -> &'static [(&'static str, &'static [&'static str])] {
+/// ([`fitted_value`]). [`crate::strength`] judges the same strengths.
+pub(crate) fn strengths(effect: &str) -> &'static [(&'static str, &'static [&'static str])] {
     match effect {
         "modulus" => &[("modulus_scale", &["modulus_scale"])],
         "hardening" => &[("stiffening_rate", &["stiffening_rate"])],
@@ -100,6 +100,27 @@ fn fitted_value(params: &[FittedParam], effect: &str, name: &str) -> Option<f64>
     find(name)
 }
 
+/// The length of a vector's components, or a scalar as it is (sign kept).
+fn signed(v: &[f64]) -> f64 {
+    if v.len() == 1 {
+        v[0]
+    } else {
+        v.iter().map(|x| x * x).sum::<f64>().sqrt()
+    }
+}
+
+/// The fitted value of strength `name` of `effect` ([`strengths`]): a scalar as fitted, a
+/// vector by its length, the support as a stiffness. None where a component is not in
+/// `params`.
+pub(crate) fn fitted_strength(params: &[FittedParam], effect: &str, name: &str) -> Option<f64> {
+    let (_, components) = strengths(effect).iter().find(|(n, _)| *n == name)?;
+    let fitted: Option<Vec<f64>> = components
+        .iter()
+        .map(|c| fitted_value(params, effect, c))
+        .collect();
+    fitted.map(|v| signed(&v))
+}
+
 /// Each strength of the injected effects that the verdict names, against its fit. An effect
 /// the verdict does not name has no fit to compare, and is not listed (the verdict is already
 /// wrong about it). A strength that is zero in the truth is skipped: no relative error exists.
@@ -124,7 +145,6 @@ pub fn recovery(injected: &[Injected], params: &[FittedParam]) -> Vec<Recovery> 
             if !(scale > 0.0 && scale.is_finite()) {
                 continue;
             }
-            let signed = |v: &[f64]| if v.len() == 1 { v[0] } else { norm(v) };
             out.push(Recovery {
                 effect: inj.effect.clone(),
                 name: name.to_string(),

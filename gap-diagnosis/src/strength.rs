@@ -16,6 +16,7 @@
 
 use crate::effects::{Effect, SUPPORT_KNOTS};
 use crate::fit::{FittedParam, Nuisance};
+use crate::recovery;
 
 /// Stiffening rate, 1/mm: 6% more force at the study's deepest 1.2 mm press (drawn: 0.25–0.45).
 pub const MIN_STIFFENING_RATE: f64 = 0.05;
@@ -33,40 +34,50 @@ pub const MIN_SUPPORT_COMPLIANCE: f64 = 0.1 * SUPPORT_KNOTS[0];
 /// Sensor delay or low-pass time constant, s: a fifth of a sample at 38 Hz (drawn: 20–120 ms).
 pub const MIN_SENSOR_S: f64 = 0.005;
 
+/// Whether a fitted strength ([`crate::recovery`]'s names and values: a vector by its length,
+/// the support as a stiffness) is below what is worth naming; None where the strength has no
+/// such bound (τ1: a time constant is no amount; the modulus: see [`negligible`]).
+fn below_minimum(strength: &str, value: f64) -> Option<bool> {
+    let below = |min: f64| Some(value.abs() < min);
+    match strength {
+        "stiffening_rate" => below(MIN_STIFFENING_RATE),
+        "prony_g1" => below(MIN_PRONY_G1),
+        "mu" => below(MIN_FRICTION),
+        "tilt" => below(MIN_TILT_DEG),
+        "bias" => below(MIN_BIAS_N),
+        "support_stiffness" => Some(value > 1.0 / MIN_SUPPORT_COMPLIANCE),
+        "delay" | "lowpass_tau" => below(MIN_SENSOR_S),
+        _ => None,
+    }
+}
+
 /// `effect`'s fitted strength in `params` is below what is worth naming (see the module), the
 /// diagnosis fitting the nuisances of `band`: a modulus scale is negligible inside the band
-/// the stiffness nuisance takes (with the nuisance off, only at exactly 1). `mesh` has no
-/// strength and is never negligible; an effect with none of its parameters in `params` is not
-/// judged (false).
+/// the stiffness nuisance takes (with the nuisance off, only at exactly 1). An effect with
+/// several bounded strengths (the sensor's delay and low-pass) is negligible when all are.
+/// `mesh` has no strength and is never negligible; an effect whose bounded strengths are not
+/// all in `params` is not judged (false).
 pub fn negligible(effect: Effect, params: &[FittedParam], band: Nuisance) -> bool {
-    let value = |name: &str| {
-        params
-            .iter()
-            .find(|p| p.effect == effect.name() && p.name == name)
-            .map(|p| p.value)
-    };
-    let below = |name: &str, min: f64| value(name).is_some_and(|v| v.abs() < min);
-    match effect {
+    let name = effect.name();
+    if effect == Effect::Modulus {
         // a scale inside the band is what the stiffness nuisance is for
-        Effect::Modulus => value("modulus_scale").is_some_and(|s| (band.lo..=band.hi).contains(&s)),
-        Effect::Hardening => below("stiffening_rate", MIN_STIFFENING_RATE),
-        Effect::Viscoelastic => below("prony_g1", MIN_PRONY_G1),
-        Effect::Friction => below("mu", MIN_FRICTION),
-        Effect::Tilt => match (value("tilt_x"), value("tilt_y")) {
-            (Some(x), Some(y)) => x.hypot(y) < MIN_TILT_DEG,
-            _ => false,
-        },
-        Effect::Device => match (value("bias_x"), value("bias_y"), value("bias_z")) {
-            (Some(x), Some(y), Some(z)) => (x * x + y * y + z * z).sqrt() < MIN_BIAS_N,
-            _ => false,
-        },
-        Effect::Support => below("support_compliance", MIN_SUPPORT_COMPLIANCE),
-        Effect::Sensor => match (value("delay"), value("lowpass_tau")) {
-            (Some(d), Some(l)) => d.abs().max(l.abs()) < MIN_SENSOR_S,
-            _ => false,
-        },
-        Effect::Mesh => false,
+        return recovery::fitted_strength(params, name, "modulus_scale")
+            .is_some_and(|s| (band.lo..=band.hi).contains(&s));
     }
+    let mut judged = false;
+    for &(strength, _) in recovery::strengths(name) {
+        let fitted = recovery::fitted_strength(params, name, strength);
+        match fitted.map(|v| below_minimum(strength, v)) {
+            Some(Some(false)) => return false,
+            Some(Some(true)) => judged = true,
+            // fitted but unbounded (τ1): no say
+            Some(None) => {}
+            // a bounded strength not fitted here: not judged
+            None if below_minimum(strength, 0.0).is_some() => return false,
+            None => {}
+        }
+    }
+    judged
 }
 
 /// Some effect of the `+`-joined `candidate` has a negligible fitted strength in `params`

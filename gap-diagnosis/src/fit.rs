@@ -1206,6 +1206,12 @@ pub struct CandidateScore {
     /// its mean over trials ([`crate::separability::gain_over`]); 0 with too few trials.
     #[serde(default)]
     pub floor_gain_z: f64,
+    /// For a pair of `modulus` and another effect: its paired held-out gain over that other
+    /// effect alone, trial by trial, in standard errors ([`crate::separability::gain_over`]);
+    /// absent otherwise or with too few trials. What names a stiffness beyond the nuisance's
+    /// band beside an effect (`decide`).
+    #[serde(default)]
+    pub stiffness_gain_z: Option<f64>,
     #[serde(skip)]
     pub theta: Vec<f64>,
     /// Held-out prediction at every measurement time, per trial.
@@ -1364,6 +1370,7 @@ pub fn score_candidate(
         material_weight: nuisance.material_fitted().then_some(fitted.material),
         floor_shrink: 0.0,
         floor_gain_z: 0.0,
+        stiffness_gain_z: None,
         theta,
         heldout_pred: held_pred,
     }

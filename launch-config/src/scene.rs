@@ -345,6 +345,11 @@ pub struct ContactConfig {
     /// uses one, so that it differs from the replay in its contact formulation as an
     /// independent FE code would.
     pub interface_compliance: f64,
+    /// Spread each probe ball's force over its Hertz contact patch, on the nodes under it with
+    /// weights continuous in the ball's position, instead of holding the closest point of
+    /// every close triangle (physics-node's `ContactDetector::spread_over_hertz_patch`). Off
+    /// by default: the replay and the calibrated scenes hold the closest points.
+    pub hertz_patch: bool,
 }
 
 impl Default for ContactConfig {
@@ -357,6 +362,7 @@ impl Default for ContactConfig {
             lcp_max_iterations: 1000,
             max_contacts: 32,
             interface_compliance: 0.0,
+            hertz_patch: false,
         }
     }
 }

@@ -20,7 +20,7 @@
 //! A cache is `Send` and built without the simulation, so a new one (another material) can be
 //! built on a worker thread and swapped in with [`crate::sim::Simulation::swap_compliance`].
 
-use crate::contact::Contact;
+use crate::contact::{Contact, CONTACT_NODES};
 use crate::probe::Probe;
 use nalgebra::{Matrix3, Point3, Vector3};
 use std::sync::mpsc::{Receiver, SyncSender, TryRecvError};
@@ -573,10 +573,10 @@ impl Worker {
 /// Per-step assembly of W and application of the corrections. Holds the scratch buffers.
 pub struct ConstraintCorrection {
     /// Per contact and local node: cache slot (NONE: held node / no slot).
-    slots: Vec<[u32; 3]>,
+    slots: Vec<[u32; CONTACT_NODES]>,
     /// Per contact and local node: the weight used (the contact's barycentric weight; when
     /// a node is not cached, its share is carried by the cached nodes of the contact).
-    weights: Vec<[f64; 3]>,
+    weights: Vec<[f64; CONTACT_NODES]>,
     pinned: Vec<u32>,
     /// Tissue velocity correction in the rest frame, per free dof.
     dv_local: Vec<f64>,
@@ -587,7 +587,7 @@ impl ConstraintCorrection {
         ConstraintCorrection {
             slots: Vec::with_capacity(max_contacts),
             weights: Vec::with_capacity(max_contacts),
-            pinned: Vec::with_capacity(3 * max_contacts),
+            pinned: Vec::with_capacity(CONTACT_NODES * max_contacts),
             dv_local: vec![0.0; dim],
         }
     }
@@ -610,10 +610,10 @@ impl ConstraintCorrection {
         self.weights.clear();
         self.pinned.clear();
         for c in contacts {
-            let mut s = [NONE; 3];
+            let mut s = [NONE; CONTACT_NODES];
             let mut free_weight = 0.0;
             let mut cached_weight = 0.0;
-            for a in 0..3 {
+            for a in 0..c.n_nodes {
                 if cache.free_index(c.nodes[a]) == NONE {
                     continue;
                 }
@@ -624,9 +624,9 @@ impl ConstraintCorrection {
                     cached_weight += c.weights[a];
                 }
             }
-            let mut w = [0.0; 3];
+            let mut w = [0.0; CONTACT_NODES];
             if cached_weight == free_weight {
-                for a in 0..3 {
+                for a in 0..c.n_nodes {
                     if s[a] != NONE {
                         w[a] = c.weights[a];
                     }
@@ -640,7 +640,7 @@ impl ConstraintCorrection {
                 } else {
                     0.0
                 };
-                for a in 0..3 {
+                for a in 0..c.n_nodes {
                     if s[a] != NONE {
                         w[a] = c.weights[a] * scale;
                     }
@@ -659,14 +659,14 @@ impl ConstraintCorrection {
             for ks in kr..m {
                 let cs = &contacts[ks];
                 let mut tissue = Matrix3::zeros();
-                for b in 0..3 {
+                for b in 0..cs.n_nodes {
                     let sb = self.slots[ks][b];
                     let wb = self.weights[ks][b];
                     if sb == NONE || wb == 0.0 {
                         continue;
                     }
                     let rb = &rotations[cs.nodes[b]];
-                    for a in 0..3 {
+                    for a in 0..cr.n_nodes {
                         let fa = cache.free_index(cr.nodes[a]);
                         let wa = self.weights[kr][a];
                         if fa == NONE || wa == 0.0 {
@@ -721,7 +721,7 @@ impl ConstraintCorrection {
             if f_world == Vector3::zeros() {
                 continue;
             }
-            for a in 0..3 {
+            for a in 0..c.n_nodes {
                 let slot = self.slots[k][a];
                 if slot == NONE {
                     continue;

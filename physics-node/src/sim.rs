@@ -320,8 +320,12 @@ impl Simulation {
             alarm_distance: c.alarm_distance,
             contact_distance: c.contact_distance,
             max_contacts: c.max_contacts as usize,
+            hertz_patch: false,
         };
-        let detector = ContactDetector::new(params, probe.spheres.len());
+        let mut detector = ContactDetector::new(params, probe.spheres.len());
+        if c.hertz_patch {
+            detector.spread_over_hertz_patch(&mesh.nodes);
+        }
 
         let mut slot = Box::new(core::mem::MaybeUninit::<ContactFrame>::uninit());
         msgs::Topic::zeroed_in(&mut *slot);
@@ -628,9 +632,8 @@ impl Simulation {
         if self.probe.drive == crate::probe::ProbeDrive::Kinematic {
             let cache = &self.cache;
             self.detector.contacts.retain(|c| {
-                (0..3).any(|a| {
-                    c.weights[a] > 1e-9 && cache.free_index(c.nodes[a]) != crate::compliance::NONE
-                })
+                c.spread()
+                    .any(|(n, w)| w > 1e-9 && cache.free_index(n) != crate::compliance::NONE)
             });
         }
         lap(&mut self.times.detection_ns, &mut last);
@@ -663,11 +666,10 @@ impl Simulation {
             let (mut sum, mut weight, mut moved) = (0.0, 0.0, 0.0);
             for c in contacts.iter() {
                 let w = (-c.free_violation[0]).max(0.0);
-                for a in 0..3 {
-                    let n = c.nodes[a];
-                    sum += w * c.weights[a] * factors[n];
-                    moved += w * c.weights[a] * (x[n] - self.rest_positions[n]).norm();
-                    weight += w * c.weights[a];
+                for (n, wn) in c.spread() {
+                    sum += w * wn * factors[n];
+                    moved += w * wn * (x[n] - self.rest_positions[n]).norm();
+                    weight += w * wn;
                 }
             }
             let tissue = if weight > 0.0 { sum / weight } else { 1.0 };

@@ -34,10 +34,11 @@ unsafe impl GlobalAlloc for Counting {
 #[global_allocator]
 static GLOBAL: Counting = Counting;
 
-fn check(mesh: &str, friction: f64) {
+fn check(mesh: &str, friction: f64, hertz_patch: bool) {
     let mut scene = launch_config::SceneConfig::default();
     scene.meniscus.mesh = mesh.into();
     scene.contact.friction = friction;
+    scene.contact.hertz_patch = hertz_patch;
     let mut sim = Simulation::new(&scene, &launch_config::data_dir()).unwrap();
     let site = *sim.probing_sites().iter().find(|s| s.region == 2).unwrap();
     let n = site.normal.normalize();
@@ -68,7 +69,7 @@ fn check(mesh: &str, friction: f64) {
         contact_steps += (sim.contact_count() > 0) as usize;
     }
     let n_alloc = ALLOCATIONS.load(Ordering::SeqCst);
-    println!("{mesh}: {n_alloc} allocations in 200 steps, {contact_steps} with contact");
+    println!("{mesh}, patch {hertz_patch}: {n_alloc} allocations in 200 steps, {contact_steps} with contact");
     assert_eq!(
         contact_steps, 200,
         "contact must be active in every measured step"
@@ -78,6 +79,13 @@ fn check(mesh: &str, friction: f64) {
 
 #[test]
 fn step_does_not_allocate_with_contact() {
-    check("default:lateral:coarse", 0.0);
-    check("default:lateral:coarse", 0.4);
+    check("default:lateral:coarse", 0.0, false);
+    check("default:lateral:coarse", 0.4, false);
+}
+
+/// The contact spread over each ball's Hertz patch integrates it in scratch reserved once.
+#[test]
+fn step_does_not_allocate_with_contacts_spread_over_their_patches() {
+    check("default:lateral:coarse", 0.0, true);
+    check("default:lateral:coarse", 0.4, true);
 }

@@ -259,6 +259,20 @@ fn ball_slid_across_facets_at_constant_depth() {
         RADIUS_M * 1e3,
         DEPTH_M * 1e3
     );
+    // The same scenes with each ball's force spread over its Hertz patch
+    // (`[scene.contact] hertz_patch`).
+    let patch = |sc: &launch_config::SceneConfig| {
+        let mut sc = sc.clone();
+        sc.contact.hertz_patch = true;
+        sc
+    };
+    let (study_patch, flat_once_patch, smooth_once_patch, flat_twice_patch, smooth_twice_patch) = (
+        patch(&scene),
+        patch(&flat_once_scene),
+        patch(&smooth_once_scene),
+        patch(&flat_twice_scene),
+        patch(&smooth_twice_scene),
+    );
     // (name, mesh, scene, slid across the body too: the twice-refined meshes take ~30 s a path)
     let meshes = [
         ("study", &loaded.mesh, &scene, true),
@@ -274,6 +288,31 @@ fn ball_slid_across_facets_at_constant_depth() {
             "refined twice, smooth",
             &smooth_twice,
             &smooth_twice_scene,
+            false,
+        ),
+        ("study, patch", &loaded.mesh, &study_patch, false),
+        (
+            "refined once, flat, patch",
+            &flat_once,
+            &flat_once_patch,
+            false,
+        ),
+        (
+            "refined once, smooth, patch",
+            &smooth_once,
+            &smooth_once_patch,
+            false,
+        ),
+        (
+            "refined twice, flat, patch",
+            &flat_twice,
+            &flat_twice_patch,
+            false,
+        ),
+        (
+            "refined twice, smooth, patch",
+            &smooth_twice,
+            &smooth_twice_patch,
             false,
         ),
     ];
@@ -326,11 +365,16 @@ fn ball_slid_across_facets_at_constant_depth() {
     // refined twice (largest residuals 18.8%, 22.0%, 22.0%, 13.6%, 11.2%). Across the body
     // the force follows the thickness (1.2 → 13 N over 6 mm), which a quadratic trend does not
     // remove, so only the path along the body is held to bounds: what is reached, with
-    // margin, so that a rougher contact fails here. The issue's ≤ 5% is not reached.
+    // margin, so that a rougher contact fails here. With the force spread over the Hertz
+    // patch: 6.3% on the study mesh, 7.0% and 7.1% refined once, 2.8% and 2.6% refined twice
+    // (largest 13.4%, 12.8%, 13.5%, 6.9%, 7.3%); refined twice, the issue's ≤ 5% is held.
     for (name, rms) in along_body {
         let bound = match name {
             "study" => 0.10,
             "refined once, flat" | "refined once, smooth" => 0.15,
+            "study, patch" => 0.09,
+            "refined once, flat, patch" | "refined once, smooth, patch" => 0.10,
+            "refined twice, flat, patch" | "refined twice, smooth, patch" => 0.05,
             _ => 0.075,
         };
         assert!(

@@ -20,7 +20,7 @@
 //! A cache is `Send` and built without the simulation, so a new one (another material) can be
 //! built on a worker thread and swapped in with [`crate::sim::Simulation::swap_compliance`].
 
-use crate::contact::{Contact, CONTACT_NODES};
+use crate::contact::{Contact, Patch, PATCH_NODES};
 use crate::probe::Probe;
 use nalgebra::{Matrix3, Point3, Vector3};
 use std::sync::mpsc::{Receiver, SyncSender, TryRecvError};
@@ -572,11 +572,16 @@ impl Worker {
 
 /// Per-step assembly of W and application of the corrections. Holds the scratch buffers.
 pub struct ConstraintCorrection {
-    /// Per contact and local node: cache slot (NONE: held node / no slot).
-    slots: Vec<[u32; CONTACT_NODES]>,
-    /// Per contact and local node: the weight used (the contact's barycentric weight; when
-    /// a node is not cached, its share is carried by the cached nodes of the contact).
-    weights: Vec<[f64; CONTACT_NODES]>,
+    /// Per contact: its range in the per-node lists below (a triangle's three nodes, or a
+    /// Hertz patch's).
+    spans: Vec<(usize, usize)>,
+    /// Per contact and node: the mesh node,
+    nodes: Vec<usize>,
+    /// its cache slot (NONE: held node / no slot),
+    slots: Vec<u32>,
+    /// and the weight used (the contact's; when a node is not cached, its share is carried
+    /// by the cached nodes of the contact).
+    weights: Vec<f64>,
     pinned: Vec<u32>,
     /// Tissue velocity correction in the rest frame, per free dof.
     dv_local: Vec<f64>,
@@ -585,9 +590,12 @@ pub struct ConstraintCorrection {
 impl ConstraintCorrection {
     pub fn new(dim: usize, max_contacts: usize) -> ConstraintCorrection {
         ConstraintCorrection {
-            slots: Vec::with_capacity(max_contacts),
-            weights: Vec::with_capacity(max_contacts),
-            pinned: Vec::with_capacity(CONTACT_NODES * max_contacts),
+            spans: Vec::with_capacity(max_contacts),
+            // every contact a patch at most (one per probe ball, fewer than max_contacts)
+            nodes: Vec::with_capacity(PATCH_NODES * max_contacts),
+            slots: Vec::with_capacity(PATCH_NODES * max_contacts),
+            weights: Vec::with_capacity(PATCH_NODES * max_contacts),
+            pinned: Vec::with_capacity(PATCH_NODES * max_contacts),
             dv_local: vec![0.0; dim],
         }
     }
@@ -598,6 +606,7 @@ impl ConstraintCorrection {
     pub fn assemble(
         &mut self,
         contacts: &[Contact],
+        patches: &[Patch],
         cache: &mut ComplianceCache,
         rotations: &[Matrix3<f64>],
         probe: &Probe,
@@ -606,32 +615,30 @@ impl ConstraintCorrection {
         stride: usize,
     ) {
         let m = contacts.len();
+        self.spans.clear();
+        self.nodes.clear();
         self.slots.clear();
         self.weights.clear();
         self.pinned.clear();
         for c in contacts {
-            let mut s = [NONE; CONTACT_NODES];
+            let start = self.slots.len();
             let mut free_weight = 0.0;
             let mut cached_weight = 0.0;
-            for a in 0..c.n_nodes {
-                if cache.free_index(c.nodes[a]) == NONE {
-                    continue;
-                }
-                free_weight += c.weights[a];
-                s[a] = cache.ensure(c.nodes[a], &self.pinned);
-                if s[a] != NONE {
-                    self.pinned.push(s[a]);
-                    cached_weight += c.weights[a];
-                }
-            }
-            let mut w = [0.0; CONTACT_NODES];
-            if cached_weight == free_weight {
-                for a in 0..c.n_nodes {
-                    if s[a] != NONE {
-                        w[a] = c.weights[a];
+            for (node, w) in c.spread(patches) {
+                let mut s = NONE;
+                if cache.free_index(node) != NONE {
+                    free_weight += w;
+                    s = cache.ensure(node, &self.pinned);
+                    if s != NONE {
+                        self.pinned.push(s);
+                        cached_weight += w;
                     }
                 }
-            } else {
+                self.nodes.push(node);
+                self.slots.push(s);
+                self.weights.push(if s != NONE { w } else { 0.0 });
+            }
+            if cached_weight != free_weight {
                 // Approximation: the missing node's share goes to the cached nodes of the
                 // same contact (all missing: the tissue is rigid there for this step).
                 cache.approximated += 1;
@@ -640,14 +647,9 @@ impl ConstraintCorrection {
                 } else {
                     0.0
                 };
-                for a in 0..c.n_nodes {
-                    if s[a] != NONE {
-                        w[a] = c.weights[a] * scale;
-                    }
-                }
+                self.weights[start..].iter_mut().for_each(|w| *w *= scale);
             }
-            self.slots.push(s);
-            self.weights.push(w);
+            self.spans.push((start, self.slots.len()));
         }
         // Per contact pair: the world-frame tissue compliance between the two contact points,
         // M = Σ_a Σ_b w_a w_b R_a A0⁻¹_ab R_bᵀ (each 3×3 block of A0⁻¹ read once), then
@@ -659,21 +661,23 @@ impl ConstraintCorrection {
             for ks in kr..m {
                 let cs = &contacts[ks];
                 let mut tissue = Matrix3::zeros();
-                for b in 0..cs.n_nodes {
-                    let sb = self.slots[ks][b];
-                    let wb = self.weights[ks][b];
+                let (rs, re) = self.spans[kr];
+                let (ss, se) = self.spans[ks];
+                for b in ss..se {
+                    let sb = self.slots[b];
+                    let wb = self.weights[b];
                     if sb == NONE || wb == 0.0 {
                         continue;
                     }
-                    let rb = &rotations[cs.nodes[b]];
-                    for a in 0..cr.n_nodes {
-                        let fa = cache.free_index(cr.nodes[a]);
-                        let wa = self.weights[kr][a];
+                    let rb = &rotations[self.nodes[b]];
+                    for a in rs..re {
+                        let fa = cache.free_index(self.nodes[a]);
+                        let wa = self.weights[a];
                         if fa == NONE || wa == 0.0 {
                             continue;
                         }
                         let block = cache.block(fa as usize, sb);
-                        tissue += rotations[cr.nodes[a]] * block * rb.transpose() * (wa * wb);
+                        tissue += rotations[self.nodes[a]] * block * rb.transpose() * (wa * wb);
                     }
                 }
                 let ds_mat = Matrix3::from_columns(&[cs.normal, cs.t1, cs.t2]);
@@ -721,12 +725,13 @@ impl ConstraintCorrection {
             if f_world == Vector3::zeros() {
                 continue;
             }
-            for a in 0..c.n_nodes {
-                let slot = self.slots[k][a];
+            let (start, end) = self.spans[k];
+            for a in start..end {
+                let slot = self.slots[a];
                 if slot == NONE {
                     continue;
                 }
-                let g = rotations[c.nodes[a]].transpose() * f_world * self.weights[k][a];
+                let g = rotations[self.nodes[a]].transpose() * f_world * self.weights[a];
                 let col = &cache.columns[slot as usize];
                 let (c0, rest) = col.split_at(dim);
                 let (c1, c2) = rest.split_at(dim);

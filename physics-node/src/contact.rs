@@ -28,13 +28,27 @@ const NO_TRIANGLE: u32 = u32::MAX;
 /// still bounds the LCP.
 pub const FEATURES_PER_SPHERE: usize = msgs::MAX_CONTACTS;
 
-/// Tissue nodes one contact's force can act on: a triangle's three, or the nodes under a
-/// ball's Hertz patch ([`ContactParams::hertz_patch`]). A patch of radius 0.77 mm on the study
-/// mesh refined twice (0.55 mm facets) covers 7–10. Beyond this the weakest are dropped and
-/// the rest renormalised, a load more central than Hertz's: a 3 mm ball 0.1–0.3 mm into a
-/// block of 0.15 mm cells covers 42–125 (`tests/hertz_block.rs`). 32 is as large as the
-/// contact stays a plain `Copy + Default` value.
-pub const CONTACT_NODES: usize = 32;
+/// Tissue nodes a ball's Hertz patch can spread its force over ([`ContactParams::
+/// hertz_patch`]). A patch of radius 0.77 mm on the study mesh refined twice (0.55 mm facets)
+/// covers 7–10. Beyond this the weakest are dropped and the rest renormalised, a load more
+/// central than Hertz's: a 3 mm ball 0.1–0.3 mm into a block of 0.15 mm cells covers 42–125
+/// (`tests/hertz_block.rs`).
+pub const PATCH_NODES: usize = 32;
+
+/// [`Contact::patch`] of a contact held at one closest point.
+pub const NO_PATCH: u32 = u32::MAX;
+
+/// The nodes a contact spread over its Hertz patch acts on, with their weights (summing to 1):
+/// the first `len`. Kept beside the contacts ([`ContactDetector::patches`]) so that a contact
+/// stays the small value the default, closest-point path copies and sorts: with the patch's
+/// arrays in every contact the physics bench's step took 12% longer, the free motion's share
+/// most of it.
+#[derive(Debug, Clone, Copy)]
+pub struct Patch {
+    pub nodes: [usize; PATCH_NODES],
+    pub weights: [f64; PATCH_NODES],
+    pub len: usize,
+}
 
 /// Rings of the patch quadrature (centre outwards), with 6j + 3 points on ring j so that
 /// every point stands for the same area of the disc.
@@ -262,17 +276,18 @@ pub struct ContactParams {
 }
 
 /// One probe point – tissue triangle contact, linearised at the start-of-step geometry.
-#[derive(Debug, Clone, Copy, Default)]
+#[derive(Debug, Clone, Copy)]
 pub struct Contact {
     /// Probe collision sphere.
     pub sphere: usize,
     /// Tissue triangle (collision surface index) of the contact point.
     pub triangle: u32,
-    /// The mesh nodes the contact acts on and their weights (summing to 1): the triangle's
-    /// barycentric weights, or the Hertz patch's ([`CONTACT_NODES`]); the first `n_nodes`.
-    pub nodes: [usize; CONTACT_NODES],
-    pub weights: [f64; CONTACT_NODES],
-    pub n_nodes: usize,
+    /// The triangle's mesh nodes with the contact point's barycentric weights.
+    pub nodes: [usize; 3],
+    pub weights: [f64; 3],
+    /// Index of the Hertz patch the force is spread over instead ([`ContactDetector::
+    /// patches`]; [`NO_PATCH`]: held at the contact point).
+    pub patch: u32,
     /// Outward normal (out of the tissue, onto the probe) and two tangents.
     pub normal: Vector3<f64>,
     pub t1: Vector3<f64>,
@@ -289,13 +304,35 @@ pub struct Contact {
     pub free_violation: [f64; 3],
 }
 
+impl Default for Contact {
+    fn default() -> Contact {
+        Contact {
+            sphere: 0,
+            triangle: 0,
+            nodes: [0; 3],
+            weights: [0.0; 3],
+            patch: NO_PATCH,
+            normal: Vector3::zeros(),
+            t1: Vector3::zeros(),
+            t2: Vector3::zeros(),
+            radius: 0.0,
+            point: Vector3::zeros(),
+            probe_point: Vector3::zeros(),
+            gap_start: 0.0,
+            free_violation: [0.0; 3],
+        }
+    }
+}
+
 impl Contact {
-    /// The nodes the contact acts on, with their weights.
-    pub fn spread(&self) -> impl Iterator<Item = (usize, f64)> + '_ {
-        self.nodes[..self.n_nodes]
-            .iter()
-            .copied()
-            .zip(self.weights[..self.n_nodes].iter().copied())
+    /// The nodes the contact acts on, with their weights: its patch's (from `patches`, the
+    /// detector's) or its triangle's.
+    pub fn spread<'a>(&'a self, patches: &'a [Patch]) -> impl Iterator<Item = (usize, f64)> + 'a {
+        let (nodes, weights): (&[usize], &[f64]) = match patches.get(self.patch as usize) {
+            Some(p) => (&p.nodes[..p.len], &p.weights[..p.len]),
+            None => (&self.nodes, &self.weights),
+        };
+        nodes.iter().copied().zip(weights.iter().copied())
     }
 }
 
@@ -327,6 +364,9 @@ pub struct ContactDetector {
     rest: Vec<Point3<f64>>,
     /// The patch's nodes and weights while it is integrated (reserved once).
     patch: Vec<(usize, f64)>,
+    /// This step's Hertz patches, one per ball in contact ([`Contact::patch`]; reserved
+    /// once).
+    pub patches: Vec<Patch>,
 }
 
 impl ContactDetector {
@@ -340,6 +380,7 @@ impl ContactDetector {
             contacts: Vec::with_capacity(params.max_contacts.max(1)),
             rest: Vec::new(),
             patch: Vec::new(),
+            patches: Vec::new(),
         }
     }
 
@@ -358,6 +399,7 @@ impl ContactDetector {
         self.params.hertz_patch = true;
         self.rest = rest.to_vec();
         self.patch = Vec::with_capacity(3 * PATCH_POINTS);
+        self.patches = Vec::with_capacity(self.tracked.len());
     }
 
     /// Forget the side history (after a teleport of the probe).
@@ -379,6 +421,7 @@ impl ContactDetector {
     ) {
         self.candidates.clear();
         self.contacts.clear();
+        self.patches.clear();
         let margin = (self.params.alarm_distance - self.params.contact_distance).max(0.0);
         let nodes = (positions, free_positions);
         for i in 0..probe.spheres.len() {
@@ -768,7 +811,7 @@ impl ContactDetector {
         // the first radius from the surface's indentation at the closest point (from its rest
         // shape) and the ball's penetration where it has not been resolved
         let mut delta = (-anchor.gap_start).max(0.0);
-        for (n, w) in anchor.spread() {
+        for (n, w) in anchor.spread(&[]) {
             delta += w * anchor.normal.dot(&(self.rest[n] - positions[n]));
         }
         let mut axis = anchor.normal;
@@ -802,13 +845,19 @@ impl ContactDetector {
             if !self.patch.is_empty() {
                 self.patch
                     .sort_unstable_by(|x, y| y.1.total_cmp(&x.1).then(x.0.cmp(&y.0)));
-                self.patch.truncate(CONTACT_NODES);
+                self.patch.truncate(PATCH_NODES);
                 let total: f64 = self.patch.iter().map(|e| e.1).sum();
-                contact.n_nodes = self.patch.len();
+                let mut spread = Patch {
+                    nodes: [0; PATCH_NODES],
+                    weights: [0.0; PATCH_NODES],
+                    len: self.patch.len(),
+                };
                 for (k, &(n, w)) in self.patch.iter().enumerate() {
-                    contact.nodes[k] = n;
-                    contact.weights[k] = w / total;
+                    spread.nodes[k] = n;
+                    spread.weights[k] = w / total;
                 }
+                contact.patch = self.patches.len() as u32;
+                self.patches.push(spread);
                 contact.normal = axis;
                 // the gap the row's weights measure: the pressure-weighted mean distance from
                 // the ball to the surface over the patch
@@ -817,7 +866,7 @@ impl ContactDetector {
         }
         let (t1, t2) = tangents(&contact.normal);
         let mut moved = Vector3::zeros();
-        for (n, w) in contact.spread() {
+        for (n, w) in contact.spread(&self.patches) {
             moved += w * (free_positions[n].coords - positions[n].coords);
         }
         let slip = (pf - p0) - moved;
@@ -945,16 +994,12 @@ impl ContactDetector {
         }
         let (t1, t2) = tangents(&normal);
         let slip = (pf - p0) - (c_free - c);
-        let mut spread_nodes = [nodes[0]; CONTACT_NODES];
-        let mut spread_weights = [0.0; CONTACT_NODES];
-        spread_nodes[..3].copy_from_slice(&nodes);
-        spread_weights[..3].copy_from_slice(&weights);
         let contact = Contact {
             sphere: i,
             triangle: tri,
-            nodes: spread_nodes,
-            weights: spread_weights,
-            n_nodes: 3,
+            nodes,
+            weights,
+            patch: NO_PATCH,
             normal,
             t1,
             t2,
@@ -1055,8 +1100,12 @@ mod tests {
             detector.detect(&probe, &surface, None, &mesh.nodes, &mesh.nodes, 0.0);
             assert_eq!(detector.contacts.len(), 1, "one contact per ball");
             let c = detector.contacts[0];
-            assert!(c.n_nodes > 3, "spread over {} nodes", c.n_nodes);
-            let total: f64 = c.spread().map(|(_, w)| w).sum();
+            let spread = &detector.patches;
+            assert!(
+                spread.get(c.patch as usize).is_some_and(|p| p.len > 3),
+                "spread over its patch"
+            );
+            let total: f64 = c.spread(spread).map(|(_, w)| w).sum();
             assert!((total - 1.0).abs() < 1e-12, "weights sum to {total}");
             assert!((c.normal - Vector3::z()).norm() < 1e-9, "{:?}", c.normal);
             // the pressure-weighted mean gap of a sphere δ into a flat face over a = √(R δ):
@@ -1066,7 +1115,7 @@ mod tests {
                 "mean gap {} m",
                 c.gap_start
             );
-            let weights: Vec<(usize, f64)> = c.spread().collect();
+            let weights: Vec<(usize, f64)> = c.spread(spread).collect();
             if let Some((gap, before)) = &last {
                 assert!((c.gap_start - gap).abs() < 1e-7, "gap jumps at step {k}");
                 // weight moved between nodes: bounded by the step over the patch's size

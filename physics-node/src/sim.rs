@@ -631,8 +631,11 @@ impl Simulation {
         // move to resolve it (W = 0), so it carries no constraint.
         if self.probe.drive == crate::probe::ProbeDrive::Kinematic {
             let cache = &self.cache;
-            self.detector.contacts.retain(|c| {
-                c.spread()
+            let ContactDetector {
+                contacts, patches, ..
+            } = &mut self.detector;
+            contacts.retain(|c| {
+                c.spread(patches)
                     .any(|(n, w)| w > 1e-9 && cache.free_index(n) != crate::compliance::NONE)
             });
         }
@@ -666,7 +669,7 @@ impl Simulation {
             let (mut sum, mut weight, mut moved) = (0.0, 0.0, 0.0);
             for c in contacts.iter() {
                 let w = (-c.free_violation[0]).max(0.0);
-                for (n, wn) in c.spread() {
+                for (n, wn) in c.spread(&self.detector.patches) {
                     sum += w * wn * factors[n];
                     moved += w * wn * (x[n] - self.rest_positions[n]).norm();
                     weight += w * wn;
@@ -692,6 +695,7 @@ impl Simulation {
         if m > 0 {
             self.correction.assemble(
                 contacts,
+                &self.detector.patches,
                 &mut self.cache,
                 rotations,
                 &self.probe,

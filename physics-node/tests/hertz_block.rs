@@ -168,7 +168,7 @@ fn ball_on_thick_block_follows_hertz() {
 fn ball_spread_over_its_hertz_patch_on_a_thick_block() {
     let worst = press_the_block(true);
     // Reached (README): +23%, +22%, +19% at 0.1, 0.2, 0.3 mm, the patch's 42–125 nodes cut
-    // to the 32 a contact carries (`CONTACT_NODES`; with 64, +26%, +26%, +25%). A load of
+    // to the 32 a patch carries (`PATCH_NODES`; with 64, +26%, +26%, +25%). A load of
     // Hertz's shape on linear tets is stiffer than the continuum (the bulk floor of
     // `floor_patch_convergence`); the closest points above let the surface between them sink
     // into the ball, which offsets it. The bound is what is reached, with margin.

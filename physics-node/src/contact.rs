@@ -388,7 +388,8 @@ impl ContactDetector {
     /// the tissue nodes under a disc of the Hertz radius a = √(R δ) (δ the indentation of the
     /// surface under the ball from its rest shape), each node weighted by the Hertz pressure
     /// √(1 − r²/a²) integrated against its shape functions, along the pressure-weighted
-    /// mean of the directions from the patch to the ball's centre.
+    /// mean normal of the rest shape under the patch; its gap is the pressure-weighted mean
+    /// distance from the ball to the surface there.
     ///
     /// Why: the default holds the closest point of every triangle near a ball, so its force
     /// goes to the few nodes of one or two facets and jumps between nodes, edges and faces as
@@ -1065,11 +1066,6 @@ mod tests {
         }
     }
 
-    /// Regression: the candidate list has a fixed capacity (16 per sphere) and used to drop
-    /// every feature found after it was full. A ball on a finely meshed block has hundreds
-    /// of features within reach, returned by the bounding-volume query in no useful order,
-    /// so the triangles under the ball were dropped and a ball pressed into the block felt
-    /// no contact at all.
     /// The Hertz patch's contact is one per ball, its weights sum to 1 and, as the ball slides
     /// across the mesh's nodes and edges, its gap and weights change in proportion to the
     /// step: the closest points jump from node to edge to face.
@@ -1135,6 +1131,11 @@ mod tests {
         }
     }
 
+    /// Regression: the candidate list has a fixed capacity (16 per sphere) and used to drop
+    /// every feature found after it was full. A ball on a finely meshed block has hundreds
+    /// of features within reach, returned by the bounding-volume query in no useful order,
+    /// so the triangles under the ball were dropped and a ball pressed into the block felt
+    /// no contact at all.
     #[test]
     fn a_full_candidate_list_keeps_the_features_under_the_sphere() {
         // 24 mm × 24 mm top face of 0.5 mm quads, at z = 5 mm.

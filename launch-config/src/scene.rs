@@ -347,7 +347,7 @@ pub struct ContactConfig {
     pub interface_compliance: f64,
     /// Spread each probe ball's force over its Hertz contact patch, on the nodes under it with
     /// weights continuous in the ball's position, instead of holding the closest point of
-    /// every close triangle (physics-node's `ContactDetector::spread_over_hertz_patch`). Off
+    /// every close triangle (physics-node's `ContactParams::hertz_patch`). Off
     /// by default: the replay and the calibrated scenes hold the closest points.
     pub hertz_patch: bool,
 }

@@ -269,9 +269,19 @@ pub struct ContactParams {
     pub alarm_distance: f64,
     pub contact_distance: f64,
     pub max_contacts: usize,
-    /// Spread each probe ball's force over its Hertz contact patch ([`ContactDetector::
-    /// spread_over_hertz_patch`]) instead of holding the closest point of every close
-    /// triangle.
+    /// Spread each probe ball's force over its contact patch instead of holding the closest
+    /// point of every close triangle: one contact per ball, acting on the tissue nodes under
+    /// a disc of the Hertz radius a = √(R δ) (δ the indentation of the surface under the ball
+    /// from its rest shape), each node weighted by the Hertz pressure √(1 − r²/a²) integrated
+    /// against its shape functions, along the pressure-weighted mean normal of the rest shape
+    /// under the patch; its gap is the pressure-weighted mean distance from the ball to the
+    /// surface there.
+    ///
+    /// Why: the closest points put a ball's force on the few nodes of one or two facets, and
+    /// it jumps between nodes, edges and faces as the ball slides: slid at constant depth along
+    /// the study mesh refined once it varies by 10.5% RMS from facet to facet
+    /// (`tests/facet_slide.rs`). The patch's weights are continuous in the ball's position, as
+    /// a surface-integrated contact's are.
     pub hertz_patch: bool,
 }
 
@@ -359,9 +369,6 @@ pub struct ContactDetector {
     candidates: Vec<Contact>,
     /// Selected contacts, at most max_contacts, ordered by free gap then sphere index.
     pub contacts: Vec<Contact>,
-    /// Rest positions of the mesh nodes, kept when contacts spread over a Hertz patch (its
-    /// radius follows the indentation from rest).
-    rest: Vec<Point3<f64>>,
     /// The patch's nodes and weights while it is integrated (reserved once).
     patch: Vec<(usize, f64)>,
     /// This step's Hertz patches, one per ball in contact ([`Contact::patch`]; reserved
@@ -371,6 +378,12 @@ pub struct ContactDetector {
 
 impl ContactDetector {
     pub fn new(params: ContactParams, spheres: usize) -> ContactDetector {
+        // scratch of the Hertz patches, reserved once (none without them)
+        let (points, balls) = if params.hertz_patch {
+            (3 * PATCH_POINTS, spheres)
+        } else {
+            (0, 0)
+        };
         ContactDetector {
             params,
             tracked: vec![NO_TRIANGLE; spheres],
@@ -378,29 +391,9 @@ impl ContactDetector {
             // full list keeps the most violated (see `push`).
             candidates: Vec::with_capacity(spheres * 2 * FEATURES_PER_SPHERE),
             contacts: Vec::with_capacity(params.max_contacts.max(1)),
-            rest: Vec::new(),
-            patch: Vec::new(),
-            patches: Vec::new(),
+            patch: Vec::with_capacity(points),
+            patches: Vec::with_capacity(balls),
         }
-    }
-
-    /// Spread each probe ball's force over its contact patch: one contact per ball, acting on
-    /// the tissue nodes under a disc of the Hertz radius a = √(R δ) (δ the indentation of the
-    /// surface under the ball from its rest shape), each node weighted by the Hertz pressure
-    /// √(1 − r²/a²) integrated against its shape functions, along the pressure-weighted
-    /// mean normal of the rest shape under the patch; its gap is the pressure-weighted mean
-    /// distance from the ball to the surface there.
-    ///
-    /// Why: the default holds the closest point of every triangle near a ball, so its force
-    /// goes to the few nodes of one or two facets and jumps between nodes, edges and faces as
-    /// it slides: a ball slid at constant depth along the study mesh refined once varies by
-    /// 10.5% RMS from facet to facet (`tests/facet_slide.rs`). The patch's weights are
-    /// continuous in the ball's position, as a surface-integrated contact's are.
-    pub fn spread_over_hertz_patch(&mut self, rest: &[Point3<f64>]) {
-        self.params.hertz_patch = true;
-        self.rest = rest.to_vec();
-        self.patch = Vec::with_capacity(3 * PATCH_POINTS);
-        self.patches = Vec::with_capacity(self.tracked.len());
     }
 
     /// Forget the side history (after a teleport of the probe).
@@ -409,8 +402,10 @@ impl ContactDetector {
     }
 
     /// Finds the contacts of this step. `surface` must be refitted to `positions` (start of
-    /// step); `free_positions` are the tissue nodes after free motion; `tissue_motion` bounds
-    /// how far any surface node moved in the free motion.
+    /// step); `free_positions` are the tissue nodes after free motion, `rest` at rest (what a
+    /// Hertz patch's indentation and normal are measured from); `tissue_motion` bounds how far
+    /// any surface node moved in the free motion.
+    #[allow(clippy::too_many_arguments)]
     pub fn detect(
         &mut self,
         probe: &Probe,
@@ -418,6 +413,7 @@ impl ContactDetector {
         support: Option<&TissueSurface>,
         positions: &[Point3<f64>],
         free_positions: &[Point3<f64>],
+        rest: &[Point3<f64>],
         tissue_motion: f64,
     ) {
         self.candidates.clear();
@@ -531,7 +527,7 @@ impl ContactDetector {
         }
         if self.params.hertz_patch {
             for i in 0..probe.spheres.len() {
-                self.collapse_to_patch(i, probe, surface, nodes);
+                self.collapse_to_patch(i, probe, surface, nodes, rest);
             }
         }
         if let Some(support) = support {
@@ -783,14 +779,14 @@ impl ContactDetector {
     }
 
     /// Replaces sphere `i`'s candidates by one contact spread over its Hertz patch
-    /// ([`Self::spread_over_hertz_patch`]), anchored at the closest of them: its gap is the
-    /// ball's distance to the surface there.
+    /// ([`ContactParams::hertz_patch`]), started at the closest of them.
     fn collapse_to_patch(
         &mut self,
         i: usize,
         probe: &Probe,
         surface: &TissueSurface,
         nodes: (&[Point3<f64>], &[Point3<f64>]),
+        rest: &[Point3<f64>],
     ) {
         let (positions, free_positions) = nodes;
         let Some(anchor) = self
@@ -813,7 +809,7 @@ impl ContactDetector {
         // shape) and the ball's penetration where it has not been resolved
         let mut delta = (-anchor.gap_start).max(0.0);
         for (n, w) in anchor.spread(&[]) {
-            delta += w * anchor.normal.dot(&(self.rest[n] - positions[n]));
+            delta += w * anchor.normal.dot(&(rest[n] - positions[n]));
         }
         let mut axis = anchor.normal;
         let mut contact = anchor;
@@ -825,7 +821,7 @@ impl ContactDetector {
             let mut gap = anchor.gap_start;
             for _ in 0..3 {
                 let Some((direction, mean_gap)) =
-                    self.integrate_patch(&p0, &axis, a, radius, surface)
+                    self.integrate_patch(&p0, &axis, a, radius, surface, rest)
                 else {
                     break;
                 };
@@ -835,7 +831,7 @@ impl ContactDetector {
                 // depth under the centre, as is a ball's mean penetration of a flat face
                 let mut mean_depth = 0.0;
                 for &(n, w) in &self.patch {
-                    mean_depth += w * axis.dot(&(self.rest[n] - positions[n]));
+                    mean_depth += w * axis.dot(&(rest[n] - positions[n]));
                 }
                 let depth = (mean_depth.max(0.0) + (-mean_gap).max(0.0)) / 0.8;
                 a = (radius * depth).sqrt().min(0.9 * radius);
@@ -895,6 +891,7 @@ impl ContactDetector {
         a: f64,
         radius: f64,
         surface: &TissueSurface,
+        rest: &[Point3<f64>],
     ) -> Option<(Vector3<f64>, f64)> {
         let (t1, t2) = tangents(axis);
         self.patch.clear();
@@ -923,14 +920,15 @@ impl ContactDetector {
                 // is the ball's own radius, so their mean is whatever axis the patch was
                 // sampled about, and it kept the closest feature's normal, jumping by 11°
                 // when that feature changed.
-                let [r0, r1, r2] = surface.triangle_nodes(tri).map(|n| self.rest[n]);
+                let nodes = surface.triangle_nodes(tri);
+                let [r0, r1, r2] = nodes.map(|n| rest[n]);
                 if let Some(rest_normal) = (r1 - r0).cross(&(r2 - r0)).try_normalize(1e-30) {
                     direction += rest_normal * pressure;
                 }
                 gap += pressure * (dist - radius);
                 total += pressure;
                 let bary = loc.barycentric_coordinates().unwrap_or([1.0 / 3.0; 3]);
-                for (&n, b) in surface.triangle_nodes(tri).iter().zip(bary) {
+                for (&n, b) in nodes.iter().zip(bary) {
                     let w = pressure * b;
                     if w <= 0.0 {
                         continue;
@@ -1078,10 +1076,9 @@ mod tests {
             alarm_distance: 3.408e-3,
             contact_distance: 1.136e-3,
             max_contacts: 32,
-            hertz_patch: false,
+            hertz_patch: true,
         };
         let mut detector = ContactDetector::new(params, 1);
-        detector.spread_over_hertz_patch(&mesh.nodes);
         let mut last: Option<(f64, Vec<(usize, f64)>)> = None;
         let step = 0.01e-3;
         for k in 0..60 {
@@ -1093,7 +1090,15 @@ mod tests {
             };
             let probe = Probe::new(&cfg, 1.136e-3, std::path::Path::new(".")).unwrap();
             detector.reset_tracking();
-            detector.detect(&probe, &surface, None, &mesh.nodes, &mesh.nodes, 0.0);
+            detector.detect(
+                &probe,
+                &surface,
+                None,
+                &mesh.nodes,
+                &mesh.nodes,
+                &mesh.nodes,
+                0.0,
+            );
             assert_eq!(detector.contacts.len(), 1, "one contact per ball");
             let c = detector.contacts[0];
             let spread = &detector.patches;
@@ -1156,7 +1161,15 @@ mod tests {
             hertz_patch: false,
         };
         let mut detector = ContactDetector::new(params, probe.spheres.len());
-        detector.detect(&probe, &surface, None, &mesh.nodes, &mesh.nodes, 0.0);
+        detector.detect(
+            &probe,
+            &surface,
+            None,
+            &mesh.nodes,
+            &mesh.nodes,
+            &mesh.nodes,
+            0.0,
+        );
         let deepest = detector
             .contacts
             .iter()

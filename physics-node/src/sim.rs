@@ -320,12 +320,9 @@ impl Simulation {
             alarm_distance: c.alarm_distance,
             contact_distance: c.contact_distance,
             max_contacts: c.max_contacts as usize,
-            hertz_patch: false,
+            hertz_patch: c.hertz_patch,
         };
-        let mut detector = ContactDetector::new(params, probe.spheres.len());
-        if c.hertz_patch {
-            detector.spread_over_hertz_patch(&mesh.nodes);
-        }
+        let detector = ContactDetector::new(params, probe.spheres.len());
 
         let mut slot = Box::new(core::mem::MaybeUninit::<ContactFrame>::uninit());
         msgs::Topic::zeroed_in(&mut *slot);
@@ -625,6 +622,7 @@ impl Simulation {
             self.support.as_ref(),
             x0,
             xf,
+            &self.rest_positions,
             motion,
         );
         // A kinematic probe against held nodes only is a rigid–rigid contact: nothing can

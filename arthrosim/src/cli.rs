@@ -197,11 +197,11 @@ pub struct GapArgs {
     /// for comparison).
     #[arg(long)]
     pub no_material_nuisance: bool,
-    /// Do not re-simulate the trials at the tilt the whole experiment fits (the tilt's second
-    /// stage; saves up to two replays per trial when a tilt of 1° or more is fitted; for
-    /// comparison).
-    #[arg(long)]
-    pub no_tilt_centre: bool,
+    /// Do not re-simulate the trials at the tilt and the support the whole experiment fits
+    /// (the second stage; saves up to three replays per trial for each when a tilt of 1° or
+    /// more, or a support, is fitted; for comparison). `--no-tilt-centre` is its older name.
+    #[arg(long, alias = "no-tilt-centre")]
+    pub no_centres: bool,
     /// Also write a launch file whose scene carries the verdict as physics (modulus →
     /// modulus_scale, support → support_stiffness, friction → friction, …; see the README).
     /// A force–displacement table is then fitted in the base scene (press at `--site`,

@@ -350,7 +350,7 @@ fn gap_command(args: GapArgs) -> Result<i32> {
                 nuisance: !args.no_nuisance,
                 contact_nuisance: !args.no_contact_nuisance,
                 material_nuisance: !args.no_material_nuisance,
-                tilt_centre: !args.no_tilt_centre,
+                centres: !args.no_centres,
                 ..gap::Options::default()
             },
             ..gap::selftest::SelftestOptions::default()
@@ -373,7 +373,7 @@ fn gap_command(args: GapArgs) -> Result<i32> {
         nuisance: !args.no_nuisance,
         contact_nuisance: !args.no_contact_nuisance,
         material_nuisance: !args.no_material_nuisance,
-        tilt_centre: !args.no_tilt_centre,
+        centres: !args.no_centres,
         ..gap::Options::default()
     };
     // checked before anything is read: a bad flag fails before minutes of replays

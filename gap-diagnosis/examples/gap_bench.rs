@@ -21,8 +21,8 @@ fn diagnose_15_trials() -> anyhow::Result<()> {
         contact_nuisance: std::env::var_os("GAP_BENCH_NO_CONTACT").is_none(),
         // GAP_BENCH_NO_MATERIAL=1: without the material nuisance (one replay per trial less)
         material_nuisance: std::env::var_os("GAP_BENCH_NO_MATERIAL").is_none(),
-        // GAP_BENCH_NO_TILT_CENTRE=1: without the tilt's second stage
-        tilt_centre: std::env::var_os("GAP_BENCH_NO_TILT_CENTRE").is_none(),
+        // GAP_BENCH_NO_CENTRES=1: without the second stage (re-simulations at fitted tilt and support)
+        centres: std::env::var_os("GAP_BENCH_NO_CENTRES").is_none(),
         ..gap_diagnosis::Options::default()
     };
     let v = gap_diagnosis::selftest::bench(&effect, 5, Some(&mesh), &opts)?;

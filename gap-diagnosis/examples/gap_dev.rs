@@ -109,7 +109,7 @@ impl Case {
         model: &dyn ForceModel,
     ) -> anyhow::Result<(Vec<Effect>, Vec<gap_diagnosis::dataset::TrialData>)> {
         let opts = gap::Options {
-            tilt_centre: std::env::var_os("GAP_DEV_NO_TILT_CENTRE").is_none(),
+            centres: std::env::var_os("GAP_DEV_NO_CENTRES").is_none(),
             ..gap::Options::default()
         };
         let effects = gap::candidate_effects(&self.exp, model, &opts);
@@ -165,7 +165,7 @@ fn rediagnose_kept_cases(root: &Path) -> anyhow::Result<()> {
             contact_nuisance: std::env::var_os("GAP_DEV_NO_CONTACT").is_none(),
             // GAP_DEV_NO_MATERIAL=1: without the material nuisance
             material_nuisance: std::env::var_os("GAP_DEV_NO_MATERIAL").is_none(),
-            tilt_centre: std::env::var_os("GAP_DEV_NO_TILT_CENTRE").is_none(),
+            centres: std::env::var_os("GAP_DEV_NO_CENTRES").is_none(),
             ..gap::Options::default()
         };
         let r = gap::diagnose(exp, &model, &opts)?;

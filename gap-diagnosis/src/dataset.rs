@@ -14,7 +14,7 @@ use std::collections::HashMap;
 pub type ExtraKnot = (f64, Vec<[f64; 3]>);
 
 /// A re-simulation at the parameters the whole experiment fits for a candidate's
-/// re-simulated effects ([`crate::tilt_centre`]), kept as what it corrects in their
+/// re-simulated effects ([`crate::centres`]), kept as what it corrects in their
 /// interpolation there ([`crate::effects::centre_for`]).
 #[derive(Debug, Clone)]
 pub struct Centre {

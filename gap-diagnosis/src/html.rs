@@ -522,7 +522,7 @@ pub fn render(r: &Report) -> String {
         let items: Vec<String> = r.centres.iter().map(|c| esc(c)).collect();
         let _ = write!(
             h,
-            "<p><b>Re-simulated at the fitted tilt</b> (the tilt's second stage: its \
+            "<p><b>Re-simulated at the fitted parameters</b> (the second stage: the \
              interpolation between knots is exact there): {}</p>",
             items.join("; ")
         );

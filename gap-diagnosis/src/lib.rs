@@ -41,6 +41,7 @@
 //! statistics and effects are written against the [`ForceModel`] trait.
 
 pub mod calibrate;
+pub mod centres;
 pub mod dataset;
 pub mod effects;
 pub mod experiment;
@@ -57,7 +58,6 @@ pub mod separability;
 pub mod session;
 pub mod signal;
 pub mod strength;
-pub mod tilt_centre;
 
 pub use effects::{Candidate, Effect};
 pub use experiment::{
@@ -140,10 +140,11 @@ pub struct Options {
     /// law and the stable neo-Hookean one ([`fit::MATERIAL_WEIGHT_MAX`]; one more replay per
     /// trial). Default on (README, "A second constitutive law beside it").
     pub material_nuisance: bool,
-    /// Re-simulate every trial once more at the tilt the whole experiment fits, when it is
-    /// at least [`tilt_centre::MIN_CENTRE_DEG`], and at the tilt+support pair's fit
-    /// ([`tilt_centre`]; up to [`tilt_centre::ROUNDS`] replays per trial for each). Default on.
-    pub tilt_centre: bool,
+    /// Re-simulate every trial once more at the support the whole experiment fits, when its
+    /// compliance is at least [`centres::MIN_CENTRE_SUPPORT`], at the tilt, when it is at
+    /// least [`centres::MIN_CENTRE_DEG`], and at the tilt+support pair's fit ([`centres`]; up
+    /// to [`centres::ROUNDS`] replays per trial for each). Default on.
+    pub centres: bool,
 }
 
 impl Options {
@@ -211,7 +212,7 @@ impl Default for Options {
             nuisance: true,
             contact_nuisance: true,
             material_nuisance: true,
-            tilt_centre: true,
+            centres: true,
         }
     }
 }
@@ -330,7 +331,7 @@ pub struct Verdict {
 }
 
 /// Wall time of a diagnosis' stages, s: the replays (baseline, knots, the contact nuisance's
-/// knot), the tilt's second stage ([`tilt_centre`]) and the fits with their held-out folds.
+/// knot), the second stage ([`centres`]) and the fits with their held-out folds.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub struct StageTimes {
     pub replays_s: f64,
@@ -360,9 +361,10 @@ pub struct Report {
     /// interpolate through their other knots.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub diverged_replays: Vec<String>,
-    /// The re-simulations at fitted parameters, the tilt's second stage ([`tilt_centre`]):
-    /// e.g. `tilt at tilt_x 4.19 deg, tilt_y 2.05 deg (15 of 15 trials)`. Empty when no tilt
-    /// of at least [`tilt_centre::MIN_CENTRE_DEG`] was fitted or the option was off.
+    /// The re-simulations at fitted parameters, the second stage ([`centres`]): e.g.
+    /// `tilt at tilt_x 4.19 deg, tilt_y 2.05 deg (15 of 15 trials)`. Empty when neither a
+    /// tilt of at least [`centres::MIN_CENTRE_DEG`] nor a support of at least
+    /// [`centres::MIN_CENTRE_SUPPORT`] was fitted, or the option was off.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub centres: Vec<String>,
     /// Device-rendered vs model force, when a session recording was given.
@@ -453,8 +455,8 @@ pub fn diagnose(
 }
 
 /// Every replay the diagnosis of `exp` with `effects` needs: the baseline, each effect's
-/// re-simulations and the nuisance's knot ([`dataset::build`]), then the tilt's second stage
-/// ([`tilt_centre::add_centres`]) when `opts.tilt_centre`.
+/// re-simulations and the nuisance's knot ([`dataset::build`]), then the second stage
+/// ([`centres::add_centres`]) when `opts.centres`.
 pub fn prepare_dataset(
     exp: &Experiment,
     model: &dyn ForceModel,
@@ -474,8 +476,8 @@ pub fn prepare_dataset_timed(
     let t0 = std::time::Instant::now();
     let mut data = dataset::build(exp, model, effects, &opts.build_options())?;
     let replays_s = t0.elapsed().as_secs_f64();
-    if opts.tilt_centre {
-        tilt_centre::add_centres(&mut data, model, opts.nuisance_band())?;
+    if opts.centres {
+        centres::add_centres(&mut data, model, opts.nuisance_band())?;
     }
     let centres_s = t0.elapsed().as_secs_f64() - replays_s;
     Ok((
@@ -723,7 +725,7 @@ pub fn diagnose_data(
         stages: None,
         trial_reports,
         diverged_replays: data.iter().flat_map(|d| d.diverged_labels()).collect(),
-        centres: tilt_centre::describe(data),
+        centres: centres::describe(data),
         rendering_gap: None,
     })
 }

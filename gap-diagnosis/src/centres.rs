@@ -20,7 +20,11 @@
 //! on the fixed base and the support's knots untilted, so their deltas, added, overstate the
 //! tilt's force where the base gives (the true parameters of a study-mesh support+tilt case
 //! left 31.7 N RMS where the baseline left 13.4 N). The pair gets its own centre, replayed
-//! tilted on the fitted support.
+//! tilted on the fitted support. A centre alone fixes the pair's value there, not its slopes:
+//! leaving the centre, each effect's delta still comes from knots replayed without the other
+//! (a study-mesh pair whose centre stood at tilt_y −0.47° was 5.1 N RMS off at the true
+//! −1.80°, where a replay is 0.44 N off), so the fit never left it. A pair's centre therefore
+//! also carries the replay's slopes there, from a step along each parameter.
 use super::dataset::{replay_trials, Centre, TrialData};
 use super::effects::{axpy_resimulated, Candidate, Effect, SUPPORT_KNOTS, SUPPORT_SPAN};
 use super::fit::{default_free, fit, Nuisance};
@@ -41,6 +45,10 @@ pub const MIN_CENTRE_SUPPORT: f64 = crate::strength::MIN_SUPPORT_COMPLIANCE;
 /// another centre at the refit is made when it moved by at least [`SETTLED`] (in
 /// [`crate::effects::centre_unit`]s: 0.5° of tilt, 8.3·10⁻⁵ m/N of support compliance).
 pub const ROUNDS: usize = 3;
+/// At most this many for a pair: each of its centres moves the fit only as far as the
+/// centre's weight reaches (its own distance from the neutral point), and a pair's tilt
+/// beyond the ±6° knots took five (a coarse-mesh case's −2.6° → −6.1° for a true −6.9°).
+pub const PAIR_ROUNDS: usize = 6;
 pub const SETTLED: f64 = 0.5 / 6.0;
 
 /// Fits the support alone to every trial (with the nuisances `nuisance`) and, when its
@@ -48,7 +56,8 @@ pub const SETTLED: f64 = 0.5 / 6.0;
 /// the correction as a [`Centre`]; then once more at the refit if it moved ([`ROUNDS`]). The
 /// same for the tilt alone when it tilts by at least [`MIN_CENTRE_DEG`]; with a tilt centre
 /// and support knots, for the tilt+support pair when its fitted support compliance is at
-/// least [`MIN_CENTRE_SUPPORT`], whatever tilt it fits. What was made is in each trial's
+/// least [`MIN_CENTRE_SUPPORT`], whatever tilt it fits: up to [`PAIR_ROUNDS`] centres, each
+/// with its slopes ([`Centre::slopes`]: one more replay per parameter). What was made is in each trial's
 /// [`TrialData::centres`] ([`describe`]), in the order made: a pair with two centres of one
 /// effect each ([`crate::effects::centre_for`]) takes the later, the tilt's, whose
 /// interpolation errs most.
@@ -101,7 +110,8 @@ fn centre_rounds(
     let all: Vec<Vec<bool>> = data.iter().map(|d| vec![true; d.t.len()]).collect();
     let nuisance = nuisance.for_candidate(c).for_data(data);
     let mut done: Option<Vec<f64>> = None;
-    for _ in 0..ROUNDS {
+    let rounds = if c.0.len() > 1 { PAIR_ROUNDS } else { ROUNDS };
+    for _ in 0..rounds {
         let mut starts = inits.to_vec();
         starts.extend(done.clone());
         let fitted = fit(c, data, &all, &starts, &default_free(c), nuisance);
@@ -158,31 +168,81 @@ fn replay_centre(
     c: &Candidate,
     theta: &[f64],
 ) -> Result<(), GapError> {
-    let variant = centre_variant(c, theta);
-    let replays = replay_trials(data, model, &variant);
+    let replays = replay_trials(data, model, &centre_variant(c, theta));
+    // a pair's slopes: one replay a step along each parameter
+    let units = units(c);
+    let steps: Vec<(Vec<f64>, f64)> = if c.0.len() > 1 {
+        (0..theta.len())
+            .map(|i| {
+                let h = SLOPE_STEP * units[i];
+                let mut at = theta.to_vec();
+                at[i] += h;
+                (at, h)
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let stepped: Vec<_> = steps
+        .iter()
+        .map(|(at, _)| replay_trials(data, model, &centre_variant(c, at)))
+        .collect();
+    let mut stepped: Vec<_> = stepped.into_iter().map(|r| r.into_iter()).collect();
     for (d, r) in data.iter_mut().zip(replays) {
         let r = r?;
+        let steps_here = stepped
+            .iter_mut()
+            .map(|it| it.next().expect("one replay per trial"))
+            .collect::<Result<Vec<_>, _>>()?;
         d.centres.retain(|k| k.effects != c.0);
         // a step the physics flagged as faulty is no solution: that trial keeps the plain
         // interpolation
         if r.diverged() {
             continue;
         }
-        let mut at_centre = d.base.clone();
-        axpy_resimulated(&mut at_centre, c, theta, d);
-        let correction = r
-            .forces
-            .iter()
-            .zip(&at_centre)
-            .map(|(f, q)| [f[0] - q[0], f[1] - q[1], f[2] - q[2]])
-            .collect();
+        let interpolated = |at: &[f64]| {
+            let mut grid = d.base.clone();
+            axpy_resimulated(&mut grid, c, at, d);
+            grid
+        };
+        let correction: Vec<[f64; 3]> = difference(&r.forces, &interpolated(theta));
+        // the slopes only where every step replayed: one missing would leave the others'
+        // directions to carry the pair's error alone
+        let slopes = if steps_here.iter().any(|s| s.diverged()) {
+            Vec::new()
+        } else {
+            steps
+                .iter()
+                .zip(&steps_here)
+                .map(|((at, h), s)| {
+                    difference(&s.forces, &interpolated(at))
+                        .iter()
+                        .zip(&correction)
+                        .map(|(a, b)| [0, 1, 2].map(|q| (a[q] - b[q]) / h))
+                        .collect()
+                })
+                .collect()
+        };
         d.centres.push(Centre {
             effects: c.0.clone(),
             theta: theta.to_vec(),
             correction,
+            slopes,
         });
     }
     Ok(())
+}
+
+/// A pair centre's slope step, in [`crate::effects::centre_unit`]s: 0.6° of tilt, 10⁻⁴ m/N
+/// of support compliance; small against the distances a refit moves, large against the
+/// replay's own tolerance.
+pub const SLOPE_STEP: f64 = 0.1;
+
+fn difference(a: &[[f64; 3]], b: &[[f64; 3]]) -> Vec<[f64; 3]> {
+    a.iter()
+        .zip(b)
+        .map(|(f, q)| [f[0] - q[0], f[1] - q[1], f[2] - q[2]])
+        .collect()
 }
 
 /// The centres in `data`, one line each, as the report lists them: the candidate, its

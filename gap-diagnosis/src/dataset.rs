@@ -24,6 +24,14 @@ pub struct Centre {
     pub theta: Vec<f64>,
     /// Re-simulated force minus the effects' interpolation at `theta`, on the grid.
     pub correction: Vec<[f64; 3]>,
+    /// For a centre of two effects, per parameter (in `theta`'s order), the re-simulated
+    /// force's slope there minus the interpolation's, on the grid (N per parameter unit),
+    /// from one more replay a step away ([`crate::centres`]): the interpolation of a pair
+    /// adds each effect's delta as replayed without the other, so its slopes at the centre
+    /// are the wrong ones. Empty for a single effect's centre (given slopes, the support's
+    /// moved the device+support case's support from 3% to 19% off), or where a step's replay
+    /// diverged.
+    pub slopes: Vec<Vec<[f64; 3]>>,
 }
 
 #[derive(Debug, Clone)]

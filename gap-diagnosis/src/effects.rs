@@ -375,8 +375,11 @@ pub fn predict(
     // change too fitted the layer at twice its weight beside a tilt, and a held-out region
     // then missed by twice as much (README, "Friction through the contact layer")
     axpy_resimulated_where(grid, c, theta, td, |e| e != Effect::Friction);
-    if let Some((centre, w)) = centre_for(c, theta, td) {
+    if let Some((centre, w, offset)) = centre_for(c, theta, td) {
         axpy(grid, w, &centre.correction, None);
+        for (slope, d) in centre.slopes.iter().zip(offset) {
+            axpy(grid, w * d, slope, None);
+        }
     }
     let stiffness = nuisance.stiffness;
     let mut k = 0;
@@ -519,14 +522,15 @@ pub fn centre_unit(e: Effect) -> f64 {
     }
 }
 
-/// The centre ([`TrialData::centres`]) candidate `c` uses at `theta`, and its weight there:
-/// the centre made for exactly `c`'s re-simulated effects, else the one made for the most of
-/// them (a pair's tilt uses the tilt's own centre).
+/// The centre ([`TrialData::centres`]) candidate `c` uses at `theta`, its weight there and
+/// the candidate's step from it (its values of the centre's parameters minus the centre's,
+/// what [`Centre::slopes`] multiply): the centre made for exactly `c`'s re-simulated effects,
+/// else the one made for the most of them (a pair's tilt uses the tilt's own centre).
 pub fn centre_for<'a>(
     c: &Candidate,
     theta: &[f64],
     td: &'a TrialData,
-) -> Option<(&'a Centre, f64)> {
+) -> Option<(&'a Centre, f64, [f64; MAX_CENTRE_PARAMS])> {
     if td.centres.is_empty() {
         return None;
     }
@@ -547,8 +551,15 @@ pub fn centre_for<'a>(
         }
     }
     let w = centre_weight(&at, &centre.theta, &units);
-    (w > 0.0).then_some((centre, w))
+    let mut offset = [0.0; MAX_CENTRE_PARAMS];
+    for ((o, a), k) in offset.iter_mut().zip(&at).zip(&centre.theta) {
+        *o = a - k;
+    }
+    (w > 0.0).then_some((centre, w, offset))
 }
+
+/// The most parameters a centre has: the tilt's two and the support's one.
+pub const MAX_CENTRE_PARAMS: usize = 3;
 
 /// Weight of a centre's correction at `at` (the centre at `centre`, each coordinate divided by
 /// its `units`): 1 at the centre, falling smoothly (C¹) to 0 at the centre's own distance from

@@ -197,9 +197,10 @@ pub struct GapArgs {
     /// for comparison).
     #[arg(long)]
     pub no_material_nuisance: bool,
-    /// Do not re-simulate the trials at the tilt and the support the whole experiment fits
-    /// (the second stage; saves up to three replays per trial for each when a tilt of 1° or
-    /// more, or a support, is fitted; for comparison). `--no-tilt-centre` is its older name.
+    /// Do not re-simulate the trials at the tilt and the support the whole experiment fits,
+    /// alone and together (the second stage; saves up to three replays per trial for
+    /// each of the tilt and the support when a tilt of 1° or more, or a support, is fitted, and
+    /// up to 24 for the pair; for comparison). `--no-tilt-centre` is its older name.
     #[arg(long, alias = "no-tilt-centre")]
     pub no_centres: bool,
     /// Also write a launch file whose scene carries the verdict as physics (modulus →

@@ -57,10 +57,10 @@ pub const SETTLED: f64 = 0.5 / 6.0;
 /// same for the tilt alone when it tilts by at least [`MIN_CENTRE_DEG`]; with a tilt centre
 /// and support knots, for the tilt+support pair when its fitted support compliance is at
 /// least [`MIN_CENTRE_SUPPORT`], whatever tilt it fits: up to [`PAIR_ROUNDS`] centres, each
-/// with its slopes ([`Centre::slopes`]: one more replay per parameter). What was made is in each trial's
-/// [`TrialData::centres`] ([`describe`]), in the order made: a pair with two centres of one
-/// effect each ([`crate::effects::centre_for`]) takes the later, the tilt's, whose
-/// interpolation errs most.
+/// with its slopes ([`Centre::slopes`]: one more replay per parameter). What was made is in
+/// each trial's [`TrialData::centres`] ([`describe`]), in the order made: a pair with two
+/// centres of one effect each ([`crate::effects::centre_for`]) takes the later, the tilt's,
+/// whose interpolation errs most.
 pub fn add_centres(
     data: &mut [TrialData],
     model: &dyn ForceModel,
@@ -96,7 +96,7 @@ pub fn add_centres(
     Ok(())
 }
 
-/// Up to [`ROUNDS`] centres for candidate `c` (only re-simulated effects), each at the
+/// Up to [`ROUNDS`] ([`PAIR_ROUNDS`] for a pair) centres for candidate `c` (only re-simulated effects), each at the
 /// candidate's fit over every trial with the centre before it in place; returns the last
 /// centre's parameters (None: the fit was never significant).
 fn centre_rounds(
@@ -183,17 +183,20 @@ fn replay_centre(
     } else {
         Vec::new()
     };
-    let stepped: Vec<_> = steps
-        .iter()
-        .map(|(at, _)| replay_trials(data, model, &centre_variant(c, at)))
+    // each trial's replays a step away, in the parameters' order
+    let mut stepped: Vec<Vec<_>> = (0..data.len())
+        .map(|_| Vec::with_capacity(steps.len()))
         .collect();
-    let mut stepped: Vec<_> = stepped.into_iter().map(|r| r.into_iter()).collect();
-    for (d, r) in data.iter_mut().zip(replays) {
-        let r = r?;
-        let steps_here = stepped
+    for (at, _) in &steps {
+        for (own, r) in stepped
             .iter_mut()
-            .map(|it| it.next().expect("one replay per trial"))
-            .collect::<Result<Vec<_>, _>>()?;
+            .zip(replay_trials(data, model, &centre_variant(c, at)))
+        {
+            own.push(r?);
+        }
+    }
+    for ((d, r), steps_here) in data.iter_mut().zip(replays).zip(stepped) {
+        let r = r?;
         d.centres.retain(|k| k.effects != c.0);
         // a step the physics flagged as faulty is no solution: that trial keeps the plain
         // interpolation

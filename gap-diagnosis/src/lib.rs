@@ -143,7 +143,9 @@ pub struct Options {
     /// Re-simulate every trial once more at the support the whole experiment fits, when its
     /// compliance is at least [`centres::MIN_CENTRE_SUPPORT`], at the tilt, when it is at
     /// least [`centres::MIN_CENTRE_DEG`], and at the tilt+support pair's fit ([`centres`]; up
-    /// to [`centres::ROUNDS`] replays per trial for each). Default on.
+    /// to [`centres::ROUNDS`] replays per trial for each single effect, and
+    /// [`centres::PAIR_ROUNDS`] centres of four replays each, with their slopes, for the
+    /// pair). Default on.
     pub centres: bool,
 }
 

@@ -2,7 +2,8 @@
 //!
 //! `cargo run --release -p gap-diagnosis --example gap_bench` prints one JSON line: a generated
 //! 15-trial experiment (five probings × three regions) diagnosed end to end with the physics
-//! model (`GAP_BENCH_EFFECT`, default `hardening`, picks the injected effect;
+//! model (`GAP_BENCH_EFFECT`, default `hardening`, picks the injected effect, or a pair as
+//! `tilt+support`;
 //! `GAP_BENCH_MESH`, default `default:lateral:40x6x4` with 1,435 nodes, the specimen: issue 15
 //! asks for ≤ 60 s on a ~1,400-node one. `GAP_BENCH_MESH=default:lateral:coarse` is the
 //! 276-node specimen of the earlier figures, with the `mesh` candidate on its refinement;

@@ -417,7 +417,9 @@ pub fn bench(
         std::process::id(),
         seed
     ));
-    let mut spec = RealitySpec::from_effects(&[effect], seed)?;
+    // a pair as `tilt+support`
+    let effects: Vec<&str> = effect.split('+').collect();
+    let mut spec = RealitySpec::from_effects(&effects, seed)?;
     if let Some(m) = mesh {
         spec.mesh = m.to_string();
     }

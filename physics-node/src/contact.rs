@@ -1082,13 +1082,7 @@ mod tests {
         let mut last: Option<(f64, Vec<(usize, f64)>)> = None;
         let step = 0.01e-3;
         for k in 0..60 {
-            let cfg = launch_config::scene::ProbeConfig {
-                model: "sphere".into(),
-                tip_radius: 3.0e-3,
-                initial_position: [0.012 + k as f64 * step, 0.0121, 0.005 + 3.0e-3 - 0.1e-3],
-                ..Default::default()
-            };
-            let probe = Probe::new(&cfg, 1.136e-3, std::path::Path::new(".")).unwrap();
+            let probe = ball_at([0.012 + k as f64 * step, 0.0121, 0.005 + 3.0e-3 - 0.1e-3]);
             detector.reset_tracking();
             detector.detect(
                 &probe,
@@ -1136,6 +1130,17 @@ mod tests {
         }
     }
 
+    /// A ball-tipped probe of radius 3 mm with its centre at `centre`.
+    fn ball_at(centre: [f64; 3]) -> Probe {
+        let cfg = launch_config::scene::ProbeConfig {
+            model: "sphere".into(),
+            tip_radius: 3.0e-3,
+            initial_position: centre,
+            ..Default::default()
+        };
+        Probe::new(&cfg, 1.136e-3, std::path::Path::new(".")).unwrap()
+    }
+
     /// Regression: the candidate list has a fixed capacity (16 per sphere) and used to drop
     /// every feature found after it was full. A ball on a finely meshed block has hundreds
     /// of features within reach, returned by the bounding-volume query in no useful order,
@@ -1147,13 +1152,7 @@ mod tests {
         let mesh = box_mesh(0.024, 0.024, 0.005, 48, 48, 1);
         let surface = TissueSurface::new(mesh.boundary_faces(), &mesh.nodes).unwrap();
         // The ball's centre above the middle of the face, the ball 0.1 mm into the tissue.
-        let cfg = launch_config::scene::ProbeConfig {
-            model: "sphere".into(),
-            tip_radius: 3.0e-3,
-            initial_position: [0.012, 0.012, 0.005 + 3.0e-3 - 0.1e-3],
-            ..Default::default()
-        };
-        let probe = Probe::new(&cfg, 1.136e-3, std::path::Path::new(".")).unwrap();
+        let probe = ball_at([0.012, 0.012, 0.005 + 3.0e-3 - 0.1e-3]);
         let params = ContactParams {
             alarm_distance: 3.408e-3,
             contact_distance: 1.136e-3,

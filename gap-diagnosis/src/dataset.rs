@@ -32,6 +32,11 @@ pub struct Centre {
     /// moved the device+support case's support from 3% to 19% off), or where a step's replay
     /// diverged.
     pub slopes: Vec<Vec<[f64; 3]>>,
+    /// The distance from the centre at which its weight falls to 0, in multiples of its own
+    /// distance from the neutral point ([`crate::effects::centre_weight`]): 1 once made, so
+    /// the candidate is the baseline there; wider while a pair's rounds look for the next
+    /// centre ([`crate::centres::SEARCH_REACH`]).
+    pub reach: f64,
 }
 
 #[derive(Debug, Clone)]

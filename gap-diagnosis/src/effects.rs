@@ -550,7 +550,7 @@ pub fn centre_for<'a>(
             units.push(centre_unit(*e));
         }
     }
-    let w = centre_weight(&at, &centre.theta, &units);
+    let w = centre_weight(&at, &centre.theta, &units, centre.reach);
     let mut offset = [0.0; MAX_CENTRE_PARAMS];
     for ((o, a), k) in offset.iter_mut().zip(&at).zip(&centre.theta) {
         *o = a - k;
@@ -565,13 +565,16 @@ pub const MAX_CENTRE_PARAMS: usize = 3;
 /// its `units`): 1 at the centre, falling smoothly (C¹) to 0 at the centre's own distance from
 /// the neutral point (every re-simulated effect vanishes at 0) and held there beyond. So the
 /// candidate is exact at the re-simulated parameters, and at the neutral point it is still
-/// exactly the baseline, which the other candidates and the floor share.
-pub fn centre_weight(at: &[f64], centre: &[f64], units: &[f64]) -> f64 {
+/// exactly the baseline, which the other candidates and the floor share. `reach` multiplies
+/// that distance: 1 for every centre the diagnosis uses; a pair's search for its next centre
+/// reaches further ([`crate::centres::SEARCH_REACH`]).
+pub fn centre_weight(at: &[f64], centre: &[f64], units: &[f64], reach: f64) -> f64 {
     let (mut r2, mut d2) = (0.0, 0.0);
     for ((a, c), u) in at.iter().zip(centre).zip(units) {
         r2 += (c / u).powi(2);
         d2 += ((a - c) / u).powi(2);
     }
+    r2 *= reach * reach;
     if r2 == 0.0 {
         return 0.0;
     }
@@ -816,14 +819,14 @@ mod tests {
     #[test]
     fn a_centre_weighs_one_at_itself_and_nothing_at_the_neutral_point() {
         let (c, u) = ([4.0, -2.0, 3e-4], [6.0, 6.0, SUPPORT_SPAN]);
-        assert_eq!(centre_weight(&c, &c, &u), 1.0);
-        assert_eq!(centre_weight(&[0.0; 3], &c, &u), 0.0);
-        assert_eq!(centre_weight(&[8.0, -4.0, 6e-4], &c, &u), 0.0);
-        let mut last = centre_weight(&[0.0; 3], &c, &u);
+        assert_eq!(centre_weight(&c, &c, &u, 1.0), 1.0);
+        assert_eq!(centre_weight(&[0.0; 3], &c, &u, 1.0), 0.0);
+        assert_eq!(centre_weight(&[8.0, -4.0, 6e-4], &c, &u, 1.0), 0.0);
+        let mut last = centre_weight(&[0.0; 3], &c, &u, 1.0);
         for k in 1..=1000 {
             let f = k as f64 / 1000.0;
             let at = [c[0] * f, c[1] * f, c[2] * f];
-            let w = centre_weight(&at, &c, &u);
+            let w = centre_weight(&at, &c, &u, 1.0);
             assert!(
                 (0.0..=1.0).contains(&w) && w >= last,
                 "{f}: {w} after {last}"
@@ -832,9 +835,29 @@ mod tests {
             last = w;
         }
         assert_eq!(
-            centre_weight(&c, &[0.0; 3], &u),
+            centre_weight(&c, &[0.0; 3], &u, 1.0),
             0.0,
             "a centre at neutral is none"
         );
+    }
+
+    /// Reaching 3× (a pair's search), the weight is still 1 at the centre, falls to 0 only at
+    /// three times the centre's distance from the neutral point, and leaves (8/9)² at the
+    /// neutral point itself.
+    #[test]
+    fn a_searching_centre_reaches_three_times_as_far() {
+        let (c, u) = ([4.0, -2.0, 3e-4], [6.0, 6.0, SUPPORT_SPAN]);
+        assert_eq!(centre_weight(&c, &c, &u, 3.0), 1.0);
+        let neutral = centre_weight(&[0.0; 3], &c, &u, 3.0);
+        assert!(
+            (neutral - (8.0f64 / 9.0).powi(2)).abs() < 1e-12,
+            "{neutral}"
+        );
+        // twice as far from the neutral point as the centre: 0 at reach 1, kept at reach 3
+        let beyond = [8.0, -4.0, 6e-4];
+        assert_eq!(centre_weight(&beyond, &c, &u, 1.0), 0.0);
+        assert!((centre_weight(&beyond, &c, &u, 3.0) - neutral).abs() < 1e-12);
+        // four times: beyond the reach
+        assert_eq!(centre_weight(&[16.0, -8.0, 1.2e-3], &c, &u, 3.0), 0.0);
     }
 }

@@ -454,7 +454,15 @@ pub fn bench(
         "centres_s": report.stages.map(|s| s.centres_s),
         "fits_s": report.stages.map(|s| s.fits_s),
         "truth": spec.label(),
+        // the injected strengths and the fitted ones, so a reader sees how near the fit came
+        "injected": spec.injected,
         "verdict": report.verdict.effect,
+        "fitted": report
+            .verdict
+            .params
+            .iter()
+            .map(|p| (format!("{}.{}", p.effect, p.name), p.value))
+            .collect::<std::collections::BTreeMap<_, _>>(),
         "heldout_shrink": report.verdict.heldout_shrink,
         "loadavg_1m_before": host.loadavg_1m_before,
         "loadavg_1m_after": host.loadavg_1m_after,

@@ -276,7 +276,10 @@ fn a_tilt_centre_makes_the_tilt_exact_at_the_fitted_angles() {
     ];
     eprintln!("true tilt {true_angles:?}, centre {c:?}");
     let units = [6.0, 6.0];
-    assert!(centre_weight(&c, &c, &units) == 1.0 && centre_weight(&[0.0; 2], &c, &units) == 0.0);
+    assert!(
+        centre_weight(&c, &c, &units, 1.0) == 1.0
+            && centre_weight(&[0.0; 2], &c, &units, 1.0) == 0.0
+    );
     let variant = gap_diagnosis::model::Variant {
         tilt: [c[0].to_radians(), c[1].to_radians()],
         ..Default::default()

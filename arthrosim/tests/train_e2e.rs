@@ -74,6 +74,16 @@ fn train_six_cases_with_the_emulated_operator_then_report() {
         text.contains("confusion") && text.contains("accuracy"),
         "{text}"
     );
+    // The reference every answer is measured against stands on three probings per region
+    // (the operator's three, three times over), its stiffness on each region's median.
+    let reference_probings: u32 = text
+        .lines()
+        .find_map(|l| l.strip_prefix("reference: "))
+        .and_then(|l| l.split_whitespace().next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no reference line:\n{text}"));
+    assert!(reference_probings >= 9, "{text}");
+    assert_eq!(text.matches("of the reference").count(), 6, "{text}");
 
     // What an outside check reads, with Python's sqlite3.
     let rows = python(

@@ -586,7 +586,18 @@ impl Driver<'_> {
         let start = Instant::now();
         let since_ns = msgs::clock::monotonic_ns();
         let settle = Duration::from_secs_f64(self.config.settle_s);
-        let timeout = Duration::from_secs_f64(self.config.case_timeout_s);
+        // The reference is what every answer is measured against: the emulated operator
+        // probes it REFERENCE_ROUNDS times over, so its per-region median leaves out one
+        // disturbed probing (a full-suite run under load graded both healthy specimens 1 and
+        // one grade 1 as 2, every case's ratio ~0.8× low against a reference probed once per
+        // region).
+        let rounds = if reference.is_none() && case_index == 0 {
+            REFERENCE_ROUNDS
+        } else {
+            1
+        };
+        let probings_wanted = self.config.operator_probings * rounds;
+        let timeout = Duration::from_secs_f64(self.config.case_timeout_s) * rounds;
         let mut measure = CaseMeasure::default();
         let mut selected = 0u32;
         let mut last_prompt = Instant::now();
@@ -615,20 +626,6 @@ impl Driver<'_> {
             if confirm && self.operator == Operator::Trainee {
                 return Ok((measure, Some(Answer::Buttons(selected))));
             }
-            // The reference is what every answer is measured against: the emulated operator
-            // probes it REFERENCE_ROUNDS times over, so its per-region median leaves out one
-            // disturbed probing (a CI run graded both healthy specimens 1 and one grade 1 as 2,
-            // every case's ratio ~0.8× low against a reference probed once per region).
-            let probings_wanted = if reference.is_none() && case_index == 0 {
-                self.config.operator_probings * REFERENCE_ROUNDS
-            } else {
-                self.config.operator_probings
-            };
-            let timeout = if case_index == 0 {
-                timeout * REFERENCE_ROUNDS
-            } else {
-                timeout
-            };
             if self.operator == Operator::Emulated
                 && (measure.probings() >= probings_wanted || start.elapsed() >= timeout)
             {

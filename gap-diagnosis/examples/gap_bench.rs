@@ -8,6 +8,8 @@
 //! asks for ≤ 60 s on a ~1,400-node one. `GAP_BENCH_MESH=default:lateral:coarse` is the
 //! 276-node specimen of the earlier figures, with the `mesh` candidate on its refinement;
 //! `GAP_BENCH_NO_CONTACT=1` fits the stiffness nuisance alone, without the contact nuisance).
+//! Beside the stages' times and the verdict, the line carries the injected strengths
+//! (`injected`) and the verdict's fitted parameters (`fitted`).
 //!
 //! `cargo run --release -p gap-diagnosis --example gap_bench -- selftest-cycle [CASES]` runs the
 //! full case cycle through the physics model (slow; default 14 cases, seed 21) and prints the

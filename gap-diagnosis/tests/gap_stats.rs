@@ -154,6 +154,26 @@ fn experiment(
     (exp, truth)
 }
 
+/// The centre tests' experiment: `effects` drawn from `seed`, the stand-in's replay as the
+/// truth, two probings per region, `adjust` setting what the test needs (its strengths, the
+/// offset); written under a scratch folder named after `name`, loaded back and removed.
+fn replay_experiment(
+    model: &Hertz,
+    name: &str,
+    effects: &[&str],
+    seed: u64,
+    adjust: impl FnOnce(&mut RealitySpec),
+) -> (Experiment, gap_diagnosis::reality::Truth) {
+    let dir = std::env::temp_dir().join(format!("gap_stats_{name}_{}", std::process::id()));
+    let mut spec = RealitySpec::from_effects(effects, seed).unwrap();
+    spec.truth_mesh = TruthMesh::Replay;
+    spec.probings_per_region = 2;
+    adjust(&mut spec);
+    let out = experiment(&spec, model, &model.sites, &dir);
+    let _ = std::fs::remove_dir_all(&dir);
+    out
+}
+
 fn run(cases: usize, seed: u64, stiffness_offset: f64) -> gap_diagnosis::selftest::SelftestResult {
     let model = stand_in();
     let opts = SelftestOptions {
@@ -238,13 +258,7 @@ fn a_tilt_centre_makes_the_tilt_exact_at_the_fitted_angles() {
     use gap_diagnosis::effects::{centre_weight, Candidate, Effect};
     use gap_diagnosis::fit::{self, NuisanceFit};
     let model = stand_in();
-    let sites = model.sites.clone();
-    let dir = std::env::temp_dir().join(format!("gap_stats_tilt_centre_{}", std::process::id()));
-    let mut spec = RealitySpec::from_effects(&["tilt"], 7).unwrap();
-    spec.truth_mesh = TruthMesh::Replay;
-    spec.probings_per_region = 2;
-    let (exp, truth) = experiment(&spec, &model, &sites, &dir);
-    let _ = std::fs::remove_dir_all(&dir);
+    let (exp, truth) = replay_experiment(&model, "tilt_centre", &["tilt"], 7, |_| {});
     let tilt = Candidate::single(Effect::Tilt);
     let effects = [Effect::Tilt];
     let with = |centre: bool| {
@@ -311,19 +325,14 @@ fn a_support_between_its_knots_is_fitted_at_its_own_replay() {
     use gap_diagnosis::effects::{Candidate, Effect};
     use gap_diagnosis::fit::{self, NuisanceFit};
     let model = stand_in();
-    let sites = model.sites.clone();
-    let dir = std::env::temp_dir().join(format!("gap_stats_support_centre_{}", std::process::id()));
-    let mut spec = RealitySpec::from_effects(&["support"], 5).unwrap();
-    spec.truth_mesh = TruthMesh::Replay;
-    spec.probings_per_region = 2;
-    // no stiffness offset: the truth is then exactly the replay at its support
-    spec.stiffness_scale = 1.0;
-    // between the 2000 and 1000 N/m knots, where the chord errs most
-    spec.injected[0]
-        .params
-        .insert("support_stiffness".into(), 1400.0);
-    let (exp, _) = experiment(&spec, &model, &sites, &dir);
-    let _ = std::fs::remove_dir_all(&dir);
+    let (exp, _) = replay_experiment(&model, "support_centre", &["support"], 5, |spec| {
+        // no stiffness offset: the truth is then exactly the replay at its support
+        spec.stiffness_scale = 1.0;
+        // between the 2000 and 1000 N/m knots, where the chord errs most
+        spec.injected[0]
+            .params
+            .insert("support_stiffness".into(), 1400.0);
+    });
     let support = Candidate::single(Effect::Support);
     let with = |centre: bool| {
         let opts = Options {
@@ -440,25 +449,20 @@ fn a_tilt_on_a_support_leaves_its_centre_along_the_replay_s_slopes() {
     use gap_diagnosis::fit::NuisanceFit;
     use gap_diagnosis::model::replay_checked;
     let model = stand_in();
-    let sites = model.sites.clone();
-    let dir = std::env::temp_dir().join(format!("gap_stats_pair_slopes_{}", std::process::id()));
-    let mut spec = RealitySpec::from_effects(&["tilt", "support"], 11).unwrap();
-    spec.truth_mesh = TruthMesh::Replay;
-    spec.probings_per_region = 2;
-    spec.stiffness_scale = 1.0;
-    for i in &mut spec.injected {
-        match i.effect.as_str() {
-            "tilt" => {
-                i.params.insert("tilt_x".into(), 5.0);
-                i.params.insert("tilt_y".into(), -2.0);
-            }
-            _ => {
-                i.params.insert("support_stiffness".into(), 1500.0);
+    let (exp, _) = replay_experiment(&model, "pair_slopes", &["tilt", "support"], 11, |spec| {
+        spec.stiffness_scale = 1.0;
+        for i in &mut spec.injected {
+            match i.effect.as_str() {
+                "tilt" => {
+                    i.params.insert("tilt_x".into(), 5.0);
+                    i.params.insert("tilt_y".into(), -2.0);
+                }
+                _ => {
+                    i.params.insert("support_stiffness".into(), 1500.0);
+                }
             }
         }
-    }
-    let (exp, _) = experiment(&spec, &model, &sites, &dir);
-    let _ = std::fs::remove_dir_all(&dir);
+    });
     let pair = Candidate::pair(Effect::Tilt, Effect::Support);
     let data = gap_diagnosis::prepare_dataset(
         &exp,

@@ -75,6 +75,11 @@ pub struct TissueSurface {
     trimesh: TriMesh,
     /// Unit face normals at the current refit.
     face_normals: Vec<Vector3<f64>>,
+    /// Unit face normals at the refit before ([`Self::contact_normal`]).
+    previous_normals: Vec<Vector3<f64>>,
+    /// The direction a face contact pushes along: the bisector of the face's normals at this
+    /// refit and the one before ([`Self::contact_normal`]).
+    contact_normals: Vec<Vector3<f64>>,
     /// Triangle across local edge k (parry's order: 0 = AB, 1 = BC, 2 = AC).
     neighbors: Vec<[u32; 3]>,
     /// Incident triangles per surface vertex (CSR).
@@ -151,6 +156,8 @@ impl TissueSurface {
         let trimesh = TriMesh::with_flags(verts, local, TriMeshFlags::DEFORMABLE).ok()?;
         let mut s = TissueSurface {
             face_normals: vec![Vector3::zeros(); triangles.len()],
+            previous_normals: vec![Vector3::zeros(); triangles.len()],
+            contact_normals: vec![Vector3::zeros(); triangles.len()],
             rigid: vec![false; triangles.len()],
             triangles,
             nodes,
@@ -161,6 +168,8 @@ impl TissueSurface {
             lo: Vector3::zeros(),
             hi: Vector3::zeros(),
         };
+        s.refit(positions);
+        // no refit before the first: both normals are the rest shape's
         s.refit(positions);
         Some(s)
     }
@@ -186,7 +195,28 @@ impl TissueSurface {
             let n = (positions[tri[1]].coords - a).cross(&(positions[tri[2]].coords - a));
             let len = n.norm();
             self.face_normals[t] = if len > 0.0 { n / len } else { Vector3::zeros() };
+            let bisector = self.face_normals[t] + self.previous_normals[t];
+            self.contact_normals[t] = bisector
+                .try_normalize(1e-12)
+                .unwrap_or(self.face_normals[t]);
+            self.previous_normals[t] = self.face_normals[t];
         }
+    }
+
+    /// The direction a contact on face `t` pushes along: the bisector of the face's unit
+    /// normals at the last two refits (start-of-step shapes).
+    ///
+    /// The face normal of the start-of-step shape alone closed a loop through the step: the
+    /// contact force along it twists the loaded faces, and the next step pushes along the
+    /// twisted normal. Under a deep press that loop's gain passed −1 and the fixed point
+    /// became a two-step cycle: a ball held still in a dent of the study mesh (67 N, two
+    /// faces meeting at a concave edge) settled into forces alternating (−12.1, 8.5, 55.4) ↔
+    /// (−6.8, −4.6, 62.5) N every step, its faces' normals swinging by 15°
+    /// (`tests/held_ball_normal_cycle.rs`). With the bisector the loop's gain is halved and
+    /// its two-step mode averages out: a fixed point keeps its own normal exactly, and a
+    /// probe moving quasi-statically sees the normal half a step late.
+    pub fn contact_normal(&self, t: u32) -> Vector3<f64> {
+        self.contact_normals[t as usize]
     }
 
     pub fn face_normal(&self, t: u32) -> Vector3<f64> {
@@ -500,7 +530,7 @@ impl ContactDetector {
                 let dist = to_point.norm();
                 let normal = match location {
                     TrianglePointLocation::OnFace(..) | TrianglePointLocation::OnSolid => {
-                        surface.face_normal(tri)
+                        surface.contact_normal(tri)
                     }
                     _ if dist > 1e-9 => to_point / dist,
                     _ => pseudo
@@ -637,12 +667,11 @@ impl ContactDetector {
             }
             let normal = match loc {
                 TrianglePointLocation::OnFace(..) | TrianglePointLocation::OnSolid => {
-                    let n = surface.face_normal(t);
                     // Behind this face's plane while outside the solid: a far side.
-                    if n.dot(&d) < 0.0 {
+                    if surface.face_normal(t).dot(&d) < 0.0 {
                         continue;
                     }
-                    n
+                    surface.contact_normal(t)
                 }
                 _ => {
                     let pseudo = surface.pseudo_normal(t, &loc);
@@ -760,7 +789,7 @@ impl ContactDetector {
             return;
         }
         let (c, w) = surface.project_on_triangle(t, p0);
-        let n = surface.face_normal(t);
+        let n = surface.contact_normal(t);
         self.push(
             i,
             first,

@@ -713,10 +713,18 @@ fn forward_lines(
 ) -> std::thread::JoinHandle<()> {
     std::thread::spawn(move || {
         let ready_line = format!("READY {}", node.name());
+        let mut record = String::new();
         for line in BufReader::new(stream).lines() {
             let Ok(line) = line else { break };
             if let Some(f) = log.as_mut() {
-                let _ = writeln!(f, "{line}");
+                // One write per line: the node's stdout and stderr readers append to the same
+                // log, and `writeln!` wrote the text and its newline in two calls, so a stderr
+                // line could land between them (the bridge's `BRIDGED {json}` totals line was
+                // read back with a warning glued to its end, and its test failed to parse it).
+                record.clear();
+                record.push_str(&line);
+                record.push('\n');
+                let _ = f.write_all(record.as_bytes());
             }
             if watch_ready && line.trim() == ready_line {
                 let _ = tx.send(Event::Ready { node, generation });
@@ -1087,6 +1095,57 @@ pub fn run(opts: &RunOptions) -> Result<SessionReport, LauncherError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Regression: a node's stdout and stderr readers append to one log, and a stderr line
+    /// could land between a stdout line's text and its newline (the bridge's `BRIDGED {json}`
+    /// line came back with a warning glued to its end). Both streams at once, many long
+    /// lines: every line of the log is one of the lines sent, whole.
+    #[test]
+    fn stdout_and_stderr_lines_reach_the_log_whole() {
+        let dir = std::env::temp_dir().join(format!("arthrosim_log_lines_{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("node.log");
+        let _ = std::fs::remove_file(&path);
+        let log = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(&path)
+            .unwrap();
+        let lines = |tag: &str| -> String {
+            (0..4000)
+                .map(|k| format!("{tag} {k} {}\n", "x".repeat(300)))
+                .collect()
+        };
+        let (tx, rx) = mpsc::channel();
+        let readers = [("OUT", log.try_clone().unwrap()), ("ERR", log)].map(|(tag, file)| {
+            forward_lines(
+                std::io::Cursor::new(lines(tag).into_bytes()),
+                NodeKind::Bridge,
+                1,
+                Some(file),
+                tx.clone(),
+                false,
+            )
+        });
+        drop(tx);
+        for r in readers {
+            r.join().unwrap();
+        }
+        assert_eq!(rx.iter().count(), 8000);
+        let text = std::fs::read_to_string(&path).unwrap();
+        let _ = std::fs::remove_dir_all(&dir);
+        let whole = |l: &str| {
+            let mut parts = l.splitn(3, ' ');
+            matches!(parts.next(), Some("OUT" | "ERR"))
+                && parts.next().is_some_and(|k| k.parse::<u32>().is_ok())
+                && parts
+                    .next()
+                    .is_some_and(|x| x.len() == 300 && x.bytes().all(|b| b == b'x'))
+        };
+        let broken: Vec<&str> = text.lines().filter(|l| !whole(l)).take(3).collect();
+        assert!(broken.is_empty(), "lines broken in the log: {broken:?}");
+        assert_eq!(text.lines().count(), 8000);
+    }
 
     fn cfg(policy: RestartPolicy, max: u32) -> LauncherConfig {
         LauncherConfig {

@@ -77,9 +77,6 @@ pub struct TissueSurface {
     face_normals: Vec<Vector3<f64>>,
     /// Unit face normals at the refit before ([`Self::contact_normal`]).
     previous_normals: Vec<Vector3<f64>>,
-    /// The direction a face contact pushes along: the bisector of the face's normals at this
-    /// refit and the one before ([`Self::contact_normal`]).
-    contact_normals: Vec<Vector3<f64>>,
     /// Triangle across local edge k (parry's order: 0 = AB, 1 = BC, 2 = AC).
     neighbors: Vec<[u32; 3]>,
     /// Incident triangles per surface vertex (CSR).
@@ -157,7 +154,6 @@ impl TissueSurface {
         let mut s = TissueSurface {
             face_normals: vec![Vector3::zeros(); triangles.len()],
             previous_normals: vec![Vector3::zeros(); triangles.len()],
-            contact_normals: vec![Vector3::zeros(); triangles.len()],
             rigid: vec![false; triangles.len()],
             triangles,
             nodes,
@@ -190,16 +186,14 @@ impl TissueSurface {
         }
         self.lo = lo;
         self.hi = hi;
+        // the normals of the refit before, for the contact direction; the loop below
+        // overwrites every face's current one
+        std::mem::swap(&mut self.previous_normals, &mut self.face_normals);
         for (t, tri) in self.triangles.iter().enumerate() {
             let a = positions[tri[0]].coords;
             let n = (positions[tri[1]].coords - a).cross(&(positions[tri[2]].coords - a));
             let len = n.norm();
             self.face_normals[t] = if len > 0.0 { n / len } else { Vector3::zeros() };
-            let bisector = self.face_normals[t] + self.previous_normals[t];
-            self.contact_normals[t] = bisector
-                .try_normalize(1e-12)
-                .unwrap_or(self.face_normals[t]);
-            self.previous_normals[t] = self.face_normals[t];
         }
     }
 
@@ -216,7 +210,10 @@ impl TissueSurface {
     /// its two-step mode averages out: a fixed point keeps its own normal exactly, and a
     /// probe moving quasi-statically sees the normal half a step late.
     pub fn contact_normal(&self, t: u32) -> Vector3<f64> {
-        self.contact_normals[t as usize]
+        let now = self.face_normals[t as usize];
+        (now + self.previous_normals[t as usize])
+            .try_normalize(1e-12)
+            .unwrap_or(now)
     }
 
     pub fn face_normal(&self, t: u32) -> Vector3<f64> {

@@ -9,6 +9,7 @@
 
 use launch_config::SceneConfig;
 use msgs::Pose;
+use nalgebra::{Point3, UnitQuaternion};
 use physics_node::sim::Simulation;
 
 /// The study-mesh proxies' scene (`gap_diagnosis::sim_model::SimForceModel::for_experiment`
@@ -26,11 +27,10 @@ fn proxy_scene(dt: f64) -> SceneConfig {
     scene
 }
 
+/// The hook upright at `mm`, as the proxy trial held it.
 fn pose(mm: [f64; 3]) -> Pose {
-    Pose {
-        position: mm.map(|v| v * 1e-3),
-        orientation: [0.0, 0.0, 0.0, 1.0],
-    }
+    let [x, y, z] = mm.map(|v| v * 1e-3);
+    physics_node::probe::pose(Point3::new(x, y, z), UnitQuaternion::identity())
 }
 
 /// Presses the hook from above the anterior horn to where the proxy case's `anterior_2`

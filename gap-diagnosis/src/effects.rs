@@ -599,7 +599,7 @@ pub const MAX_PRONY_SUM: f64 = 0.95;
 /// G(t) = 1 − Σ g_i + Σ g_i e^{−t/τ_i} (G(0) = 1): F(t) = ∫ G(t − s) dF_e(s), by the exact
 /// recursion for piecewise-linear F_e. Weights summing above [`MAX_PRONY_SUM`] are scaled
 /// down to it.
-pub fn qlv_in_place(f: &mut [[f64; 3]], dt: f64, terms: &[(f64, f64)]) {
+pub fn qlv_in_place<const N: usize>(f: &mut [[f64; 3]], dt: f64, terms: &[(f64, f64); N]) {
     let sum: f64 = terms.iter().map(|t| t.0.max(0.0)).sum();
     if f.is_empty() || sum == 0.0 {
         return;
@@ -610,17 +610,18 @@ pub fn qlv_in_place(f: &mut [[f64; 3]], dt: f64, terms: &[(f64, f64)]) {
         1.0
     };
     // per term: weight, decay per step and, for a ramp over one step, the share of the
-    // increment the convolution with e^{-t/τ} gives, (τ/dt)(1 − e)
-    let coef: Vec<(f64, f64, f64)> = terms
-        .iter()
-        .filter(|t| t.0 > 0.0)
-        .map(|&(g, tau)| {
+    // increment the convolution with e^{-t/τ} gives, (τ/dt)(1 − e); a term without weight
+    // adds nothing. Fixed-size, so the fits' inner loop unrolls (it was 15% of a fit).
+    let coef: [(f64, f64, f64); N] = terms.map(|(g, tau)| {
+        if g > 0.0 {
             let e = (-dt / tau).exp();
             (g * s, e, tau / dt * (1.0 - e))
-        })
-        .collect();
+        } else {
+            (0.0, 0.0, 0.0)
+        }
+    });
     let g_total = sum * s;
-    let mut h = vec![f[0]; coef.len()];
+    let mut h = [f[0]; N];
     let mut prev = f[0];
     for v in f.iter_mut() {
         let cur = *v;

@@ -12,7 +12,13 @@ const DT: f64 = 0.02;
 
 /// Press 1.2 mm along −z in 1 s, hold `hold` s, release in 1 s; elastic force ∝ depth^1.5.
 /// Measured: the QLV response with `terms`, at irregular ~38 Hz, with noise.
-fn trial(i: usize, region: Region, hold: f64, terms: &[(f64, f64)], seed: &mut u64) -> TrialData {
+fn trial<const N: usize>(
+    i: usize,
+    region: Region,
+    hold: f64,
+    terms: &[(f64, f64); N],
+    seed: &mut u64,
+) -> TrialData {
     let mut rnd = || {
         *seed = seed
             .wrapping_mul(6364136223846793005)
@@ -96,7 +102,7 @@ fn trial(i: usize, region: Region, hold: f64, terms: &[(f64, f64)], seed: &mut u
 }
 
 /// Two probings per region from the QLV truth with these Prony terms (same seed every call).
-fn dataset(terms: &[(f64, f64)]) -> Vec<TrialData> {
+fn dataset<const N: usize>(terms: &[(f64, f64); N]) -> Vec<TrialData> {
     let mut seed = 11u64;
     Region::ALL
         .into_iter()
@@ -105,7 +111,7 @@ fn dataset(terms: &[(f64, f64)]) -> Vec<TrialData> {
         .collect()
 }
 
-fn score(terms: &[(f64, f64)]) -> CandidateScore {
+fn score<const N: usize>(terms: &[(f64, f64); N]) -> CandidateScore {
     let data = dataset(terms);
     let (_, folds) = make_folds(&data);
     score_candidate(
@@ -160,7 +166,7 @@ fn two_prony_terms_when_relaxation_has_two_time_scales() {
 
 /// RMSE of the best one-term QLV (second term held at 0) fitted on all of the two-term
 /// data: in-sample, so it flatters the one-term model.
-fn score_one_term(terms: &[(f64, f64)]) -> f64 {
+fn score_one_term<const N: usize>(terms: &[(f64, f64); N]) -> f64 {
     use gap_diagnosis::fit::{default_free, fit, Nuisance};
     let data = dataset(terms);
     let c = Candidate::single(Effect::Viscoelastic);

@@ -18,7 +18,7 @@ use super::experiment::{
     TrialSpec,
 };
 use super::fit::NuisanceFit;
-use super::model::{replay, ForceModel, ProbePath, Variant};
+use super::model::{replay_checked, ForceModel, ProbePath, Replayed, Variant};
 use super::signal::{add, interp, nlerp, norm, scale, sub};
 use super::sim_model::{RefinedTruth, SimForceModel};
 use super::GapError;
@@ -313,6 +313,11 @@ pub struct Truth {
     pub spec: RealitySpec,
     pub truth_variant: Variant,
     pub model: String,
+    /// Probings whose first draw the truth's physics flagged as faulty (a probe pushed
+    /// through the tissue: no instrument records that), each drawn again at another site and
+    /// depth of its region ([`MAX_REDRAWS`]).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub redrawn: Vec<String>,
 }
 
 /// The study protocol for one probing: approach along −n, load, hold, optional slide, unload.
@@ -469,6 +474,42 @@ pub struct Site {
     pub normal: [f64; 3],
 }
 
+/// At most this many new draws for a probing whose truth the physics flagged as faulty.
+pub const MAX_REDRAWS: usize = 4;
+/// Seed step between a probing's draws (odd, so the draws' generators differ).
+const REDRAW_STRIDE: u64 = 0x9E37_79B9_7F4A_7C15;
+
+/// Probings 2 and 4 of every five slide along the surface.
+fn slides(j: usize) -> bool {
+    j % 5 == 1 || j % 5 == 3
+}
+
+/// The path of probing `j` (from 0) at `site`: pressed to the depth `depth_u` (0–1) places
+/// within its fifth of the study's range, and slid (probings 2 and 4) along the surface,
+/// perpendicular to the normal, in the direction `slide_sign` picks.
+fn probing_path(
+    site: &Site,
+    j: usize,
+    depth_u: f64,
+    slide_sign: f64,
+    standoff: f64,
+    spec: &RealitySpec,
+) -> ProbePath {
+    let (n, p) = (site.normal, site.point);
+    let [lo, hi] = STUDY_PRESS_DEPTHS;
+    let depth = lo + (hi - lo) * (PRESS_STRATUM[j % 5] as f64 + depth_u) / 5.0;
+    let slide = slides(j).then(|| {
+        let a = if n[2].abs() < 0.9 {
+            [0.0, 0.0, 1.0]
+        } else {
+            [1.0, 0.0, 0.0]
+        };
+        let t = sub(a, scale(n, super::signal::dot(a, n)));
+        scale(t, slide_sign / norm(t))
+    });
+    protocol_path(p, n, depth, standoff, slide, spec.truth_dt)
+}
+
 /// Same as [`write_experiment`] with any force model and its probing sites.
 pub fn write_experiment_with(
     spec: &RealitySpec,
@@ -501,41 +542,51 @@ pub fn write_experiment_with(
             )));
         }
         for j in 0..spec.probings_per_region {
-            let s = rs[j % rs.len()];
-            let (n, p) = (s.normal, s.point);
-            // The study's indentations, one in each fifth of its range per region.
-            let [lo, hi] = STUDY_PRESS_DEPTHS;
-            let depth = lo + (hi - lo) * (PRESS_STRATUM[j % 5] as f64 + rng.uniform()) / 5.0;
-            // slide on probings 2 and 4: along the surface, perpendicular to n
-            let slide = if j % 5 == 1 || j % 5 == 3 {
-                let a = if n[2].abs() < 0.9 {
-                    [0.0, 0.0, 1.0]
-                } else {
-                    [1.0, 0.0, 0.0]
-                };
-                let t = sub(a, scale(n, super::signal::dot(a, n)));
-                let tn = norm(t);
-                Some(scale(t, rng.sign() / tn))
-            } else {
-                None
-            };
+            // the study's indentations, one in each fifth of its range per region
+            let depth_u = rng.uniform();
+            let slide_sign = if slides(j) { rng.sign() } else { 1.0 };
             let name = format!("{}_{}", region.name(), j + 1);
-            jobs.push((
-                name,
-                region,
-                protocol_path(p, n, depth, standoff, slide, spec.truth_dt),
-                rng.next_u64(),
-            ));
+            let path = probing_path(rs[j % rs.len()], j, depth_u, slide_sign, standoff, spec);
+            jobs.push((name, region, j, path, rng.next_u64()));
         }
     }
     use rayon::prelude::*;
-    let forces: Vec<Result<Vec<[f64; 3]>, GapError>> = jobs
+    let replayed: Vec<Result<Replayed, GapError>> = jobs
         .par_iter()
-        .map(|(_, _, path, _)| replay(model, &variant, path))
+        .map(|(_, _, _, path, _)| replay_checked(model, &variant, path))
         .collect();
+    let mut forces = Vec::with_capacity(jobs.len());
+    let mut redrawn = Vec::new();
+    for ((name, region, j, path, seed), r) in jobs.iter_mut().zip(replayed) {
+        let mut r = r?;
+        let mut attempt = 0;
+        while r.diverged() {
+            attempt += 1;
+            if attempt > MAX_REDRAWS {
+                return Err(GapError::Sim(format!(
+                    "truth probing {name}: the physics flagged faulty steps in {} draws (sites and depths of region {}), {}",
+                    MAX_REDRAWS + 1,
+                    region.name(),
+                    variant.label()
+                )));
+            }
+            // the next site of the region, a new depth in the same fifth, either direction
+            let rs: Vec<&Site> = sites.iter().filter(|s| s.region == *region).collect();
+            let mut again =
+                Rng::new(seed.wrapping_add((attempt as u64).wrapping_mul(REDRAW_STRIDE)));
+            let depth_u = again.uniform();
+            let slide_sign = again.sign();
+            let site = rs[(*j + attempt) % rs.len()];
+            *path = probing_path(site, *j, depth_u, slide_sign, standoff, spec);
+            r = replay_checked(model, &variant, path)?;
+        }
+        if attempt > 0 {
+            redrawn.push(name.clone());
+        }
+        forces.push(r.forces);
+    }
     let mut trials = Vec::new();
-    for ((name, region, path, seed), f) in jobs.into_iter().zip(forces) {
-        let f = f?;
+    for ((name, region, _, path, seed), f) in jobs.into_iter().zip(forces) {
         let mut r = Rng::new(seed);
         let t_end = path.t0 + path.dt * (path.poses.len() - 1) as f64;
         let mut ts = vec![r.range(0.0, 1.0 / spec.rate_hz)];
@@ -611,6 +662,7 @@ pub fn write_experiment_with(
         spec: spec.clone(),
         truth_variant: variant,
         model: model.describe(),
+        redrawn,
     };
     if let Some(parent) = truth_path.parent() {
         std::fs::create_dir_all(parent).map_err(|e| GapError::Io(parent.to_path_buf(), e))?;
@@ -686,6 +738,112 @@ mod protocol_tests {
         fn describe(&self) -> String {
             "no contact".into()
         }
+    }
+
+    /// A truth that the physics flags as faulty wherever the probe passes over the point
+    /// `bad` (x, y; m), or everywhere (None): the stand-in for a probe pushed through the
+    /// tissue there.
+    struct FaultyAt {
+        bad: Option<[f64; 2]>,
+    }
+    impl ForceModel for FaultyAt {
+        fn replay_untilted(&self, _: &Variant, p: &ProbePath) -> Result<Vec<[f64; 3]>, GapError> {
+            Ok(vec![[0.0, 0.0, 1.0]; p.poses.len()])
+        }
+        fn replay_untilted_checked(
+            &self,
+            v: &Variant,
+            p: &ProbePath,
+        ) -> Result<Replayed, GapError> {
+            let over = |[x, y]: [f64; 2]| {
+                p.poses
+                    .iter()
+                    .any(|q| (q.position[0] - x).abs() < 1e-9 && (q.position[1] - y).abs() < 1e-9)
+            };
+            Ok(Replayed {
+                forces: self.replay_untilted(v, p)?,
+                faulty_steps: match self.bad {
+                    Some(x) => u64::from(over(x)),
+                    None => 1,
+                },
+            })
+        }
+        fn describe(&self) -> String {
+            "faulty at one site".into()
+        }
+    }
+
+    /// Regression: the self-test's truth kept probings its own physics flagged as faulty.
+    /// `gap_bench`'s tilt case (7.7° on the 1,435-node specimen) pushed the hook's shaft
+    /// 5–16 mm into the tissue in `posterior_2`, whose truth swung between −180 and +80 N with
+    /// three faulty steps, and that one trial made the case read `hardening+tilt` (shrink
+    /// 2.7%). No instrument records such a trial: it is drawn again at the region's next site.
+    #[test]
+    fn a_truth_probing_the_physics_flags_is_drawn_again_at_another_site() {
+        let mut sites = flat_sites();
+        // a second site in every region, 4 mm beside the first
+        for s in flat_sites() {
+            sites.push(Site {
+                point: [s.point[0], 0.004, s.point[2]],
+                ..s
+            });
+        }
+        let bad = sites[0];
+        let dir = std::env::temp_dir().join(format!("reality_redraw_{}", std::process::id()));
+        let spec = RealitySpec::from_effects(&["none"], 4).unwrap();
+        let truth = write_experiment_with(
+            &spec,
+            &FaultyAt {
+                bad: Some([bad.point[0], bad.point[1]]),
+            },
+            &sites,
+            &dir.join("exp"),
+            &dir.join("truth.json"),
+        )
+        .unwrap();
+        let exp = load_experiment(&dir.join("exp"), &crate::data_dir()).unwrap();
+        let written: Truth =
+            serde_json::from_str(&std::fs::read_to_string(dir.join("truth.json")).unwrap())
+                .unwrap();
+        let _ = std::fs::remove_dir_all(&dir);
+        // the region's probings 1, 3 and 5 stood on the faulty site (probings alternate sites)
+        let region = bad.region.name();
+        let expected: Vec<String> = [1, 3, 5].map(|k| format!("{region}_{k}")).into();
+        assert_eq!(truth.redrawn, expected);
+        assert_eq!(written.redrawn, expected, "the truth file names them");
+        for t in &exp.trials {
+            let on_bad = t
+                .pose
+                .iter()
+                .any(|q| (q.position[1] - bad.point[1]).abs() < 1e-9);
+            assert!(
+                !(t.region == Some(bad.region) && on_bad),
+                "{} still probes the faulty site",
+                t.name
+            );
+        }
+        assert_eq!(exp.trials.len(), 15, "every probing is kept");
+    }
+
+    /// A probing faulty at every site of its region is an error that names it, not a truth.
+    #[test]
+    fn a_truth_faulty_at_every_site_is_refused_by_name() {
+        let dir = std::env::temp_dir().join(format!("reality_refuse_{}", std::process::id()));
+        let spec = RealitySpec::from_effects(&["none"], 4).unwrap();
+        let err = write_experiment_with(
+            &spec,
+            &FaultyAt { bad: None },
+            &flat_sites(),
+            &dir.join("exp"),
+            &dir.join("truth.json"),
+        )
+        .unwrap_err()
+        .to_string();
+        let _ = std::fs::remove_dir_all(&dir);
+        assert!(
+            err.contains("posterior_1") && err.contains("faulty steps"),
+            "{err}"
+        );
     }
 
     /// The generated probings press the study's depths (the hidden cases of issue 15 press

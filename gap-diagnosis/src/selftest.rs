@@ -101,6 +101,10 @@ pub struct CaseResult {
     /// ([`crate::recovery`]).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub recovery: Vec<Recovery>,
+    /// Probings whose first draw the truth's physics flagged as faulty, drawn again
+    /// ([`crate::reality::Truth::redrawn`]).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub redrawn: Vec<String>,
     pub elapsed_s: f64,
 }
 
@@ -346,6 +350,7 @@ pub fn selftest_with(
             stiffness_scale: spec.stiffness_scale,
             nuisance_scale: report.verdict.nuisance_scale,
             truth: truth.label,
+            redrawn: truth.redrawn,
             found,
             heldout_shrink: report.verdict.heldout_shrink,
             true_candidate_shrink: true_shrink,
@@ -357,7 +362,7 @@ pub fn selftest_with(
         };
         if opts.verbose {
             eprintln!(
-                "case {:3}  truth {:20} found {:20} {} shrink {:5.1}%  stiffness ×{:.3}  ({:.1} s)  {}",
+                "case {:3}  truth {:20} found {:20} {} shrink {:5.1}%  stiffness ×{:.3}  ({:.1} s{})  {}",
                 r.case,
                 r.truth,
                 r.found,
@@ -365,6 +370,11 @@ pub fn selftest_with(
                 100.0 * r.heldout_shrink,
                 r.stiffness_scale,
                 r.elapsed_s,
+                if r.redrawn.is_empty() {
+                    String::new()
+                } else {
+                    format!("; redrawn {}", r.redrawn.join(", "))
+                },
                 report.verdict.reason
             );
             eprintln!(
@@ -429,7 +439,8 @@ pub fn bench(
     spec.truth_mesh = TruthMesh::Replay;
     let host = msgs::host_load::HostLoad::start();
     let t0 = std::time::Instant::now();
-    super::reality::write_experiment(&spec, &root.join("exp"), &root.join("truth.json"))?;
+    let truth =
+        super::reality::write_experiment(&spec, &root.join("exp"), &root.join("truth.json"))?;
     let generate_s = t0.elapsed().as_secs_f64();
     let t1 = std::time::Instant::now();
     let report = super::diagnose_dir(&root.join("exp"), opts)?;
@@ -456,6 +467,8 @@ pub fn bench(
         "truth": spec.label(),
         // the injected strengths and the fitted ones, so a reader sees how near the fit came
         "injected": spec.injected,
+        // probings the truth's physics flagged as faulty, drawn again elsewhere
+        "redrawn": truth.redrawn,
         "verdict": report.verdict.effect,
         "fitted": report
             .verdict

@@ -540,6 +540,12 @@ fn reality(args: RealityArgs) -> Result<i32> {
         truth.model,
         args.truth.display()
     );
+    if !truth.redrawn.is_empty() {
+        println!(
+            "drawn again at another site, where the truth's physics flagged faulty steps: {}",
+            truth.redrawn.join(", ")
+        );
+    }
     Ok(0)
 }
 

@@ -194,15 +194,11 @@ fn set_reach(data: &mut [TrialData], c: &Candidate, reach: f64) {
 /// study-mesh tilt proxy fitted one (g1 0.11 at 0.05 s) that moved its centre 1.2° past the
 /// truth and lost the case to `modulus+tilt`.
 fn relaxes_over_the_hold(wide: &Candidate, theta: &[f64]) -> bool {
-    let value = |name: &str| {
-        wide.params()
-            .iter()
-            .position(|(e, p)| *e == Effect::Viscoelastic && p.name == name)
-            .map(|i| theta[i])
-    };
+    // the relaxation's parameters in its own order: g1, tau1, then the optional second term
+    let relaxation = extract(wide, &Candidate::single(Effect::Viscoelastic), theta);
     matches!(
-        (value("prony_g1"), value("prony_tau1")),
-        (Some(g), Some(tau)) if g >= crate::strength::MIN_PRONY_G1 && tau > MIN_PLACING_TAU
+        relaxation[..],
+        [g1, tau1, ..] if g1 >= crate::strength::MIN_PRONY_G1 && tau1 > MIN_PLACING_TAU
     )
 }
 
@@ -401,18 +397,8 @@ mod tests {
     #[test]
     fn only_a_relaxation_over_the_hold_places_a_centre() {
         let w = Candidate::pair(Effect::Viscoelastic, Effect::Tilt);
-        let at = |g1: f64, tau1: f64| {
-            let mut th = w.neutral();
-            let slot = |name: &str| {
-                w.params()
-                    .iter()
-                    .position(|(e, p)| *e == Effect::Viscoelastic && p.name == name)
-                    .unwrap()
-            };
-            th[slot("prony_g1")] = g1;
-            th[slot("prony_tau1")] = tau1;
-            th
-        };
+        let relaxation = Candidate::single(Effect::Viscoelastic);
+        let at = |g1: f64, tau1: f64| embed(&w, &relaxation, &[g1, tau1]);
         assert!(!relaxes_over_the_hold(&w, &at(0.11, 0.05)));
         assert!(relaxes_over_the_hold(&w, &at(0.53, 1.8)));
         assert!(!relaxes_over_the_hold(&w, &at(0.01, 1.8)));

@@ -25,7 +25,7 @@
 //! (a study-mesh pair whose centre stood at tilt_y −0.47° was 5.1 N RMS off at the true
 //! −1.80°, where a replay is 0.44 N off), so the fit never left it. A pair's centre therefore
 //! also carries the replay's slopes there, from a step along each parameter.
-use super::dataset::{replay_trials, Centre, TrialData};
+use super::dataset::{replay_trials_at, Centre, TrialData};
 use super::effects::{axpy_resimulated, Candidate, Effect, SUPPORT_KNOTS, SUPPORT_SPAN};
 use super::fit::{default_free, fit, Nuisance};
 use super::model::{ForceModel, Variant};
@@ -48,6 +48,9 @@ pub const ROUNDS: usize = 3;
 /// At most this many for a pair: each of its centres moves the fit only as far as the
 /// centre's weight reaches (its own distance from the neutral point), and a pair's tilt
 /// beyond the ±6° knots took five (a coarse-mesh case's −2.6° → −6.1° for a true −6.9°).
+/// They are made on the pair's search trials ([`search_trials`]) until the fit there settles;
+/// the other trials then get that centre, and rounds over every trial go on from it within
+/// the same count.
 pub const PAIR_ROUNDS: usize = 6;
 pub const SETTLED: f64 = 0.5 / 6.0;
 
@@ -57,7 +60,8 @@ pub const SETTLED: f64 = 0.5 / 6.0;
 /// same for the tilt alone when it tilts by at least [`MIN_CENTRE_DEG`]; with a tilt centre
 /// and support knots, for the tilt+support pair when its fitted support compliance is at
 /// least [`MIN_CENTRE_SUPPORT`], whatever tilt it fits: up to [`PAIR_ROUNDS`] centres, each
-/// with its slopes ([`Centre::slopes`]: one more replay per parameter). What was made is in
+/// with its slopes ([`Centre::slopes`]: one more replay per parameter), searched on a few
+/// trials first ([`search_trials`]). What was made is in
 /// each trial's [`TrialData::centres`] ([`describe`]), in the order made: a pair with two
 /// centres of one effect each ([`crate::effects::centre_for`]) takes the later, the tilt's,
 /// whose interpolation errs most.
@@ -103,8 +107,10 @@ pub fn add_centres(
     Ok(())
 }
 
-/// Up to [`ROUNDS`] ([`PAIR_ROUNDS`] for a pair) centres for candidate `c` (only re-simulated effects), each at the
-/// candidate's fit over every trial with the centre before it in place; returns the last
+/// Up to [`ROUNDS`] ([`PAIR_ROUNDS`] for a pair) centres for candidate `c` (only re-simulated
+/// effects), each at the candidate's fit over every trial with the centre before it in place
+/// (a pair's over its [`search_trials`] until they settle, then
+/// [`AFTER_SEARCH_ROUNDS`] more over every trial); returns the last
 /// centre's parameters (None: the fit was never significant). With `placed`, `c`'s effects
 /// with a relaxation beside them ([`relaxes_over_the_hold`]), a centre stands at `c`'s
 /// parameters of that candidate's fit where its relaxation relaxes over the hold.
@@ -117,7 +123,16 @@ fn centre_rounds(
     significant: impl Fn(&[f64]) -> bool,
     placed: Option<Candidate>,
 ) -> Result<Option<Vec<f64>>, GapError> {
-    let all: Vec<Vec<bool>> = data.iter().map(|d| vec![true; d.t.len()]).collect();
+    let every: Vec<usize> = (0..data.len()).collect();
+    // a pair searches on a few trials first ([`search_trials`]); a single effect's rounds
+    // are cheap enough on all of them
+    let mut search = if c.0.len() > 1 {
+        search_trials(data)
+    } else {
+        every.clone()
+    };
+    // the first fit, before any of the pair's centres stands, sees every trial as before
+    let mut mask = trial_mask(data, &every);
     let placed = placed.map(|w| {
         let nu = nuisance.for_candidate(&w).for_data(data);
         (w, nu)
@@ -125,17 +140,34 @@ fn centre_rounds(
     let nuisance = nuisance.for_candidate(c).for_data(data);
     let mut done: Option<Vec<f64>> = None;
     let rounds = if c.0.len() > 1 { PAIR_ROUNDS } else { ROUNDS };
-    for _ in 0..rounds {
+    let (mut made, mut budget) = (0, rounds);
+    // the search settled on its trials
+    let mut settled = false;
+    loop {
+        if settled || made == budget {
+            // settled or out of rounds on the search's trials: the others get the last
+            // centre, and a few rounds over every trial go on from it
+            settled = false;
+            match &done {
+                Some(last) if search.len() < data.len() => {
+                    replay_rest(data, model, c, last, &search)?;
+                    search = every.clone();
+                    mask = trial_mask(data, &search);
+                    budget = made + AFTER_SEARCH_ROUNDS;
+                }
+                _ => break,
+            }
+        }
         let mut starts = inits.to_vec();
         starts.extend(done.clone());
-        let mut fitted = fit(c, data, &all, &starts, &default_free(c), nuisance);
+        let mut fitted = fit(c, data, &mask, &starts, &default_free(c), nuisance);
         if let Some((w, nu)) = &placed {
             let wide_starts: Vec<Vec<f64>> = starts
                 .iter()
                 .chain([&fitted.theta])
                 .map(|th| embed(w, c, th))
                 .collect();
-            let wide = fit(w, data, &all, &wide_starts, &default_free(w), *nu);
+            let wide = fit(w, data, &mask, &wide_starts, &default_free(w), *nu);
             if relaxes_over_the_hold(w, &wide.theta) {
                 fitted.theta = extract(w, c, &wide.theta);
             }
@@ -153,14 +185,30 @@ fn centre_rounds(
                 .sum::<f64>()
                 .sqrt();
             if moved < SETTLED {
-                break;
+                if search.len() == data.len() {
+                    break;
+                }
+                settled = true;
+                continue;
             }
         }
-        replay_centre(data, model, c, &fitted.theta)?;
+        replay_centre(data, model, c, &fitted.theta, &search)?;
+        mask = trial_mask(data, &search);
+        made += 1;
         if c.0.len() > 1 {
             set_reach(data, c, SEARCH_REACH);
         }
         done = Some(fitted.theta);
+    }
+    // the fit fell below significance during the search: the other trials still get the last
+    // centre, so every trial's candidate stands on it
+    if let Some(last) = &done {
+        if search.len() < data.len() {
+            replay_rest(data, model, c, last, &search)?;
+            if c.0.len() > 1 {
+                set_reach(data, c, SEARCH_REACH);
+            }
+        }
     }
     // the candidate the diagnosis fits: the baseline at the neutral point again
     set_reach(data, c, 1.0);
@@ -178,6 +226,64 @@ fn centre_rounds(
 /// truth of those cases; the neutral point then keeps 0.79 of the correction, which only the
 /// search sees.
 pub const SEARCH_REACH: f64 = 3.0;
+
+/// Trials a pair's rounds search on before the rest get its centre: per region, the deepest
+/// and the shallowest press. A pair's round replays each trial four times (the centre and a
+/// step along each parameter), and the 15-trial bench case's rounds took 64 of its 115 s on
+/// this session's machine. Its first fit sees every trial (no centre of the pair stands yet);
+/// the rounds after it fit and replay only these, and every trial joins once the search
+/// settles ([`AFTER_SEARCH_ROUNDS`]).
+///
+/// Why the two ends of the depth range: a support is a spring in series, so it softens a deep
+/// press more than a shallow one, and the tilt moves every onset; the pair is told apart by
+/// that contrast. Searched on the deepest press alone the coarse proxies' pair drifted to a
+/// support 39% soft (the search's three trials could not separate the two); on the shallowest
+/// alone the study proxies' support came back 12% off; on both ends 1.8% and 2.1%.
+fn search_trials(data: &[TrialData]) -> Vec<usize> {
+    let deepest = |i: usize| data[i].depth_grid.iter().copied().fold(0.0_f64, f64::max);
+    let mut regions: Vec<Option<crate::experiment::Region>> = Vec::new();
+    for d in data {
+        if !regions.contains(&d.region) {
+            regions.push(d.region);
+        }
+    }
+    let mut out: Vec<usize> = Vec::new();
+    for r in regions {
+        let mut own: Vec<usize> = (0..data.len()).filter(|&i| data[i].region == r).collect();
+        own.sort_by(|&a, &b| deepest(b).total_cmp(&deepest(a)).then(a.cmp(&b)));
+        out.extend(own.first());
+        if own.len() > 1 {
+            out.extend(own.last());
+        }
+    }
+    out.sort_unstable();
+    out
+}
+
+/// Rounds over every trial after a pair's search ([`search_trials`]) settled or ran out of
+/// [`PAIR_ROUNDS`]: a fit of three parameters on six trials may leave one off that all of
+/// them move.
+pub const AFTER_SEARCH_ROUNDS: usize = 2;
+
+/// Every sample of the trials `which`, none of the others'.
+fn trial_mask(data: &[TrialData], which: &[usize]) -> Vec<Vec<bool>> {
+    data.iter()
+        .enumerate()
+        .map(|(i, d)| vec![which.contains(&i); d.t.len()])
+        .collect()
+}
+
+/// The centre at `theta` for every trial outside `search`.
+fn replay_rest(
+    data: &mut [TrialData],
+    model: &dyn ForceModel,
+    c: &Candidate,
+    theta: &[f64],
+    search: &[usize],
+) -> Result<(), GapError> {
+    let rest: Vec<usize> = (0..data.len()).filter(|i| !search.contains(i)).collect();
+    replay_centre(data, model, c, theta, &rest)
+}
 
 fn set_reach(data: &mut [TrialData], c: &Candidate, reach: f64) {
     for k in data.iter_mut().flat_map(|d| d.centres.iter_mut()) {
@@ -262,15 +368,15 @@ fn centre_variant(c: &Candidate, theta: &[f64]) -> Variant {
     v
 }
 
-/// Re-simulates every trial at `theta` and stores the correction (replacing an earlier centre
-/// of the same effects).
+/// Re-simulates the trials `which` at `theta` and stores each one's correction (replacing an
+/// earlier centre of the same effects).
 fn replay_centre(
     data: &mut [TrialData],
     model: &dyn ForceModel,
     c: &Candidate,
     theta: &[f64],
+    which: &[usize],
 ) -> Result<(), GapError> {
-    let replays = replay_trials(data, model, &centre_variant(c, theta));
     // a pair's slopes: one replay a step along each parameter
     let units = units(c);
     let steps: Vec<(Vec<f64>, f64)> = if c.0.len() > 1 {
@@ -285,19 +391,24 @@ fn replay_centre(
     } else {
         Vec::new()
     };
+    // the centre and its steps in one batch (per variant, per trial)
+    let variants: Vec<Variant> = std::iter::once(centre_variant(c, theta))
+        .chain(steps.iter().map(|(at, _)| centre_variant(c, at)))
+        .collect();
+    let trials: Vec<&TrialData> = which.iter().map(|&i| &data[i]).collect();
+    let mut batch = replay_trials_at(&trials, model, &variants).into_iter();
+    let replays = batch.next().unwrap_or_default();
     // each trial's replays a step away, in the parameters' order
-    let mut stepped: Vec<Vec<_>> = (0..data.len())
+    let mut stepped: Vec<Vec<_>> = (0..which.len())
         .map(|_| Vec::with_capacity(steps.len()))
         .collect();
-    for (at, _) in &steps {
-        for (own, r) in stepped
-            .iter_mut()
-            .zip(replay_trials(data, model, &centre_variant(c, at)))
-        {
+    for row in batch {
+        for (own, r) in stepped.iter_mut().zip(row) {
             own.push(r?);
         }
     }
-    for ((d, r), steps_here) in data.iter_mut().zip(replays).zip(stepped) {
+    for ((&i, r), steps_here) in which.iter().zip(replays).zip(stepped) {
+        let d = &mut data[i];
         let r = r?;
         d.centres.retain(|k| k.effects != c.0);
         // a step the physics flagged as faulty is no solution: that trial keeps the plain

@@ -268,43 +268,35 @@ pub fn build(
     if opts.material_knot {
         variants.push((ReplayRole::MaterialKnot, material_knot_variant()));
     }
-    let mut jobs: Vec<(usize, usize)> = (0..variants.len())
-        .flat_map(|v| (0..paths.len()).map(move |t| (v, t)))
-        .collect();
-    // the longest first, so the two threads finish together: a neo-Hookean replay costs ~6
-    // corotational ones (its element tangent is projected per element and step), and when
-    // they came last one thread ran them alone (80 s of replays where the work was 66 s)
-    jobs.sort_by(|a, b| {
-        let cost = |&(v, t): &(usize, usize)| {
-            relative_replay_cost(&variants[v].1) * paths[t].poses.len() as f64
-        };
-        cost(b).total_cmp(&cost(a))
+    let only: Vec<Variant> = variants.iter().map(|(_, v)| v.clone()).collect();
+    let path_refs: Vec<&ProbePath> = paths.iter().collect();
+    let bar = progress_bar(
+        opts.progress,
+        (only.len() * paths.len()) as u64,
+        "replaying",
+    );
+    let results = replay_grid(model, &only, &path_refs, || {
+        if let Some(b) = &bar {
+            b.inc(1);
+        }
     });
-    let bar = progress_bar(opts.progress, jobs.len() as u64, "replaying");
-    let results: Vec<Result<Replayed, GapError>> = jobs
-        .par_iter()
-        .with_max_len(1)
-        .map(|&(v, t)| {
-            let r = replay_checked(model, &variants[v].1, &paths[t]).map_err(|e| {
+    if let Some(b) = bar {
+        b.finish_and_clear();
+    }
+    let mut forces: Vec<Vec<Option<Replayed>>> = Vec::with_capacity(results.len());
+    for (v, row) in results.into_iter().enumerate() {
+        let mut own = Vec::with_capacity(row.len());
+        for (t, r) in row.into_iter().enumerate() {
+            own.push(Some(r.map_err(|e| {
                 GapError::Sim(format!(
                     "trial {} ({}), {}: {e}",
                     exp.trials[t].name,
                     exp.trials[t].file.display(),
-                    variants[v].1.label()
+                    only[v].label()
                 ))
-            });
-            if let Some(b) = &bar {
-                b.inc(1);
-            }
-            r
-        })
-        .collect();
-    if let Some(b) = bar {
-        b.finish_and_clear();
-    }
-    let mut forces: Vec<Vec<Option<Replayed>>> = vec![vec![None; paths.len()]; variants.len()];
-    for ((v, t), r) in jobs.into_iter().zip(results) {
-        forces[v][t] = Some(r?);
+            })?));
+        }
+        forces.push(own);
     }
     let mut out = Vec::with_capacity(paths.len());
     for (ti, (trial, path)) in exp.trials.iter().zip(paths).enumerate() {
@@ -349,12 +341,73 @@ pub fn replay_trials(
     model: &dyn ForceModel,
     variant: &Variant,
 ) -> Vec<Result<Replayed, GapError>> {
-    data.par_iter()
-        .map(|d| {
-            replay_checked(model, variant, &d.path).map_err(|err| {
-                GapError::Sim(format!("trial {}, {}: {err}", d.name, variant.label()))
-            })
+    let trials: Vec<&TrialData> = data.iter().collect();
+    replay_trials_at(&trials, model, std::slice::from_ref(variant))
+        .pop()
+        .unwrap_or_default()
+}
+
+/// Replays each of `trials` at each of `variants` as one parallel batch, longest first
+/// ([`replay_grid`], as the first build does); returned per variant, per trial. A pair's
+/// centre needs four variants: the centre and a step along each parameter. An error names
+/// the trial.
+pub fn replay_trials_at(
+    trials: &[&TrialData],
+    model: &dyn ForceModel,
+    variants: &[Variant],
+) -> Vec<Vec<Result<Replayed, GapError>>> {
+    let paths: Vec<&ProbePath> = trials.iter().map(|d| &d.path).collect();
+    replay_grid(model, variants, &paths, || {})
+        .into_iter()
+        .zip(variants)
+        .map(|(row, v)| {
+            row.into_iter()
+                .zip(trials)
+                .map(|(r, d)| {
+                    r.map_err(|err| {
+                        GapError::Sim(format!("trial {}, {}: {err}", d.name, v.label()))
+                    })
+                })
+                .collect()
         })
+        .collect()
+}
+
+/// Every path replayed at every variant in parallel, returned per variant, per path; `done`
+/// is called after each replay. The longest first, so the two threads finish together: a
+/// neo-Hookean replay costs ~6 corotational ones (its element tangent is projected per
+/// element and step), and when they came last one thread ran them alone (80 s of replays
+/// where the work was 66 s).
+fn replay_grid(
+    model: &dyn ForceModel,
+    variants: &[Variant],
+    paths: &[&ProbePath],
+    done: impl Fn() + Sync,
+) -> Vec<Vec<Result<Replayed, GapError>>> {
+    let mut jobs: Vec<(usize, usize)> = (0..variants.len())
+        .flat_map(|v| (0..paths.len()).map(move |t| (v, t)))
+        .collect();
+    let cost =
+        |&(v, t): &(usize, usize)| relative_replay_cost(&variants[v]) * paths[t].poses.len() as f64;
+    jobs.sort_by(|a, b| cost(b).total_cmp(&cost(a)));
+    let results: Vec<Result<Replayed, GapError>> = jobs
+        .par_iter()
+        .with_max_len(1)
+        .map(|&(v, t)| {
+            let r = replay_checked(model, &variants[v], paths[t]);
+            done();
+            r
+        })
+        .collect();
+    let mut grid: Vec<Vec<Option<Result<Replayed, GapError>>>> = variants
+        .iter()
+        .map(|_| (0..paths.len()).map(|_| None).collect())
+        .collect();
+    for ((v, t), r) in jobs.into_iter().zip(results) {
+        grid[v][t] = Some(r);
+    }
+    grid.into_iter()
+        .map(|row| row.into_iter().flatten().collect())
         .collect()
 }
 

@@ -451,6 +451,9 @@ fn a_tilt_on_a_support_leaves_its_centre_along_the_replay_s_slopes() {
     let model = stand_in();
     let (exp, _) = replay_experiment(&model, "pair_slopes", &["tilt", "support"], 11, |spec| {
         spec.stiffness_scale = 1.0;
+        // the study's five per region: the pair's rounds search on two of them
+        // (`centres::search_trials`) and the rest join after
+        spec.probings_per_region = 5;
         for i in &mut spec.injected {
             match i.effect.as_str() {
                 "tilt" => {
@@ -478,6 +481,21 @@ fn a_tilt_on_a_support_leaves_its_centre_along_the_replay_s_slopes() {
         .expect("a tilt of 5.4° on a support of 1500 N/m gets a pair centre")
         .clone();
     assert_eq!(centre.slopes.len(), 3, "one slope per parameter");
+    // searched on two trials per region, then made for the rest where the search settled:
+    // every trial stands on the same centre
+    assert!(
+        data.len() > 6,
+        "{} trials: the search would see them all",
+        data.len()
+    );
+    for d in &data {
+        let own = d
+            .centres
+            .iter()
+            .find(|k| k.effects == [Effect::Tilt, Effect::Support])
+            .unwrap_or_else(|| panic!("{}: no pair centre", d.name));
+        assert_eq!(own.theta, centre.theta, "{}: another pair centre", d.name);
+    }
     let c = centre.theta.clone();
     let variant_at = |th: &[f64]| Variant {
         tilt: [th[0].to_radians(), th[1].to_radians()],

@@ -333,12 +333,20 @@ pub struct Verdict {
 }
 
 /// Wall time of a diagnosis' stages, s: the replays (baseline, knots, the contact nuisance's
-/// knot), the second stage ([`centres`]) and the fits with their held-out folds.
+/// knot), the second stage ([`centres`]) and the fits with their held-out folds; and how many
+/// replays the first two made (a trial replayed at one variant is one).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub struct StageTimes {
     pub replays_s: f64,
     pub centres_s: f64,
     pub fits_s: f64,
+    /// Replays of the first stage: every trial at the baseline, each effect's knots and the
+    /// nuisances' knots.
+    #[serde(default)]
+    pub replays: usize,
+    /// Replays of the second stage: the centres and their slopes.
+    #[serde(default)]
+    pub centre_replays: usize,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -475,11 +483,13 @@ pub fn prepare_dataset_timed(
     effects: &[Effect],
     opts: &Options,
 ) -> Result<(Vec<dataset::TrialData>, StageTimes), GapError> {
+    let model = model::Counting::new(model);
     let t0 = std::time::Instant::now();
-    let mut data = dataset::build(exp, model, effects, &opts.build_options())?;
+    let mut data = dataset::build(exp, &model, effects, &opts.build_options())?;
     let replays_s = t0.elapsed().as_secs_f64();
+    let replays = model.made();
     if opts.centres {
-        centres::add_centres(&mut data, model, opts.nuisance_band())?;
+        centres::add_centres(&mut data, &model, opts.nuisance_band())?;
     }
     let centres_s = t0.elapsed().as_secs_f64() - replays_s;
     Ok((
@@ -488,6 +498,8 @@ pub fn prepare_dataset_timed(
             replays_s,
             centres_s,
             fits_s: 0.0,
+            replays,
+            centre_replays: model.made() - replays,
         },
     ))
 }

@@ -4,6 +4,7 @@ use super::signal::{quat_conj, quat_mul, quat_rotate, quat_tilt};
 use super::GapError;
 use msgs::Pose;
 use serde::{Deserialize, Serialize};
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// A prescribed probe path on a uniform time grid `t0 + k dt`, k = 0..poses.len().
 #[derive(Debug, Clone)]
@@ -140,6 +141,49 @@ impl Replayed {
     }
 }
 
+/// A model that counts the replays made through it, so a diagnosis can say how many each of
+/// its stages made ([`crate::StageTimes`]): its time is almost all replays, and their number,
+/// not their cost, is what differs between an effect alone and a pair.
+pub struct Counting<'a> {
+    inner: &'a dyn ForceModel,
+    made: AtomicUsize,
+}
+
+impl<'a> Counting<'a> {
+    pub fn new(inner: &'a dyn ForceModel) -> Self {
+        Counting {
+            inner,
+            made: AtomicUsize::new(0),
+        }
+    }
+    /// Replays made through it so far.
+    pub fn made(&self) -> usize {
+        self.made.load(Ordering::Relaxed)
+    }
+}
+
+impl ForceModel for Counting<'_> {
+    fn replay_untilted(&self, v: &Variant, p: &ProbePath) -> Result<Vec<[f64; 3]>, GapError> {
+        self.made.fetch_add(1, Ordering::Relaxed);
+        self.inner.replay_untilted(v, p)
+    }
+    fn replay_untilted_checked(&self, v: &Variant, p: &ProbePath) -> Result<Replayed, GapError> {
+        // the inner model's own default calls its own unchecked replay, not this one's: one
+        // count per replay
+        self.made.fetch_add(1, Ordering::Relaxed);
+        self.inner.replay_untilted_checked(v, p)
+    }
+    fn describe(&self) -> String {
+        self.inner.describe()
+    }
+    fn has_refinement(&self) -> bool {
+        self.inner.has_refinement()
+    }
+    fn support_scale(&self) -> f64 {
+        self.inner.support_scale()
+    }
+}
+
 /// Replay with the specimen tilted: a specimen rotated by R in the world sees the probe path
 /// R⁻¹·p (about the world origin = specimen footprint centre), and its force comes back as R·f.
 pub fn replay(
@@ -215,20 +259,29 @@ mod tests {
         }
     }
 
+    /// A probe held still for `n` steps of 10 ms.
+    fn still_path(n: usize) -> ProbePath {
+        ProbePath {
+            t0: 0.0,
+            dt: 0.01,
+            poses: vec![Pose::IDENTITY; n],
+        }
+    }
+
+    fn tilted_by(tilt: [f64; 2]) -> Variant {
+        Variant {
+            tilt,
+            ..Variant::default()
+        }
+    }
+
     /// A replay is diverged when the physics flagged a step, whatever its forces look like
     /// (issue 14: the diagnosis reads the fault flag, not a force heuristic), also through
     /// the tilt's rotation of the path; unflagged finite forces are a solution.
     #[test]
     fn a_replay_is_diverged_by_the_physics_fault_flag() {
-        let path = ProbePath {
-            t0: 0.0,
-            dt: 0.01,
-            poses: vec![Pose::IDENTITY; 5],
-        };
-        let tilted = Variant {
-            tilt: [0.10472, 0.0],
-            ..Variant::default()
-        };
+        let path = still_path(5);
+        let tilted = tilted_by([0.10472, 0.0]);
         for variant in [Variant::default(), tilted] {
             let r = replay_checked(&Flagging { faulty: 1 }, &variant, &path).unwrap();
             assert!(
@@ -245,5 +298,36 @@ mod tests {
             faulty_steps: 0,
         };
         assert!(r.diverged());
+    }
+
+    /// Each replay through [`Counting`] is one, tilted (the path turned, then the untilted
+    /// checked replay) or not, and a model whose checked replay is its default (which calls
+    /// its own unchecked one) is not counted twice.
+    #[test]
+    fn a_counted_replay_counts_once_tilted_or_not() {
+        struct Plain;
+        impl ForceModel for Plain {
+            fn replay_untilted(
+                &self,
+                _: &Variant,
+                path: &ProbePath,
+            ) -> Result<Vec<[f64; 3]>, GapError> {
+                Ok(vec![[0.0, 0.0, 1.0]; path.poses.len()])
+            }
+            fn describe(&self) -> String {
+                "plain".into()
+            }
+        }
+        let path = still_path(3);
+        let tilted = tilted_by([0.0, 0.05]);
+        for inner in [&Plain as &dyn ForceModel, &Flagging { faulty: 0 }] {
+            let counted = Counting::new(inner);
+            assert_eq!(counted.made(), 0);
+            replay_checked(&counted, &Variant::default(), &path).unwrap();
+            replay_checked(&counted, &tilted, &path).unwrap();
+            replay(&counted, &tilted, &path).unwrap();
+            assert_eq!(counted.made(), 3, "{}", inner.describe());
+            assert_eq!(counted.describe(), inner.describe());
+        }
     }
 }

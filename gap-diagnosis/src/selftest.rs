@@ -464,6 +464,9 @@ pub fn bench(
         "replays_s": report.stages.map(|s| s.replays_s),
         "centres_s": report.stages.map(|s| s.centres_s),
         "fits_s": report.stages.map(|s| s.fits_s),
+        // the time is almost all replays: how many each stage made
+        "replays": report.stages.map(|s| s.replays),
+        "centre_replays": report.stages.map(|s| s.centre_replays),
         "truth": spec.label(),
         // the injected strengths and the fitted ones, so a reader sees how near the fit came
         "injected": spec.injected,

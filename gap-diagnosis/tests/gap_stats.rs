@@ -222,7 +222,12 @@ fn a_persistent_stiffness_offset_is_not_an_effect() {
         spec.truth_mesh = TruthMesh::Replay;
         spec.probings_per_region = 3;
         let (exp, _) = experiment(&spec, &model, &sites, &dir);
-        let with = diagnose(&exp, &model, &Options::default()).unwrap();
+        // every replay the diagnosis makes is in its stages' counts
+        let counted = gap_diagnosis::model::Counting::new(&model);
+        let with = diagnose(&exp, &counted, &Options::default()).unwrap();
+        let stages = with.stages.unwrap();
+        assert_eq!(stages.replays + stages.centre_replays, counted.made());
+        assert!(stages.replays > 0 && stages.replays.is_multiple_of(exp.trials.len()));
         let without = diagnose(
             &exp,
             &model,

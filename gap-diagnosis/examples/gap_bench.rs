@@ -7,7 +7,9 @@
 //! `GAP_BENCH_MESH`, default `default:lateral:40x6x4` with 1,435 nodes, the specimen: issue 15
 //! asks for ≤ 60 s on a ~1,400-node one. `GAP_BENCH_MESH=default:lateral:coarse` is the
 //! 276-node specimen of the earlier figures, with the `mesh` candidate on its refinement;
-//! `GAP_BENCH_NO_CONTACT=1` fits the stiffness nuisance alone, without the contact nuisance).
+//! `GAP_BENCH_NO_CONTACT=1` fits the stiffness nuisance alone, without the contact nuisance;
+//! `GAP_BENCH_SEED`, default 5, draws other strengths: the effects' order in
+//! `GAP_BENCH_EFFECT` is the draw's order too).
 //! Beside the stages' times and the verdict, the line carries the injected strengths
 //! (`injected`) and the verdict's fitted parameters (`fitted`).
 //!
@@ -28,7 +30,14 @@ fn diagnose_15_trials() -> anyhow::Result<()> {
         centres: std::env::var_os("GAP_BENCH_NO_CENTRES").is_none(),
         ..gap_diagnosis::Options::default()
     };
-    let v = gap_diagnosis::selftest::bench(&effect, 5, Some(&mesh), &opts)?;
+    // GAP_BENCH_SEED: another draw of the effect's strengths (default 5)
+    let seed = match std::env::var("GAP_BENCH_SEED") {
+        Ok(s) => s
+            .parse()
+            .with_context(|| format!("GAP_BENCH_SEED {s:?} is not a seed"))?,
+        Err(_) => 5,
+    };
+    let v = gap_diagnosis::selftest::bench(&effect, seed, Some(&mesh), &opts)?;
     println!("{v}");
     Ok(())
 }

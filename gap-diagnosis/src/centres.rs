@@ -91,31 +91,33 @@ pub fn add_centres(
     // and read `tilt`, the tilt 59% short. Where nothing relaxes over the hold the centre is
     // the tilt's own fit.
     let placed = Some(Candidate::pair(Effect::Viscoelastic, Effect::Tilt));
+    let angles = centre_rounds(data, model, nuisance, &tilt, &[], significant, placed)?;
+    if !has(data, Effect::Support) {
+        return Ok(());
+    }
     let pair = Candidate::pair(Effect::Tilt, Effect::Support);
-    let Some(angles) = centre_rounds(data, model, nuisance, &tilt, &[], significant, placed)?
-    else {
-        // A tilt on a soft support may not reach significance alone: its knots stand on the
-        // fixed base, so their force overstates the tilt's where the base gives, and the fit
-        // takes less tilt for it. A coarse-mesh proxy case of 7.8° on 947 N/m per node (seed
-        // 817) fitted under 1° alone and read `mesh`; the pair's own fit, over the support's
-        // centre, still tilted 1.1° with the support beside it. Its centre is then searched
-        // from there, each round tilted on the fitted support.
-        if has(data, Effect::Support) {
+    match angles {
+        Some(angles) => {
+            let inits: Vec<Vec<f64>> = [SUPPORT_KNOTS[0], SUPPORT_SPAN]
+                .iter()
+                .map(|&c| vec![angles[0], angles[1], c])
+                .collect();
+            // the tilt alone was significant; on a soft support the pair's interpolation may
+            // first fit less of it (its tilted knots stand on the fixed base)
+            let significant = |th: &[f64]| th[2] >= MIN_CENTRE_SUPPORT;
+            centre_rounds(data, model, nuisance, &pair, &inits, significant, None)?;
+        }
+        None => {
+            // A tilt on a soft support may not reach significance alone: its knots stand on
+            // the fixed base, so their force overstates the tilt's where the base gives, and
+            // the fit takes less tilt for it. A coarse-mesh proxy case of 7.8° on 947 N/m per
+            // node (seed 817) fitted under 1° alone and read `mesh`; the pair's own fit, over
+            // the support's centre, still tilted 1.1° with the support beside it. Its centre
+            // is then searched from there, each round tilted on the fitted support.
             let significant =
                 |th: &[f64]| th[0].hypot(th[1]) >= MIN_CENTRE_DEG && th[2] >= MIN_CENTRE_SUPPORT;
             centre_rounds(data, model, nuisance, &pair, &[], significant, None)?;
         }
-        return Ok(());
-    };
-    if has(data, Effect::Support) {
-        let inits: Vec<Vec<f64>> = [SUPPORT_KNOTS[0], SUPPORT_SPAN]
-            .iter()
-            .map(|&c| vec![angles[0], angles[1], c])
-            .collect();
-        // the tilt alone was significant; on a soft support the pair's interpolation may
-        // first fit less of it (its tilted knots stand on the fixed base)
-        let significant = |th: &[f64]| th[2] >= MIN_CENTRE_SUPPORT;
-        centre_rounds(data, model, nuisance, &pair, &inits, significant, None)?;
     }
     Ok(())
 }

@@ -315,12 +315,13 @@ fn piecewise_knots(grid: &mut [[f64; 3]], td: &TrialData, e: Effect, x: f64, def
 /// The contact and material nuisances move the baseline towards the trial's contact knot and
 /// material knot by their weights w and m (like re-simulated effects), and scale friction's
 /// delta by 1 + w·ρ_c + m·ρ_m (+ ρ_s beside a support, from its interpolation at `theta`), ρ
-/// each knot's relative change of the baseline's normal force ([`layer_change`]). The stiffness scale acts on the tissue's force after the re-simulated
-/// effects (a stiffer specimen at the same friction, tilt or support scales the whole replayed
-/// force: the replay is displacement-driven and linear in the modulus and support together)
-/// and before a device's bias and tool inertia, which are not tissue. Everything after it is
-/// affine in the force, so the prediction is affine in the stiffness s and in s × each weight:
-/// what lets the fits profile all three out ([`crate::fit::PhaseQuad`]).
+/// each knot's relative change of the baseline's normal force ([`layer_change`]). The
+/// stiffness scale acts on the tissue's force after the re-simulated effects (a stiffer
+/// specimen at the same friction, tilt or support scales the whole replayed force: the replay
+/// is displacement-driven and linear in the modulus and support together) and before a
+/// device's bias and tool inertia, which are not tissue. Everything after it is affine in the
+/// force, so the prediction is affine in the stiffness s and in s × each weight: what lets the
+/// fits profile all three out ([`crate::fit::PhaseQuad`]).
 pub fn predict(
     c: &Candidate,
     theta: &[f64],

@@ -434,7 +434,10 @@ fn friction_on_a_soft_support_goes_through_the_support_s_normal_force() {
     let every: Vec<Vec<bool>> = data.iter().map(|d| vec![true; d.t.len()]).collect();
     let rmse = phase_sse(&pair, &[mu, 1.0 / stiffness], nuisance, &data, &every).rmse();
     let floor = phase_sse(&pair, &[0.0, 0.0], nuisance, &data, &every).rmse();
-    eprintln!("μ {mu:.3} on {stiffness:.0} N/m per node: {rmse:.3} N RMS at the truth, {floor:.3} N at none");
+    eprintln!(
+        "μ {mu:.3} on {stiffness:.0} N/m per node: {rmse:.3} N RMS at the truth, \
+         {floor:.3} N at none"
+    );
     assert!(
         rmse < 1.5,
         "friction+support at its true parameters is {rmse:.3} N RMS off the measurement"

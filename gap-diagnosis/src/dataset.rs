@@ -28,9 +28,11 @@ pub struct Centre {
     /// force's slope there minus the interpolation's, on the grid (N per parameter unit),
     /// from one more replay a step away ([`crate::centres`]): the interpolation of a pair
     /// adds each effect's delta as replayed without the other, so its slopes at the centre
-    /// are the wrong ones. Empty for a single effect's centre (given slopes, the support's
-    /// moved the device+support case's support from 3% to 19% off), or where a step's replay
-    /// diverged.
+    /// are the wrong ones. The single tilt's last centre has them too: the pairs of a tilt
+    /// with an effect that is not re-simulated leave it along them
+    /// ([`crate::centres`]' `add_slopes`). Empty for the support's centre (given slopes, it
+    /// moved the device+support case's support from 3% to 19% off), the tilt's earlier ones,
+    /// or where a step's replay diverged.
     pub slopes: Vec<Vec<[f64; 3]>>,
     /// The distance from the centre at which its weight falls to 0, in multiples of its own
     /// distance from the neutral point ([`crate::effects::centre_weight`]): 1 once made, so

@@ -452,8 +452,8 @@ fn friction_on_a_soft_support_goes_through_the_support_s_normal_force() {
 /// (`gap_dev DIR contact-layer-cases 1100 default:lateral:coarse` with `GAP_DEV_CASE_LIST` of
 /// other pairs, case 0, seed 1100: modulus ×1.58 on an offset of ×1.11, tilt (−5.61°,
 /// −3.80°), the same-mesh penalty truth). It read `tilt`, the tilt 13.7% off; with the
-/// replay's slopes at the tilt's centre (`centres`) it reads `modulus+tilt`, the tilt 6.6%
-/// and the modulus 4.1% off.
+/// replay's slopes at the tilt's centre (`centres`) it reads `modulus+tilt`, the tilt 2.3%
+/// and the modulus 6.6% off.
 #[test]
 fn a_tilt_beside_a_modulus_leaves_the_tilt_s_centre_along_the_replay_s_slopes() {
     use gap_diagnosis::effects::Effect;

@@ -96,7 +96,15 @@ pub fn add_centres(
     // and read `tilt`, the tilt 59% short. Where nothing relaxes over the hold the centre is
     // the tilt's own fit.
     let placed = Some(Candidate::pair(Effect::Viscoelastic, Effect::Tilt));
-    let angles = match centre_rounds(data, model, nuisance, &tilt, &[], significant, placed)? {
+    let angles = match centre_rounds(
+        data,
+        model,
+        nuisance,
+        &tilt,
+        &[],
+        significant,
+        placed.clone(),
+    )? {
         Some(angles) => Some(settle_with_slopes(
             data,
             model,
@@ -104,6 +112,7 @@ pub fn add_centres(
             &tilt,
             angles,
             significant,
+            placed,
         )?),
         None => None,
     };
@@ -193,31 +202,12 @@ fn centre_rounds(
         }
         let mut starts = inits.to_vec();
         starts.extend(done.clone());
-        let mut fitted = fit(c, data, &mask, &starts, &default_free(c), nuisance);
-        if let Some((w, nu)) = &placed {
-            let wide_starts: Vec<Vec<f64>> = starts
-                .iter()
-                .chain([&fitted.theta])
-                .map(|th| embed(w, c, th))
-                .collect();
-            let wide = fit(w, data, &mask, &wide_starts, &default_free(w), *nu);
-            if relaxes_over_the_hold(w, &wide.theta) {
-                fitted.theta = extract(w, c, &wide.theta);
-            }
-        }
-        if !significant(&fitted.theta) {
+        let theta = placed_fit(data, &mask, c, &starts, nuisance, placed.as_ref());
+        if !significant(&theta) {
             break;
         }
         if let Some(last) = &done {
-            let moved = fitted
-                .theta
-                .iter()
-                .zip(last)
-                .zip(units(c))
-                .map(|((a, b), u)| ((a - b) / u).powi(2))
-                .sum::<f64>()
-                .sqrt();
-            if moved < SETTLED {
+            if moved(c, &theta, last) < SETTLED {
                 if search.len() == data.len() {
                     break;
                 }
@@ -225,13 +215,13 @@ fn centre_rounds(
                 continue;
             }
         }
-        replay_centre(data, model, c, &fitted.theta, &search)?;
+        replay_centre(data, model, c, &theta, &search)?;
         mask = trial_mask(data, &search);
         made += 1;
         if c.0.len() > 1 {
             set_reach(data, c, SEARCH_REACH);
         }
-        done = Some(fitted.theta);
+        done = Some(theta);
     }
     // the fit fell below significance during the search: the other trials still get the last
     // centre, so every trial's candidate stands on it
@@ -243,6 +233,45 @@ fn centre_rounds(
     // the candidate the diagnosis fits: the baseline at the neutral point again
     set_reach(data, c, 1.0);
     Ok(done)
+}
+
+/// `c`'s fit over the samples `mask` from `starts` (with the nuisance band `nuisance`); with
+/// `placed`, the wider candidate holding a relaxation and its band, `c`'s parameters of that
+/// candidate's fit where its relaxation relaxes over the hold ([`relaxes_over_the_hold`]).
+fn placed_fit(
+    data: &[TrialData],
+    mask: &[Vec<bool>],
+    c: &Candidate,
+    starts: &[Vec<f64>],
+    nuisance: Nuisance,
+    placed: Option<&(Candidate, Nuisance)>,
+) -> Vec<f64> {
+    let fitted = fit(c, data, mask, starts, &default_free(c), nuisance).theta;
+    let Some((w, nu)) = placed else {
+        return fitted;
+    };
+    let wide_starts: Vec<Vec<f64>> = starts
+        .iter()
+        .chain([&fitted])
+        .map(|th| embed(w, c, th))
+        .collect();
+    let wide = fit(w, data, mask, &wide_starts, &default_free(w), *nu);
+    if relaxes_over_the_hold(w, &wide.theta) {
+        extract(w, c, &wide.theta)
+    } else {
+        fitted
+    }
+}
+
+/// How far `theta` stands from `last`, in [`crate::effects::centre_unit`]s.
+fn moved(c: &Candidate, theta: &[f64], last: &[f64]) -> f64 {
+    theta
+        .iter()
+        .zip(last)
+        .zip(units(c))
+        .map(|((a, b), u)| ((a - b) / u).powi(2))
+        .sum::<f64>()
+        .sqrt()
 }
 
 /// How far a pair's latest centre reaches while its rounds look for the next one, in
@@ -445,8 +474,9 @@ fn replay_centre(
 }
 
 /// The single tilt's last centre, at `theta`, with its slopes ([`add_slopes`]); then the tilt
-/// refitted over every trial with them in place, and where that moved by [`SETTLED`] or more,
-/// one more centre there with its slopes. Returns where the last centre stands.
+/// refitted over every trial with them in place (placed by a relaxation beside it as the
+/// rounds are, `placed`), and where that moved by [`SETTLED`] or more, one more centre there
+/// with its slopes. Returns where the last centre stands.
 ///
 /// Without slopes the rounds settle where the quadratic's wrong slopes hold the fit; with
 /// them the fit moves on (0.5–1.3° on 13 of the 23 proxy cases with a tilt centre), and the
@@ -462,33 +492,25 @@ fn settle_with_slopes(
     tilt: &Candidate,
     theta: Vec<f64>,
     significant: impl Fn(&[f64]) -> bool,
+    placed: Option<Candidate>,
 ) -> Result<Vec<f64>, GapError> {
     add_slopes(data, model, tilt, &theta)?;
     let every: Vec<usize> = (0..data.len()).collect();
     let mask = trial_mask(data, &every);
+    // placed as the rounds placed it
+    let placed = placed.map(|w| {
+        let nu = nuisance.for_candidate(&w).for_data(data);
+        (w, nu)
+    });
     let nu = nuisance.for_candidate(tilt).for_data(data);
-    let refit = fit(
-        tilt,
-        data,
-        &mask,
-        std::slice::from_ref(&theta),
-        &default_free(tilt),
-        nu,
-    );
-    let moved = refit
-        .theta
-        .iter()
-        .zip(&theta)
-        .zip(units(tilt))
-        .map(|((a, b), u)| ((a - b) / u).powi(2))
-        .sum::<f64>()
-        .sqrt();
-    if moved < SETTLED || !significant(&refit.theta) {
+    let starts = std::slice::from_ref(&theta);
+    let refit = placed_fit(data, &mask, tilt, starts, nu, placed.as_ref());
+    if moved(tilt, &refit, &theta) < SETTLED || !significant(&refit) {
         return Ok(theta);
     }
-    replay_centre(data, model, tilt, &refit.theta, &every)?;
-    add_slopes(data, model, tilt, &refit.theta)?;
-    Ok(refit.theta)
+    replay_centre(data, model, tilt, &refit, &every)?;
+    add_slopes(data, model, tilt, &refit)?;
+    Ok(refit)
 }
 
 /// Adds slopes ([`Centre::slopes`]) to the single tilt's last centre, at `theta`, on every

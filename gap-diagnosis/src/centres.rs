@@ -172,11 +172,6 @@ fn centre_rounds(
     };
     // the first fit, before any of the pair's centres stands, sees every trial as before
     let mut mask = trial_mask(data, &every);
-    let placed = placed.map(|w| {
-        let nu = nuisance.for_candidate(&w).for_data(data);
-        (w, nu)
-    });
-    let nuisance = nuisance.for_candidate(c).for_data(data);
     let mut done: Option<Vec<f64>> = None;
     let rounds = if c.0.len() > 1 { PAIR_ROUNDS } else { ROUNDS };
     let (mut made, mut budget) = (0, rounds);
@@ -235,27 +230,30 @@ fn centre_rounds(
     Ok(done)
 }
 
-/// `c`'s fit over the samples `mask` from `starts` (with the nuisance band `nuisance`); with
-/// `placed`, the wider candidate holding a relaxation and its band, `c`'s parameters of that
-/// candidate's fit where its relaxation relaxes over the hold ([`relaxes_over_the_hold`]).
+/// `c`'s fit over the samples `mask` from `starts` (with the nuisance band `nuisance`, as
+/// each candidate and the trials carry it); with `placed`, the wider candidate holding a
+/// relaxation, `c`'s parameters of that candidate's fit where its relaxation relaxes over the
+/// hold ([`relaxes_over_the_hold`]).
 fn placed_fit(
     data: &[TrialData],
     mask: &[Vec<bool>],
     c: &Candidate,
     starts: &[Vec<f64>],
     nuisance: Nuisance,
-    placed: Option<&(Candidate, Nuisance)>,
+    placed: Option<&Candidate>,
 ) -> Vec<f64> {
-    let fitted = fit(c, data, mask, starts, &default_free(c), nuisance).theta;
-    let Some((w, nu)) = placed else {
+    let band = nuisance.for_candidate(c).for_data(data);
+    let fitted = fit(c, data, mask, starts, &default_free(c), band).theta;
+    let Some(w) = placed else {
         return fitted;
     };
+    let nu = nuisance.for_candidate(w).for_data(data);
     let wide_starts: Vec<Vec<f64>> = starts
         .iter()
         .chain([&fitted])
         .map(|th| embed(w, c, th))
         .collect();
-    let wide = fit(w, data, mask, &wide_starts, &default_free(w), *nu);
+    let wide = fit(w, data, mask, &wide_starts, &default_free(w), nu);
     if relaxes_over_the_hold(w, &wide.theta) {
         extract(w, c, &wide.theta)
     } else {
@@ -498,13 +496,8 @@ fn settle_with_slopes(
     let every: Vec<usize> = (0..data.len()).collect();
     let mask = trial_mask(data, &every);
     // placed as the rounds placed it
-    let placed = placed.map(|w| {
-        let nu = nuisance.for_candidate(&w).for_data(data);
-        (w, nu)
-    });
-    let nu = nuisance.for_candidate(tilt).for_data(data);
     let starts = std::slice::from_ref(&theta);
-    let refit = placed_fit(data, &mask, tilt, starts, nu, placed.as_ref());
+    let refit = placed_fit(data, &mask, tilt, starts, nuisance, placed.as_ref());
     if moved(tilt, &refit, &theta) < SETTLED || !significant(&refit) {
         return Ok(theta);
     }
@@ -531,18 +524,29 @@ fn add_slopes(
     c: &Candidate,
     theta: &[f64],
 ) -> Result<(), GapError> {
-    let at_centre = |d: &TrialData| d.centres.iter().any(|k| k.effects == c.0);
-    let which: Vec<usize> = (0..data.len()).filter(|&i| at_centre(&data[i])).collect();
+    // each trial with the centre, and where it stands among the trial's centres
+    let which: Vec<(usize, usize)> = data
+        .iter()
+        .enumerate()
+        .filter_map(|(i, d)| {
+            d.centres
+                .iter()
+                .position(|k| k.effects == c.0)
+                .map(|k| (i, k))
+        })
+        .collect();
     let steps = slope_steps(c, theta);
     let variants: Vec<Variant> = steps.iter().map(|(at, _)| centre_variant(c, at)).collect();
-    let trials: Vec<&TrialData> = which.iter().map(|&i| &data[i]).collect();
+    let trials: Vec<&TrialData> = which.iter().map(|&(i, _)| &data[i]).collect();
     let stepped = per_trial(replay_trials_at(&trials, model, &variants), which.len())?;
-    for (&i, steps_here) in which.iter().zip(stepped) {
-        let d = &data[i];
-        let Some(k) = d.centres.iter().position(|k| k.effects == c.0) else {
-            continue;
-        };
-        let slopes = slopes_at(d, c, &steps, &steps_here, &d.centres[k].correction);
+    for (&(i, k), steps_here) in which.iter().zip(stepped) {
+        let slopes = slopes_at(
+            &data[i],
+            c,
+            &steps,
+            &steps_here,
+            &data[i].centres[k].correction,
+        );
         data[i].centres[k].slopes = slopes;
     }
     Ok(())

@@ -76,7 +76,7 @@ pub use rest_compliance::RestCompliance;
 pub use settings::{
     CgMatrix, FemSettings, LinearSolver, Preconditioner, RotationMethod, LAGGED_FACTOR_ITERATIONS,
 };
-pub use sparse::{BlockPattern, SparseCholesky};
+pub use sparse::{BlockPattern, FactorPrecision, SparseCholesky};
 use sparse::{UpperF32, NO_BLOCK};
 use stiffening::StiffeningState;
 

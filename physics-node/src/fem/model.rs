@@ -150,7 +150,18 @@ impl FemModel {
             solver if solver.factors_current_system() => {
                 let dt = self.settings.dt;
                 self.assemble_rest_system(dt);
-                self.direct = Some(SparseCholesky::new(&self.pattern, &self.a, 1)?);
+                // The lagged factor only preconditions a CG run to its tolerance in f64, so f32
+                // is enough there; the direct solver's factor is the solve itself.
+                let precision = match solver {
+                    LinearSolver::Direct => FactorPrecision::F64,
+                    _ => FactorPrecision::F32,
+                };
+                self.direct = Some(SparseCholesky::with_precision(
+                    &self.pattern,
+                    &self.a,
+                    1,
+                    precision,
+                )?);
                 self.refactor_lagged = true;
             }
             _ => {}

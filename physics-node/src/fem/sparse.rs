@@ -523,6 +523,30 @@ impl LowerCsc {
     }
 }
 
+/// Precision a [`SparseCholesky`] stores its factor in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FactorPrecision {
+    /// f64: the direct solver's, the rest compliance's and every exact solve's.
+    F64,
+    /// f32 factor and solves (the right-hand side rounded on the way in, the result widened
+    /// on the way out): only where the factor preconditions an iteration that is itself run
+    /// to a tolerance in f64, the offline lagged-factor CG. The solves stream half the bytes
+    /// of L (1,435 nodes: they were a third of an offline replay's time).
+    F32,
+}
+
+/// The numeric factor in the chosen precision.
+enum Factor {
+    F64 {
+        l: Vec<f64>,
+    },
+    F32 {
+        values: Vec<f32>,
+        l: Vec<f32>,
+        rhs: Vec<f32>,
+    },
+}
+
 /// Sparse Cholesky LLᵀ of a symmetric positive definite block matrix (faer, AMD ordering,
 /// supernodal when worthwhile). Symbolic analysis once; `refactor` and the solves use
 /// preallocated memory and do not allocate.
@@ -530,7 +554,7 @@ pub struct SparseCholesky {
     dim: usize,
     csc: LowerCsc,
     symbolic: SymbolicCholesky<usize>,
-    l_values: Vec<f64>,
+    factor: Factor,
     mem: MemBuffer,
     max_cols: usize,
     factored: bool,
@@ -540,20 +564,31 @@ impl std::fmt::Debug for SparseCholesky {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("SparseCholesky")
             .field("dim", &self.dim)
-            .field("l_nnz", &self.l_values.len())
+            .field("l_nnz", &self.factor_nnz())
+            .field("precision", &self.precision())
             .field("max_cols", &self.max_cols)
             .finish()
     }
 }
 
 impl SparseCholesky {
-    /// Symbolic analysis of `pattern` and a first numeric factorization of `a`. Solves of up
-    /// to `max_cols` right-hand sides at once run without allocating (wider blocks are
+    /// Symbolic analysis of `pattern` and a first numeric factorization of `a`, in f64. Solves
+    /// of up to `max_cols` right-hand sides at once run without allocating (wider blocks are
     /// solved in chunks).
     pub fn new(
         pattern: &BlockPattern,
         a: &[Matrix3<f64>],
         max_cols: usize,
+    ) -> Result<Self, FemError> {
+        Self::with_precision(pattern, a, max_cols, FactorPrecision::F64)
+    }
+
+    /// [`Self::new`] with the factor stored in `precision`.
+    pub fn with_precision(
+        pattern: &BlockPattern,
+        a: &[Matrix3<f64>],
+        max_cols: usize,
+        precision: FactorPrecision,
     ) -> Result<Self, FemError> {
         let max_cols = max_cols.max(1);
         let dim = 3 * pattern.n;
@@ -567,18 +602,33 @@ impl SparseCholesky {
             CholeskySymbolicParams::default(),
         )
         .map_err(|e| FemError::Solver(format!("symbolic Cholesky failed: {e:?}")))?;
-        let req = StackReq::any_of(&[
-            symbolic.factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default()),
-            symbolic.solve_in_place_scratch::<f64>(max_cols, Par::Seq),
-        ]);
+        let req = match precision {
+            FactorPrecision::F64 => StackReq::any_of(&[
+                symbolic.factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default()),
+                symbolic.solve_in_place_scratch::<f64>(max_cols, Par::Seq),
+            ]),
+            FactorPrecision::F32 => StackReq::any_of(&[
+                symbolic.factorize_numeric_llt_scratch::<f32>(Par::Seq, Default::default()),
+                symbolic.solve_in_place_scratch::<f32>(max_cols, Par::Seq),
+            ]),
+        };
         let mem = MemBuffer::try_new(req)
             .map_err(|_| FemError::Solver("out of memory for Cholesky workspace".into()))?;
-        let l_values = vec![0.0; symbolic.len_val()];
+        let factor = match precision {
+            FactorPrecision::F64 => Factor::F64 {
+                l: vec![0.0; symbolic.len_val()],
+            },
+            FactorPrecision::F32 => Factor::F32 {
+                values: vec![0.0; csc.values.len()],
+                l: vec![0.0; symbolic.len_val()],
+                rhs: vec![0.0; dim * max_cols],
+            },
+        };
         let mut chol = SparseCholesky {
             dim,
             csc,
             symbolic,
-            l_values,
+            factor,
             mem,
             max_cols,
             factored: false,
@@ -594,7 +644,15 @@ impl SparseCholesky {
 
     /// Number of stored values of L.
     pub fn factor_nnz(&self) -> usize {
-        self.l_values.len()
+        self.symbolic.len_val()
+    }
+
+    /// The precision the factor is stored and applied in.
+    pub fn precision(&self) -> FactorPrecision {
+        match self.factor {
+            Factor::F64 { .. } => FactorPrecision::F64,
+            Factor::F32 { .. } => FactorPrecision::F32,
+        }
     }
 
     /// Numeric refactorization with new values on the same pattern. No allocation.
@@ -605,28 +663,27 @@ impl SparseCholesky {
 
     fn factor_gathered(&mut self) -> Result<(), FemError> {
         self.factored = false;
-        let mat = SparseColMatRef::new(
-            SymbolicSparseColMatRef::new_checked(
-                self.dim,
-                self.dim,
-                &self.csc.col_ptr,
-                None,
-                &self.csc.row_idx,
-            ),
-            &self.csc.values,
+        let structure = SymbolicSparseColMatRef::new_checked(
+            self.dim,
+            self.dim,
+            &self.csc.col_ptr,
+            None,
+            &self.csc.row_idx,
         );
         let stack = MemStack::new(&mut self.mem);
-        self.symbolic
-            .factorize_numeric_llt::<f64>(
-                &mut self.l_values,
-                mat,
-                Side::Lower,
-                LltRegularization::default(),
-                Par::Seq,
-                stack,
-                Default::default(),
-            )
-            .map_err(|e| FemError::Solver(format!("matrix not positive definite: {e:?}")))?;
+        match &mut self.factor {
+            Factor::F64 { l } => {
+                let mat = SparseColMatRef::new(structure, &self.csc.values[..]);
+                factorize(&self.symbolic, l, mat, stack)?;
+            }
+            Factor::F32 { values, l, .. } => {
+                for (v, &w) in values.iter_mut().zip(&self.csc.values) {
+                    *v = w as f32;
+                }
+                let mat = SparseColMatRef::new(structure, &values[..]);
+                factorize(&self.symbolic, l, mat, stack)?;
+            }
+        }
         self.factored = true;
         Ok(())
     }
@@ -644,14 +701,52 @@ impl SparseCholesky {
             "SparseCholesky used after a failed factorization"
         );
         assert_eq!(x.len(), self.dim * ncols, "right-hand side size");
-        let llt = LltRef::new(&self.symbolic, &self.l_values);
         for chunk in x.chunks_mut(self.dim * self.max_cols) {
             let k = chunk.len() / self.dim.max(1);
             if k == 0 {
                 continue;
             }
-            let rhs = MatMut::from_column_major_slice_mut(chunk, self.dim, k);
-            llt.solve_in_place_with_conj(Conj::No, rhs, Par::Seq, MemStack::new(&mut self.mem));
+            let stack = MemStack::new(&mut self.mem);
+            match &mut self.factor {
+                Factor::F64 { l } => {
+                    let llt = LltRef::new(&self.symbolic, l);
+                    let rhs = MatMut::from_column_major_slice_mut(chunk, self.dim, k);
+                    llt.solve_in_place_with_conj(Conj::No, rhs, Par::Seq, stack);
+                }
+                Factor::F32 { l, rhs, .. } => {
+                    let narrow = &mut rhs[..chunk.len()];
+                    for (n, &w) in narrow.iter_mut().zip(chunk.iter()) {
+                        *n = w as f32;
+                    }
+                    let llt = LltRef::new(&self.symbolic, l);
+                    let m = MatMut::from_column_major_slice_mut(&mut narrow[..], self.dim, k);
+                    llt.solve_in_place_with_conj(Conj::No, m, Par::Seq, stack);
+                    for (w, &n) in chunk.iter_mut().zip(narrow.iter()) {
+                        *w = n as f64;
+                    }
+                }
+            }
         }
     }
+}
+
+/// The numeric LLᵀ of `a` into `l`, in `a`'s precision.
+fn factorize<T: faer::traits::ComplexField>(
+    symbolic: &SymbolicCholesky<usize>,
+    l: &mut [T],
+    a: SparseColMatRef<'_, usize, T>,
+    stack: &mut MemStack,
+) -> Result<(), FemError> {
+    symbolic
+        .factorize_numeric_llt::<T>(
+            l,
+            a,
+            Side::Lower,
+            LltRegularization::default(),
+            Par::Seq,
+            stack,
+            Default::default(),
+        )
+        .map(|_| ())
+        .map_err(|e| FemError::Solver(format!("matrix not positive definite: {e:?}")))
 }

@@ -107,6 +107,8 @@ fn settles_under_gravity_with_every_solver() {
 fn cg_and_direct_agree() {
     let mut cg = cube_model(tight_cg(Preconditioner::None));
     let mut pcg = cube_model(tight_cg(Preconditioner::RestCholesky));
+    // the offline solver: its factor is f32 (it only preconditions), the CG runs in f64
+    let mut lagged = cube_model(tight_cg(Preconditioner::LaggedFactor));
     let mut direct = cube_model(LinearSolver::Direct);
     let mut f = zero_forces(&direct);
     // A sideways pull on a top corner: large enough to rotate elements.
@@ -119,6 +121,7 @@ fn cg_and_direct_agree() {
     for _ in 0..20 {
         cg.step(0.01, &f).unwrap();
         pcg.step(0.01, &f).unwrap();
+        lagged.step(0.01, &f).unwrap();
         direct.step(0.01, &f).unwrap();
     }
     let disp = (direct.positions()[corner] - direct.rest_positions()[corner]).norm();
@@ -126,7 +129,14 @@ fn cg_and_direct_agree() {
     for i in 0..direct.node_count() {
         assert!((cg.positions()[i] - direct.positions()[i]).norm() < 1e-9 * 1e3 * disp);
         assert!((pcg.positions()[i] - direct.positions()[i]).norm() < 1e-9 * 1e3 * disp);
+        assert!((lagged.positions()[i] - direct.positions()[i]).norm() < 1e-9 * 1e3 * disp);
     }
+    // An f32 factor of a system that changed little still converges in a few iterations.
+    assert!(
+        lagged.last_solve().iterations <= 4,
+        "{:?}",
+        lagged.last_solve()
+    );
     // The rest-Cholesky preconditioner needs few iterations.
     assert!(pcg.last_solve().iterations <= 15, "{:?}", pcg.last_solve());
 }
@@ -441,6 +451,36 @@ fn neo_hookean_matches_linear_at_small_strain_and_stiffens_in_compression() {
     assert!(
         big_b > 1.3 * big_a && big_b < 1.42 * big_a,
         "corotational {big_a} N, neo-Hookean {big_b} N"
+    );
+}
+
+#[test]
+fn an_f32_factor_solves_to_single_precision_and_a_f64_one_to_double() {
+    let mut m = cube_model(LinearSolver::sofa_cg());
+    m.assemble_rest_system(0.01);
+    let mut seed = 5;
+    let nf = m.free_nodes().len();
+    let b: Vec<f64> = (0..3 * nf).map(|_| lcg(&mut seed)).collect();
+    let residual = |precision| {
+        let mut chol = SparseCholesky::with_precision(&m.pattern, &m.a, 1, precision).unwrap();
+        assert_eq!(chol.precision(), precision);
+        let mut x = b.clone();
+        chol.solve_in_place(&mut x);
+        let mut ax = vec![0.0; 3 * nf];
+        m.pattern().mul(&m.a, &x, &mut ax);
+        let r: f64 = ax.iter().zip(&b).map(|(y, b)| (y - b).powi(2)).sum();
+        let b2: f64 = b.iter().map(|b| b * b).sum();
+        (r / b2).sqrt()
+    };
+    let (single, double) = (
+        residual(FactorPrecision::F32),
+        residual(FactorPrecision::F64),
+    );
+    assert!(double < 1e-12, "f64 factor: relative residual {double:e}");
+    // f32 rounding, not a wrong factor: well under 1, well above f64's
+    assert!(
+        single > 1e-9 && single < 1e-3,
+        "f32 factor: relative residual {single:e}"
     );
 }
 

@@ -22,7 +22,8 @@ pub enum Preconditioner {
 }
 
 /// With [`Preconditioner::LaggedFactor`]: a solve that needed more iterations than this
-/// refactors the system at the next step (a fresh factor converges in one).
+/// refactors the system at the next step (a fresh factor converges in one or two: it is
+/// stored in f32, [`crate::fem::FactorPrecision::F32`]).
 pub const LAGGED_FACTOR_ITERATIONS: usize = 4;
 
 /// Precision of the system matrix the CG products read: the launch file's choice.

@@ -602,28 +602,31 @@ impl SparseCholesky {
             CholeskySymbolicParams::default(),
         )
         .map_err(|e| FemError::Solver(format!("symbolic Cholesky failed: {e:?}")))?;
-        let req = match precision {
-            FactorPrecision::F64 => StackReq::any_of(&[
-                symbolic.factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default()),
-                symbolic.solve_in_place_scratch::<f64>(max_cols, Par::Seq),
-            ]),
-            FactorPrecision::F32 => StackReq::any_of(&[
-                symbolic.factorize_numeric_llt_scratch::<f32>(Par::Seq, Default::default()),
-                symbolic.solve_in_place_scratch::<f32>(max_cols, Par::Seq),
-            ]),
+        // the workspace and the factor's storage in its precision
+        let (req, factor) = match precision {
+            FactorPrecision::F64 => (
+                StackReq::any_of(&[
+                    symbolic.factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default()),
+                    symbolic.solve_in_place_scratch::<f64>(max_cols, Par::Seq),
+                ]),
+                Factor::F64 {
+                    l: vec![0.0; symbolic.len_val()],
+                },
+            ),
+            FactorPrecision::F32 => (
+                StackReq::any_of(&[
+                    symbolic.factorize_numeric_llt_scratch::<f32>(Par::Seq, Default::default()),
+                    symbolic.solve_in_place_scratch::<f32>(max_cols, Par::Seq),
+                ]),
+                Factor::F32 {
+                    values: vec![0.0; csc.values.len()],
+                    l: vec![0.0; symbolic.len_val()],
+                    rhs: vec![0.0; dim * max_cols],
+                },
+            ),
         };
         let mem = MemBuffer::try_new(req)
             .map_err(|_| FemError::Solver("out of memory for Cholesky workspace".into()))?;
-        let factor = match precision {
-            FactorPrecision::F64 => Factor::F64 {
-                l: vec![0.0; symbolic.len_val()],
-            },
-            FactorPrecision::F32 => Factor::F32 {
-                values: vec![0.0; csc.values.len()],
-                l: vec![0.0; symbolic.len_val()],
-                rhs: vec![0.0; dim * max_cols],
-            },
-        };
         let mut chol = SparseCholesky {
             dim,
             csc,
@@ -719,7 +722,7 @@ impl SparseCholesky {
                         *n = w as f32;
                     }
                     let llt = LltRef::new(&self.symbolic, l);
-                    let m = MatMut::from_column_major_slice_mut(&mut narrow[..], self.dim, k);
+                    let m = MatMut::from_column_major_slice_mut(narrow, self.dim, k);
                     llt.solve_in_place_with_conj(Conj::No, m, Par::Seq, stack);
                     for (w, &n) in chunk.iter_mut().zip(narrow.iter()) {
                         *w = n as f64;

@@ -57,11 +57,16 @@ impl FemModel {
         let stiff_active = !at_rest && stiffening.law.is_active();
         let (mu, lambda) = (*mu, *lambda);
         force.fill(Vector3::zeros());
-        // The common case (corotational, f32 CG matrix) writes its blocks straight into the
-        // packed upper triangle from a scatter map built once; other materials assemble into
-        // `a` and are packed afterwards.
+        // The corotational material writes its blocks straight into the system its solver
+        // reads: the packed upper triangle of the f32 CG matrix (the live step, from a scatter
+        // map built once, re-rotating only the elements that turned) or both triangles of the
+        // f64 system a factored solver reads (offline replays, static solves). Other
+        // materials, and the rest system, assemble into `a` element by element and are packed
+        // afterwards where the CG reads f32.
         let packed = !full && settings.cg_matrix == CgMatrix::F32;
-        let fused = want_k && packed && material.model == MaterialModel::Corotational;
+        let corotational = want_k && material.model == MaterialModel::Corotational;
+        let fused = corotational && packed;
+        let fused_full = corotational && full && !at_rest;
         if want_k && !fused {
             if full {
                 a.fill(Matrix3::zeros());
@@ -72,41 +77,51 @@ impl FemModel {
             }
         }
         let pos: &[Point3<f64>] = if at_rest { rest } else { x };
-        if fused {
-            // Rebuild from zero when the blocks are missing, for another dt, or old enough
-            // that the f32 round-off of their in-place updates could add up; otherwise
-            // re-rotate only the elements that turned.
-            let rebuild = !(*upper32_k_scale == k_scale)
-                || *upper32_age >= STIFFNESS_REBUILD_STEPS
-                || settings.stiffness_rotation_tolerance <= 0.0;
-            if rebuild {
-                upper32.clear();
-                *upper32_k_scale = k_scale;
-                *upper32_age = 0;
+        let rotation = if at_rest {
+            None
+        } else {
+            Some((settings.rotation, rot_iters, rot_tol))
+        };
+        let scale: &[f64] = if stiff_active { &stiffening.elem } else { &[] };
+        if fused || fused_full {
+            let (target, rebuild, tolerance) = if fused_full {
+                (StiffnessTarget::Full { elem_blocks, a }, true, 0.0)
             } else {
-                *upper32_age += 1;
-            }
-            *stiffness_updates = CorotationalUpperPass {
+                // Rebuild from zero when the blocks are missing, for another dt, or old enough
+                // that the f32 round-off of their in-place updates could add up; otherwise
+                // re-rotate only the elements that turned.
+                let rebuild = !(*upper32_k_scale == k_scale)
+                    || *upper32_age >= STIFFNESS_REBUILD_STEPS
+                    || settings.stiffness_rotation_tolerance <= 0.0;
+                if rebuild {
+                    upper32.clear();
+                    *upper32_k_scale = k_scale;
+                    *upper32_age = 0;
+                } else {
+                    *upper32_age += 1;
+                }
+                let target = StiffnessTarget::PackedUpper {
+                    scatter: upper_scatter,
+                    blocks: upper32.blocks_mut(),
+                };
+                (target, rebuild, settings.stiffness_rotation_tolerance)
+            };
+            *stiffness_updates = CorotationalPass {
                 tets,
                 rest_elems,
                 pos,
-                rotation: if at_rest {
-                    None
-                } else {
-                    Some((settings.rotation, rot_iters, rot_tol))
-                },
+                rotation,
                 elem_rot,
                 elem_rot_m,
                 mu,
                 lambda,
                 k_scale,
-                upper_scatter,
-                blocks: upper32.blocks_mut(),
+                target,
                 force,
                 elem_rot_k,
                 rebuild,
-                tolerance: settings.stiffness_rotation_tolerance,
-                scale: if stiff_active { &stiffening.elem } else { &[] },
+                tolerance,
+                scale,
                 scale_k: &mut stiffening.elem_k,
             }
             .run();

@@ -1,12 +1,30 @@
-//! The element pass of the common case (corotational material, CG solver): QR rotations
-//! and forces four elements at a time (lane arrays the compiler vectorises), written straight
-//! into the packed upper-triangle CG matrix.
+//! The element pass of the corotational material: QR rotations and forces four elements at a
+//! time (lane arrays the compiler vectorises), with the stiffness blocks written straight into
+//! the system a solver reads: the packed upper-triangle CG matrix (the live step), or both
+//! triangles of the f64 system a factored solver reads (offline replays, static solves).
 
 use super::*;
 
-/// The element pass of the common case (corotational material, CG solver): forces and the
-/// upper triangle of `k_scale · K`, written straight to their blocks.
-pub(super) struct CorotationalUpperPass<'a> {
+/// Where the pass writes `k_scale · K`.
+pub(super) enum StiffnessTarget<'a> {
+    /// The packed f32 upper triangle the CG solver reads ([`UpperF32`]), at each tet's
+    /// [`UpperScatter`]; updated in place where an element turned, or rebuilt.
+    PackedUpper {
+        scatter: &'a [UpperScatter],
+        blocks: &'a mut [f32],
+    },
+    /// Both triangles of the f64 system (`FemModel::a`, cleared by the caller) at each tet's
+    /// 4×4 block map: every element's blocks, every pass. A factored solver reads this
+    /// system, and the offline replays want their K exact at the step's rotations.
+    Full {
+        elem_blocks: &'a [[u32; 16]],
+        a: &'a mut [Matrix3<f64>],
+    },
+}
+
+/// The element pass of the corotational material: forces, and `k_scale · K` written straight
+/// to its blocks ([`StiffnessTarget`]).
+pub(super) struct CorotationalPass<'a> {
     pub(super) tets: &'a [[usize; 4]],
     pub(super) rest_elems: &'a [TetRest],
     pub(super) pos: &'a [Point3<f64>],
@@ -17,23 +35,22 @@ pub(super) struct CorotationalUpperPass<'a> {
     pub(super) mu: f64,
     pub(super) lambda: f64,
     pub(super) k_scale: f64,
-    pub(super) upper_scatter: &'a [UpperScatter],
-    /// Packed f32 upper blocks (see [`UpperF32`]).
-    pub(super) blocks: &'a mut [f32],
+    pub(super) target: StiffnessTarget<'a>,
     pub(super) force: &'a mut [Vector3<f64>],
-    /// Rotation each element's blocks were built with.
+    /// Rotation each element's packed blocks were built with (the packed target's, as are
+    /// `rebuild`, `tolerance` and `scale_k`: the full target takes every element's blocks).
     pub(super) elem_rot_k: &'a mut [Matrix3<f64>],
-    /// Add every element's blocks (into cleared `blocks`) instead of updating.
+    /// Add every element's packed blocks (into cleared `blocks`) instead of updating.
     pub(super) rebuild: bool,
-    /// Re-rotate an element's blocks once its rotation moved by more than this.
+    /// Re-rotate an element's packed blocks once its rotation moved by more than this.
     pub(super) tolerance: f64,
     /// Modulus factor per element (strain stiffening); empty: 1 everywhere.
     pub(super) scale: &'a [f64],
-    /// Factor each element's blocks were built with (updated when rebuilt).
+    /// Factor each element's packed blocks were built with (updated when rebuilt).
     pub(super) scale_k: &'a mut [f64],
 }
 
-impl CorotationalUpperPass<'_> {
+impl CorotationalPass<'_> {
     /// Returns the number of elements whose blocks were written.
     pub(super) fn run(self) -> usize {
         #[cfg(target_arch = "x86_64")]
@@ -105,8 +122,9 @@ impl CorotationalUpperPass<'_> {
         written
     }
 
-    /// Element `e`'s forces onto its nodes, and its stiffness blocks when the pass rebuilds
-    /// or its rotation moved past the tolerance. True when the blocks were written.
+    /// Element `e`'s forces onto its nodes, and its stiffness blocks: always into the full
+    /// system; into the packed one when the pass rebuilds or the element's rotation moved past
+    /// the tolerance. True when the blocks were written.
     #[inline(always)]
     pub(super) fn finish(
         &mut self,
@@ -119,6 +137,21 @@ impl CorotationalUpperPass<'_> {
         for k in 0..4 {
             self.force[t[k]] += nodal[k] * s;
         }
+        let (scatter, blocks) = match &mut self.target {
+            StiffnessTarget::Full { elem_blocks, a } => {
+                element::corotational_stiffness_full(
+                    &self.rest_elems[e],
+                    rot,
+                    self.mu * s,
+                    self.lambda * s,
+                    self.k_scale,
+                    &elem_blocks[e],
+                    a,
+                );
+                return true;
+            }
+            StiffnessTarget::PackedUpper { scatter, blocks } => (&scatter[e], &mut **blocks),
+        };
         let built = &mut self.elem_rot_k[e];
         let s_built = self.scale_k[e];
         let rescaled = s != s_built;
@@ -137,8 +170,8 @@ impl CorotationalUpperPass<'_> {
                     -self.mu * s_built,
                     -self.lambda * s_built,
                     self.k_scale,
-                    &self.upper_scatter[e],
-                    self.blocks,
+                    scatter,
+                    blocks,
                 );
             }
         }
@@ -154,8 +187,8 @@ impl CorotationalUpperPass<'_> {
             self.mu * s,
             self.lambda * s,
             self.k_scale,
-            &self.upper_scatter[e],
-            self.blocks,
+            scatter,
+            blocks,
         );
         *built = *rot;
         self.scale_k[e] = s;

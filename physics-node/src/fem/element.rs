@@ -2,9 +2,13 @@
 //! the stable neo-Hookean element. Each kernel returns the elastic nodal forces and the 4×4
 //! grid of 3×3 stiffness blocks (K = −∂f/∂x), so both materials share one assembly.
 
-use nalgebra::{Matrix3, Quaternion, SMatrix, SymmetricEigen, UnitQuaternion, Vector3};
+#[cfg(test)]
+use nalgebra::SMatrix;
+use nalgebra::{Matrix3, Quaternion, SymmetricEigen, UnitQuaternion, Vector3};
 
-/// The 9×9 tangent dP/dF in column-major vec(F) ordering.
+/// The 9×9 tangent dP/dF in column-major vec(F) ordering (the tests' oracle; the element
+/// contracts it term by term).
+#[cfg(test)]
 pub(crate) type Tangent9 = SMatrix<f64, 9, 9>;
 
 /// Rest data of one tet: shape-function gradients g_a (F = Σ x_a g_aᵀ) and volume.
@@ -302,6 +306,41 @@ pub(crate) fn corotational_stiffness_upper(
     }
 }
 
+/// Adds `k_scale · R K0 Rᵀ` of a linear corotational element to both triangles of the f64
+/// system `a` at the tet's 4×4 block map `blocks` (`NO_BLOCK` where a node is held): the
+/// blocks of [`corotational`] (K_ab = V[μ ĝ_b ĝ_aᵀ + λ ĝ_a ĝ_bᵀ + μ (g_a·g_b) I], ĝ = R g),
+/// with the stiffness scale folded into the material factors, and K_ba = K_abᵀ.
+#[inline(always)]
+pub(crate) fn corotational_stiffness_full(
+    rest: &TetRest,
+    rot: &Matrix3<f64>,
+    mu: f64,
+    lambda: f64,
+    k_scale: f64,
+    blocks: &[u32; 16],
+    a: &mut [Matrix3<f64>],
+) {
+    let v = rest.volume;
+    let cm = v * mu * k_scale;
+    let cl = v * lambda * k_scale;
+    let gh = rest.grad.map(|g| rot * g);
+    for &(ia, ib) in &UPPER_PAIRS {
+        let idx = blocks[ia * 4 + ib];
+        if idx == super::sparse::NO_BLOCK {
+            continue;
+        }
+        let d = cm * rest.grad[ia].dot(&rest.grad[ib]);
+        let mut m = gh[ib] * (gh[ia] * cm).transpose() + gh[ia] * (gh[ib] * cl).transpose();
+        m[(0, 0)] += d;
+        m[(1, 1)] += d;
+        m[(2, 2)] += d;
+        a[idx as usize] += m;
+        if ia != ib {
+            a[blocks[ib * 4 + ia] as usize] += m.transpose();
+        }
+    }
+}
+
 /// Skew matrix [v]× (v × w = [v]× w).
 #[inline]
 fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
@@ -336,23 +375,33 @@ pub(crate) fn stable_neo_hookean(
     if !want_k {
         return;
     }
-    let mut h = stable_neo_hookean_tangent(f, &cof, mu, lam, s);
-    if project {
-        project_stable_neo_hookean(f, mu, lam, s, &mut h);
-    }
-    // K_ab[k][l] = V Σ_{j,m} g_a[j] H[(j,k),(m,l)] g_b[m]; vec index of F_kj is 3j + k.
-    for a in 0..4 {
-        let ga = rest.grad[a];
-        // T_b = Σ_j g_a[j] H[3j.., :] → 3×9.
-        let mut t = SMatrix::<f64, 3, 9>::zeros();
-        for jj in 0..3 {
-            t += h.fixed_view::<3, 9>(3 * jj, 0) * ga[jj];
+    // K_ab = V Σ_{j,m} g_a[j] H[(j,·),(m,·)] g_b[m] for the tangent H = μ I + λ' vec(C) vec(C)ᵀ
+    // + s H_J (C = cof F), less its negative modes λ_n vec(Q_n) vec(Q_n)ᵀ when projected;
+    // vec index 3j + k holds F_kj. Term by term the contraction is μ (g_a·g_b) I,
+    // λ' (C g_a)(C g_b)ᵀ, −s [F (g_a × g_b)]× and λ_n (Q_n g_a)(Q_n g_b)ᵀ: a few 3-vectors per
+    // node instead of the 9×9 tangent, which was most of a neo-Hookean replay's time.
+    let modes = if project {
+        negative_modes(f, mu, lam, s)
+    } else {
+        NegativeModes::default()
+    };
+    let g = &rest.grad;
+    let cg = g.map(|ga| cof * ga);
+    let mut qg = [[Vector3::zeros(); 4]; MAX_NEGATIVE_MODES];
+    for (n, (_, q)) in modes.iter().enumerate() {
+        for a in 0..4 {
+            qg[n][a] = q * g[a];
         }
+    }
+    for a in 0..4 {
         for b in a..4 {
-            let gb = rest.grad[b];
-            let mut m = Matrix3::zeros();
-            for mm in 0..3 {
-                m += t.fixed_view::<3, 3>(0, 3 * mm) * gb[mm];
+            let mut m = cg[a] * (cg[b] * lam).transpose() - skew(&(f * g[a].cross(&g[b]))) * s;
+            let d = mu * g[a].dot(&g[b]);
+            m[(0, 0)] += d;
+            m[(1, 1)] += d;
+            m[(2, 2)] += d;
+            for (n, (eigenvalue, _)) in modes.iter().enumerate() {
+                m -= qg[n][a] * (qg[n][b] * *eigenvalue).transpose();
             }
             out.k[a][b] = m * v;
         }
@@ -367,7 +416,9 @@ fn cofactor(f: &Matrix3<f64>) -> Matrix3<f64> {
 }
 
 /// dP/dF of the stable neo-Hookean energy in column-major vec(F) ordering:
-/// μ I + λ' g gᵀ + s H_J, with g = vec(cof F), s = λ'(J − 1) − μ and H_J the Hessian of det F.
+/// μ I + λ' g gᵀ + s H_J, with g = vec(cof F), s = λ'(J − 1) − μ and H_J the Hessian of det F
+/// (the tests' oracle for [`stable_neo_hookean`]'s contraction).
+#[cfg(test)]
 fn stable_neo_hookean_tangent(
     f: &Matrix3<f64>,
     cof: &Matrix3<f64>,
@@ -398,31 +449,26 @@ fn stable_neo_hookean_tangent(
     h
 }
 
-/// Clamps the negative eigenvalues of the stable neo-Hookean tangent `h` to zero, from its
-/// analytic eigensystem (Smith, de Goes & Kim 2018, §4.4; Smith et al. 2019). With the
-/// rotation-variant SVD F = U Σ Vᵀ (det U = det V = 1, σ₂ carries the sign of J), the
-/// tangent μ I + λ' g gᵀ + s H_J is block-diagonal in the basis U D Vᵀ:
+/// The negative modes of the stable neo-Hookean tangent, from its analytic eigensystem (Smith,
+/// de Goes & Kim 2018, §4.4; Smith et al. 2019): each eigenvalue λ_n < 0 with its unit
+/// eigenvector as a matrix Q_n (vec(Q_n), column-major). Clamping them to zero subtracts
+/// λ_n vec(Q_n) vec(Q_n)ᵀ, the same projection as clamping a numeric 9×9 eigendecomposition at
+/// a 3×3 SVD's cost. With the rotation-variant SVD F = U Σ Vᵀ (det U = det V = 1, σ₂ carries
+/// the sign of J), the tangent μ I + λ' g gᵀ + s H_J is block-diagonal in the basis U D Vᵀ:
 /// - for each axis i with (j, k) the other two, a twist (D = e_j e_kᵀ − e_k e_jᵀ) with
 ///   eigenvalue μ + s σ_i and a flip (D = e_j e_kᵀ + e_k e_jᵀ) with μ − s σ_i;
 /// - on diagonal D a 3×3 block μ I + λ' c cᵀ + s [σ_k off the diagonal], c_i = σ_j σ_k.
-///
-/// Only the negative modes are subtracted (h − Σ λ_n q_n q_nᵀ), so the result is the same
-/// projection as clamping a numeric 9×9 eigendecomposition, at a 3×3 SVD's cost: that
-/// decomposition was most of a neo-Hookean replay's time.
-fn project_stable_neo_hookean(f: &Matrix3<f64>, mu: f64, lam: f64, s: f64, h: &mut Tangent9) {
+fn negative_modes(f: &Matrix3<f64>, mu: f64, lam: f64, s: f64) -> NegativeModes {
+    let mut modes = NegativeModes::default();
     let Some((u, sigma, v)) = rotation_variant_svd(f) else {
         // A failed SVD (non-finite F) leaves the tangent as it is; the step's own NaN
         // quarantine deals with the state.
-        return;
+        return modes;
     };
-    let mut subtract = |eigenvalue: f64, d: &Matrix3<f64>| {
-        if eigenvalue >= 0.0 {
-            return;
+    let mut add = |eigenvalue: f64, d: &Matrix3<f64>| {
+        if eigenvalue < 0.0 {
+            modes.push(eigenvalue, u * d * v.transpose());
         }
-        // q = vec(U D Vᵀ), column-major, unit length when D is.
-        let q_m = u * d * v.transpose();
-        let q = SMatrix::<f64, 9, 1>::from_column_slice(q_m.as_slice());
-        *h -= q * q.transpose() * eigenvalue;
     };
     let r = std::f64::consts::FRAC_1_SQRT_2;
     for i in 0..3 {
@@ -430,11 +476,11 @@ fn project_stable_neo_hookean(f: &Matrix3<f64>, mu: f64, lam: f64, s: f64, h: &m
         let mut twist = Matrix3::zeros();
         twist[(j, k)] = r;
         twist[(k, j)] = -r;
-        subtract(mu + s * sigma[i], &twist);
+        add(mu + s * sigma[i], &twist);
         let mut flip = Matrix3::zeros();
         flip[(j, k)] = r;
         flip[(k, j)] = r;
-        subtract(mu - s * sigma[i], &flip);
+        add(mu - s * sigma[i], &flip);
     }
     let c = Vector3::new(
         sigma[1] * sigma[2],
@@ -451,35 +497,141 @@ fn project_stable_neo_hookean(f: &Matrix3<f64>, mu: f64, lam: f64, s: f64, h: &m
     // factor proves it at a fraction of the eigendecomposition's cost, which was a third of
     // what the projection still cost.
     if scaling.cholesky().is_some() {
-        return;
+        return modes;
     }
     let eig = SymmetricEigen::new(scaling);
     for n in 0..3 {
         let w = eig.eigenvectors.column(n);
-        subtract(eig.eigenvalues[n], &Matrix3::from_diagonal(&w.into_owned()));
+        add(eig.eigenvalues[n], &Matrix3::from_diagonal(&w.into_owned()));
+    }
+    modes
+}
+
+/// The tangent has nine modes.
+const MAX_NEGATIVE_MODES: usize = 9;
+
+/// Up to [`MAX_NEGATIVE_MODES`] negative modes of a tangent: eigenvalue and eigenvector as a
+/// 3×3 matrix ([`negative_modes`]); fixed capacity, so the element pass does not allocate.
+#[derive(Default)]
+struct NegativeModes {
+    count: usize,
+    modes: [(f64, Matrix3<f64>); MAX_NEGATIVE_MODES],
+}
+
+impl NegativeModes {
+    fn push(&mut self, eigenvalue: f64, q: Matrix3<f64>) {
+        if self.count < MAX_NEGATIVE_MODES {
+            self.modes[self.count] = (eigenvalue, q);
+            self.count += 1;
+        }
+    }
+
+    fn iter(&self) -> impl Iterator<Item = &(f64, Matrix3<f64>)> {
+        self.modes[..self.count].iter()
     }
 }
 
 /// F = U Σ Vᵀ with U and V proper rotations; the last singular value takes the sign of
-/// det F. None when the SVD does not converge or F is not finite.
+/// det F. None when F is not finite.
+///
+/// As nalgebra's 3×3 SVD (McAdams et al. 2011): V from the eigenvectors of FᵀF, then a QR of
+/// F V with its columns by decreasing norm. The eigenvectors come from cyclic Jacobi rotations
+/// ([`jacobi_eigenvectors`]) and the QR from Gram–Schmidt with u₂ = u₀ × u₁, where nalgebra's
+/// general tridiagonal eigensolver and Householder QR took a third of a neo-Hookean replay.
+/// Both factors are proper rotations by construction (a product of rotations, a right-handed
+/// frame), so σ₂ = u₂·(F v₂) carries the sign of det F.
 fn rotation_variant_svd(f: &Matrix3<f64>) -> Option<(Matrix3<f64>, Vector3<f64>, Matrix3<f64>)> {
     if !f.iter().all(|x| x.is_finite()) {
         return None;
     }
-    let svd = f.svd(true, true);
-    let mut u = svd.u?;
-    let mut v = svd.v_t?.transpose();
-    let mut sigma = svd.singular_values;
-    if u.determinant() < 0.0 {
-        u.column_mut(2).neg_mut();
-        sigma[2] = -sigma[2];
+    let mut v = jacobi_eigenvectors(f.transpose() * f);
+    let mut b = f * v;
+    // columns by decreasing norm; a swap negates one column so that det V stays 1
+    let mut rho = [0, 1, 2].map(|k| b.column(k).norm_squared());
+    for (i, j) in [(0, 1), (0, 2), (1, 2)] {
+        if rho[i] < rho[j] {
+            b.swap_columns(i, j);
+            b.column_mut(j).neg_mut();
+            v.swap_columns(i, j);
+            v.column_mut(j).neg_mut();
+            rho.swap(i, j);
+        }
     }
-    if v.determinant() < 0.0 {
-        v.column_mut(2).neg_mut();
-        sigma[2] = -sigma[2];
+    let (b0, b1, b2) = (
+        b.column(0).into_owned(),
+        b.column(1).into_owned(),
+        b.column(2).into_owned(),
+    );
+    let n0 = b0.norm();
+    if n0 == 0.0 {
+        return Some((Matrix3::identity(), Vector3::zeros(), v));
     }
-    Some((u, sigma, v))
+    let u0 = b0 / n0;
+    let b1_perp = b1 - u0 * u0.dot(&b1);
+    let n1 = b1_perp.norm();
+    let u1 = if n1 > 1e-12 * n0 {
+        b1_perp / n1
+    } else {
+        // rank one: any direction across u0 (the axis least along it)
+        let k = u0.iamin();
+        let mut e = Vector3::zeros();
+        e[k] = 1.0;
+        u0.cross(&e).normalize()
+    };
+    let u2 = u0.cross(&u1);
+    let sigma = Vector3::new(n0, u1.dot(&b1), u2.dot(&b2));
+    Some((Matrix3::from_columns(&[u0, u1, u2]), sigma, v))
 }
+
+/// Eigenvectors of the symmetric 3×3 matrix `a` as the columns of a proper rotation: cyclic
+/// Jacobi rotations (each a plane rotation, so their product keeps det 1) until the
+/// off-diagonal part is round-off against the whole, at most [`JACOBI_SWEEPS`] sweeps
+/// (convergence is quadratic: three or four for a deformation gradient's FᵀF).
+fn jacobi_eigenvectors(mut a: Matrix3<f64>) -> Matrix3<f64> {
+    let mut v = Matrix3::identity();
+    let scale = a.norm_squared();
+    for _ in 0..JACOBI_SWEEPS {
+        let off = a[(0, 1)].powi(2) + a[(0, 2)].powi(2) + a[(1, 2)].powi(2);
+        if !(off > 1e-32 * scale) {
+            break;
+        }
+        for (p, q) in [(0, 1), (0, 2), (1, 2)] {
+            let apq = a[(p, q)];
+            if apq == 0.0 {
+                continue;
+            }
+            // the rotation that zeroes a_pq (Numerical Recipes' `jacobi`): t = tan φ, the
+            // smaller root, for the stable update
+            let theta = (a[(q, q)] - a[(p, p)]) / (2.0 * apq);
+            let t = if theta.abs() > 1e150 {
+                0.5 / theta
+            } else {
+                theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt())
+            };
+            let c = 1.0 / (t * t + 1.0).sqrt();
+            let s = t * c;
+            a[(p, p)] -= t * apq;
+            a[(q, q)] += t * apq;
+            a[(p, q)] = 0.0;
+            a[(q, p)] = 0.0;
+            let r = 3 - p - q;
+            let (arp, arq) = (a[(r, p)], a[(r, q)]);
+            a[(r, p)] = c * arp - s * arq;
+            a[(p, r)] = a[(r, p)];
+            a[(r, q)] = s * arp + c * arq;
+            a[(q, r)] = a[(r, q)];
+            for k in 0..3 {
+                let (vkp, vkq) = (v[(k, p)], v[(k, q)]);
+                v[(k, p)] = c * vkp - s * vkq;
+                v[(k, q)] = s * vkp + c * vkq;
+            }
+        }
+    }
+    v
+}
+
+/// At most this many Jacobi sweeps ([`jacobi_eigenvectors`]).
+const JACOBI_SWEEPS: usize = 8;
 
 #[cfg(test)]
 mod tests {
@@ -492,11 +644,131 @@ mod tests {
         eig.eigenvectors * Tangent9::from_diagonal(&d) * eig.eigenvectors.transpose()
     }
 
+    /// `h` less its negative modes λ_n vec(Q_n) vec(Q_n)ᵀ.
+    fn projected(h: &Tangent9, modes: &NegativeModes) -> Tangent9 {
+        let mut out = *h;
+        for (eigenvalue, q) in modes.iter() {
+            let q = SMatrix::<f64, 9, 1>::from_column_slice(q.as_slice());
+            out -= q * q.transpose() * *eigenvalue;
+        }
+        out
+    }
+
+    /// The element's stiffness blocks equal the projected 9×9 tangent contracted with the
+    /// shape gradients, K_ab = V Σ_{j,m} g_a[j] H[(j,·),(m,·)] g_b[m] (how the element built
+    /// them before it contracted term by term), projected or not, for deformations from
+    /// near rest to inverted.
+    #[test]
+    fn the_neo_hookean_blocks_are_the_contracted_tangent() {
+        let (mu, lambda) = (1.3e6, 3.1e6);
+        let lam = lambda + mu;
+        let mut seed = 5u64;
+        let rest_x = [
+            nalgebra::Point3::new(0.0, 0.0, 0.0),
+            nalgebra::Point3::new(1.1e-3, 0.1e-3, 0.0),
+            nalgebra::Point3::new(0.2e-3, 0.9e-3, 0.1e-3),
+            nalgebra::Point3::new(0.1e-3, 0.3e-3, 1.2e-3),
+        ];
+        let rest = TetRest::new([&rest_x[0], &rest_x[1], &rest_x[2], &rest_x[3]]).unwrap();
+        let mut gradients = vec![
+            Matrix3::identity(),
+            Matrix3::from_diagonal(&Vector3::new(1.0, 0.9, -0.3)),
+        ];
+        for scale in [0.01, 0.3, 1.0] {
+            for _ in 0..30 {
+                let m = Matrix3::from_fn(|_, _| lcg(&mut seed) * scale);
+                let rot = nalgebra::Rotation3::new(Vector3::from_fn(|_, _| lcg(&mut seed) * 3.0));
+                gradients.push(rot.matrix() * (Matrix3::identity() + m));
+            }
+        }
+        for f in &gradients {
+            let x = rest_x.map(|p| f * p.coords);
+            let f_tet = rest.deformation_gradient(x);
+            let s = lam * (f_tet.determinant() - 1.0) - mu;
+            for project in [false, true] {
+                let mut out = ElementOutput::zero();
+                stable_neo_hookean(&rest, &f_tet, mu, lambda, project, true, &mut out);
+                let mut h = stable_neo_hookean_tangent(&f_tet, &cofactor(&f_tet), mu, lam, s);
+                if project {
+                    h = projected(&h, &negative_modes(&f_tet, mu, lam, s));
+                }
+                let scale = h.abs().max() * rest.volume * rest.grad[0].norm_squared();
+                for a in 0..4 {
+                    for b in a..4 {
+                        let (ga, gb) = (rest.grad[a], rest.grad[b]);
+                        let mut oracle = Matrix3::zeros();
+                        for j in 0..3 {
+                            for m in 0..3 {
+                                oracle += h.fixed_view::<3, 3>(3 * j, 3 * m) * (ga[j] * gb[m]);
+                            }
+                        }
+                        oracle *= rest.volume;
+                        let err = (out.k[a][b] - oracle).amax();
+                        assert!(
+                            err <= 1e-12 * scale,
+                            "F = {f_tet}, project {project}: K_{a}{b} off by {err:e}"
+                        );
+                    }
+                }
+            }
+        }
+    }
+
     fn lcg(seed: &mut u64) -> f64 {
         *seed = seed
             .wrapping_mul(6364136223846793005)
             .wrapping_add(1442695040888963407);
         ((*seed >> 11) as f64) / ((1u64 << 53) as f64) * 2.0 - 1.0
+    }
+
+    /// The Jacobi SVD factors F into proper rotations around singular values that match
+    /// nalgebra's (signed: the last takes det F's sign), on near-identity, inverted, flat,
+    /// rank-one and strongly stretched gradients.
+    #[test]
+    fn the_rotation_variant_svd_factors_into_proper_rotations() {
+        let mut seed = 11u64;
+        let mut cases = vec![
+            Matrix3::identity(),
+            Matrix3::from_diagonal(&Vector3::new(1.0, 0.9, -0.3)),
+            Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, 0.0)),
+            Matrix3::from_diagonal(&Vector3::new(2.0, 2.0, 2.0)),
+            Vector3::new(1.0, 2.0, 3.0) * Vector3::new(0.5, -1.0, 0.25).transpose(),
+        ];
+        for scale in [1e-6, 0.05, 0.3, 1.0, 3.0] {
+            for _ in 0..60 {
+                let m = Matrix3::from_fn(|_, _| lcg(&mut seed) * scale);
+                let rot = nalgebra::Rotation3::new(Vector3::from_fn(|_, _| lcg(&mut seed) * 3.0));
+                cases.push(rot.matrix() * (Matrix3::identity() + m));
+            }
+        }
+        for f in &cases {
+            let (u, sigma, v) = rotation_variant_svd(f).expect("finite F");
+            let tol = 1e-12 * f.norm().max(1.0);
+            let back = u * Matrix3::from_diagonal(&sigma) * v.transpose();
+            assert!(
+                (back - f).amax() <= tol,
+                "F = {f}: U Σ Vᵀ off by {:e}",
+                (back - f).amax()
+            );
+            for q in [&u, &v] {
+                assert!((q.transpose() * q - Matrix3::identity()).amax() <= 1e-12);
+                assert!((q.determinant() - 1.0).abs() <= 1e-12);
+            }
+            let mut reference = f.svd(false, false).singular_values.as_slice().to_vec();
+            reference.sort_by(|a, b| b.total_cmp(a));
+            let ours = [sigma[0], sigma[1], sigma[2].abs()];
+            for (a, b) in ours.iter().zip(&reference) {
+                assert!(
+                    (a - b).abs() <= tol,
+                    "F = {f}: σ {ours:?} against {reference:?}"
+                );
+            }
+            let det = f.determinant();
+            if det.abs() > 1e-9 {
+                assert_eq!(sigma[2].signum(), det.signum(), "F = {f}");
+            }
+        }
+        assert!(rotation_variant_svd(&Matrix3::from_element(f64::NAN)).is_none());
     }
 
     #[test]
@@ -524,8 +796,7 @@ mod tests {
             let s = lam * (f.determinant() - 1.0) - mu;
             let h = stable_neo_hookean_tangent(f, &cofactor(f), mu, lam, s);
             let numeric = numeric_projection(&h);
-            let mut analytic = h;
-            project_stable_neo_hookean(f, mu, lam, s, &mut analytic);
+            let analytic = projected(&h, &negative_modes(f, mu, lam, s));
             if SymmetricEigen::new(h).eigenvalues.min() < -1e-9 * mu {
                 indefinite += 1;
             }

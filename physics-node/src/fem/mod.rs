@@ -69,7 +69,7 @@ use launch_config::scene::SceneConfig;
 use nalgebra::{Matrix3, Point3, UnitQuaternion, Vector3};
 
 use crate::mesh::TetMesh;
-use corotational_pass::{element_rotation, CorotationalUpperPass};
+use corotational_pass::{element_rotation, CorotationalPass, StiffnessTarget};
 use element::{ElementOutput, TetRest, UpperScatter};
 pub use material::{Material, MaterialModel, StrainStiffening};
 pub use rest_compliance::RestCompliance;

@@ -223,13 +223,14 @@ impl FemModel {
     pub fn is_held(&self, node: usize) -> bool {
         self.free_index(node).is_none()
     }
-    /// Statistics of the last linear solve.
-    /// Elements whose stiffness blocks the last step wrote (all on a rebuild; see
-    /// [`FemSettings::stiffness_rotation_tolerance`]); 0 outside the packed CG path.
+    /// Elements whose stiffness blocks the last step wrote: in the packed CG matrix those
+    /// that turned (all on a rebuild; see [`FemSettings::stiffness_rotation_tolerance`]),
+    /// in a factored solver's f64 system every one; 0 where the material is not corotational.
     pub fn stiffness_updates(&self) -> usize {
         self.stiffness_updates
     }
 
+    /// Statistics of the last linear solve.
     pub fn last_solve(&self) -> SolveStats {
         self.last_stats
     }

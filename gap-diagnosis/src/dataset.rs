@@ -229,8 +229,9 @@ pub fn material_knot_variant() -> Variant {
 
 /// A replay's cost per step relative to the corotational baseline's on the same mesh; only
 /// its order matters. The stable neo-Hookean law: ×2.1, timed on three protocol probings of
-/// the 1,435-node specimen since its element contracts the tangent term by term (2.93 s
-/// against 1.42 s; the other knots 0.9–1.3×, left at 1). It was ×2.9 before that and ×6.5
+/// the 1,435-node specimen since its element contracts the tangent term by term
+/// (`examples/replay_timing.rs`: 2.52–2.57 s against 1.19–1.20 s; the other knots 0.9–1.3×,
+/// left at 1). It was ×2.9 before that and ×6.5
 /// before its tangent's projection became analytic; each puts the neo-Hookean replays first,
 /// so the order, and so the output, is the same.
 fn relative_replay_cost(v: &Variant) -> f64 {

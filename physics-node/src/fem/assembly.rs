@@ -84,8 +84,8 @@ impl FemModel {
         };
         let scale: &[f64] = if stiff_active { &stiffening.elem } else { &[] };
         if fused || fused_full {
-            let (target, rebuild, tolerance) = if fused_full {
-                (StiffnessTarget::Full { elem_blocks, a }, true, 0.0)
+            let target = if fused_full {
+                StiffnessTarget::Full { elem_blocks, a }
             } else {
                 // Rebuild from zero when the blocks are missing, for another dt, or old enough
                 // that the f32 round-off of their in-place updates could add up; otherwise
@@ -100,11 +100,14 @@ impl FemModel {
                 } else {
                     *upper32_age += 1;
                 }
-                let target = StiffnessTarget::PackedUpper {
+                StiffnessTarget::PackedUpper {
                     scatter: upper_scatter,
                     blocks: upper32.blocks_mut(),
-                };
-                (target, rebuild, settings.stiffness_rotation_tolerance)
+                    elem_rot_k,
+                    scale_k: &mut stiffening.elem_k,
+                    rebuild,
+                    tolerance: settings.stiffness_rotation_tolerance,
+                }
             };
             *stiffness_updates = CorotationalPass {
                 tets,
@@ -118,11 +121,7 @@ impl FemModel {
                 k_scale,
                 target,
                 force,
-                elem_rot_k,
-                rebuild,
-                tolerance,
                 scale,
-                scale_k: &mut stiffening.elem_k,
             }
             .run();
             return;

@@ -12,6 +12,15 @@ pub(super) enum StiffnessTarget<'a> {
     PackedUpper {
         scatter: &'a [UpperScatter],
         blocks: &'a mut [f32],
+        /// Rotation each element's blocks were built with.
+        elem_rot_k: &'a mut [Matrix3<f64>],
+        /// Modulus factor each element's blocks were built with (updated when rebuilt).
+        scale_k: &'a mut [f64],
+        /// Add every element's blocks (into cleared `blocks`) instead of updating.
+        rebuild: bool,
+        /// Re-rotate an element's blocks once its rotation (or its modulus factor,
+        /// relatively) moved by more than this.
+        tolerance: f64,
     },
     /// Both triangles of the f64 system (`FemModel::a`, cleared by the caller) at each tet's
     /// 4×4 block map: every element's blocks, every pass. A factored solver reads this
@@ -37,17 +46,8 @@ pub(super) struct CorotationalPass<'a> {
     pub(super) k_scale: f64,
     pub(super) target: StiffnessTarget<'a>,
     pub(super) force: &'a mut [Vector3<f64>],
-    /// Rotation each element's packed blocks were built with (the packed target's, as are
-    /// `rebuild`, `tolerance` and `scale_k`: the full target takes every element's blocks).
-    pub(super) elem_rot_k: &'a mut [Matrix3<f64>],
-    /// Add every element's packed blocks (into cleared `blocks`) instead of updating.
-    pub(super) rebuild: bool,
-    /// Re-rotate an element's packed blocks once its rotation moved by more than this.
-    pub(super) tolerance: f64,
     /// Modulus factor per element (strain stiffening); empty: 1 everywhere.
     pub(super) scale: &'a [f64],
-    /// Factor each element's packed blocks were built with (updated when rebuilt).
-    pub(super) scale_k: &'a mut [f64],
 }
 
 impl CorotationalPass<'_> {
@@ -137,7 +137,7 @@ impl CorotationalPass<'_> {
         for k in 0..4 {
             self.force[t[k]] += nodal[k] * s;
         }
-        let (scatter, blocks) = match &mut self.target {
+        let (scatter, blocks, built, s_built, rebuild, tolerance) = match &mut self.target {
             StiffnessTarget::Full { elem_blocks, a } => {
                 element::corotational_stiffness_full(
                     &self.rest_elems[e],
@@ -150,14 +150,26 @@ impl CorotationalPass<'_> {
                 );
                 return true;
             }
-            StiffnessTarget::PackedUpper { scatter, blocks } => (&scatter[e], &mut **blocks),
+            StiffnessTarget::PackedUpper {
+                scatter,
+                blocks,
+                elem_rot_k,
+                scale_k,
+                rebuild,
+                tolerance,
+            } => (
+                &scatter[e],
+                &mut **blocks,
+                &mut elem_rot_k[e],
+                &mut scale_k[e],
+                *rebuild,
+                *tolerance,
+            ),
         };
-        let built = &mut self.elem_rot_k[e];
-        let s_built = self.scale_k[e];
-        let rescaled = s != s_built;
-        if !self.rebuild {
-            let turned = (rot - *built).amax() > self.tolerance;
-            let stiffened = (s - s_built).abs() > self.tolerance * s_built;
+        let rescaled = s != *s_built;
+        if !rebuild {
+            let turned = (rot - *built).amax() > tolerance;
+            let stiffened = (s - *s_built).abs() > tolerance * *s_built;
             if !(turned || stiffened) {
                 return false;
             }
@@ -167,15 +179,15 @@ impl CorotationalPass<'_> {
                     &self.rest_elems[e],
                     built,
                     None,
-                    -self.mu * s_built,
-                    -self.lambda * s_built,
+                    -self.mu * *s_built,
+                    -self.lambda * *s_built,
                     self.k_scale,
                     scatter,
                     blocks,
                 );
             }
         }
-        let replaced = if self.rebuild || rescaled {
+        let replaced = if rebuild || rescaled {
             None
         } else {
             Some(*built)
@@ -191,7 +203,7 @@ impl CorotationalPass<'_> {
             blocks,
         );
         *built = *rot;
-        self.scale_k[e] = s;
+        *s_built = s;
         true
     }
 

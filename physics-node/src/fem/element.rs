@@ -162,15 +162,29 @@ pub(crate) fn corotational(
     }
     for a in 0..4 {
         for b in a..4 {
-            let d = v * mu * rest.grad[a].dot(&rest.grad[b]);
-            let mut m =
-                gh[b] * gh[a].transpose() * (v * mu) + gh[a] * gh[b].transpose() * (v * lambda);
-            m[(0, 0)] += d;
-            m[(1, 1)] += d;
-            m[(2, 2)] += d;
-            out.k[a][b] = m;
+            out.k[a][b] = corotational_block(&gh, &rest.grad, a, b, v * mu, v * lambda);
         }
     }
+}
+
+/// Block K_ab of the linear corotational element from its rotated gradients ĝ = R g (`gh`)
+/// and rest gradients g (`grad`): c_μ ĝ_b ĝ_aᵀ + c_λ ĝ_a ĝ_bᵀ + c_μ (g_a·g_b) I, with the
+/// volume and any stiffness scale folded into c_μ = V μ and c_λ = V λ.
+#[inline(always)]
+fn corotational_block(
+    gh: &[Vector3<f64>; 4],
+    grad: &[Vector3<f64>; 4],
+    a: usize,
+    b: usize,
+    c_mu: f64,
+    c_lambda: f64,
+) -> Matrix3<f64> {
+    let d = c_mu * grad[a].dot(&grad[b]);
+    let mut m = gh[b] * gh[a].transpose() * c_mu + gh[a] * gh[b].transpose() * c_lambda;
+    m[(0, 0)] += d;
+    m[(1, 1)] += d;
+    m[(2, 2)] += d;
+    m
 }
 
 /// The upper block pairs (a ≤ b) of a tet in the order of [`UpperScatter`].
@@ -308,8 +322,8 @@ pub(crate) fn corotational_stiffness_upper(
 
 /// Adds `k_scale · R K0 Rᵀ` of a linear corotational element to both triangles of the f64
 /// system `a` at the tet's 4×4 block map `blocks` (`NO_BLOCK` where a node is held): the
-/// blocks of [`corotational`] (K_ab = V[μ ĝ_b ĝ_aᵀ + λ ĝ_a ĝ_bᵀ + μ (g_a·g_b) I], ĝ = R g),
-/// with the stiffness scale folded into the material factors, and K_ba = K_abᵀ.
+/// blocks of [`corotational`] ([`corotational_block`]), with the stiffness scale folded into
+/// the material factors, and K_ba = K_abᵀ.
 #[inline(always)]
 pub(crate) fn corotational_stiffness_full(
     rest: &TetRest,
@@ -329,11 +343,7 @@ pub(crate) fn corotational_stiffness_full(
         if idx == super::sparse::NO_BLOCK {
             continue;
         }
-        let d = cm * rest.grad[ia].dot(&rest.grad[ib]);
-        let mut m = gh[ib] * (gh[ia] * cm).transpose() + gh[ia] * (gh[ib] * cl).transpose();
-        m[(0, 0)] += d;
-        m[(1, 1)] += d;
-        m[(2, 2)] += d;
+        let m = corotational_block(&gh, &rest.grad, ia, ib, cm, cl);
         a[idx as usize] += m;
         if ia != ib {
             a[blocks[ib * 4 + ia] as usize] += m.transpose();

@@ -514,9 +514,11 @@ pub fn render(r: &Report) -> String {
     let _ = write!(h, "<h1>Sim-to-real gap diagnosis</h1><p>input <code>{}</code> · model {} · {} trials, {} samples · noise σ ≈ {:.4} N · lag (measured behind simulated, cross-correlation) {}</p>",
         esc(&r.input), esc(&r.model), r.trials, r.samples, r.noise_sigma,
         r.lag_median_s.map(|l| format!("{:.3} s", l)).unwrap_or_else(|| "n/a".into()));
-    let _ = write!(h, "<div class=\"verdict\"><h2>Verdict: {}</h2><p>held-out RMSE shrink <b>{:.1}%</b> ({} → {} N, {}); study metric error (mean normal force in contact) {} → {} N</p><p>{}</p>",
+    let _ = write!(h, "<div class=\"verdict\"><h2>Verdict: {}</h2><p>held-out RMSE shrink <b>{:.1}%</b> ({} → {} N, {}); study metric error (mean normal force in contact) {} → {} N; the verdict's model leaves <b>{:.0}%</b> of the measured force's RMS{}</p><p>{}</p>",
         esc(&r.verdict.effect), 100.0 * r.verdict.heldout_shrink, fmt(r.heldout.baseline_rmse), fmt(r.heldout.winner_rmse), esc(&r.heldout.scheme),
-        fmt(r.heldout.baseline_study_error), fmt(r.heldout.winner_study_error), esc(&r.verdict.reason));
+        fmt(r.heldout.baseline_study_error), fmt(r.heldout.winner_study_error), 100.0 * r.verdict.residual_fraction,
+        if r.verdict.residual_fraction >= crate::UNEXPLAINED_FRACTION { " (<b>not reproduced</b>: see below)" } else { "" },
+        esc(&r.verdict.reason));
     h.push_str(&nuisance_paragraph(r));
     if !r.centres.is_empty() {
         let items: Vec<String> = r.centres.iter().map(|c| esc(c)).collect();

@@ -177,3 +177,62 @@ fn contact_nuisance_recovers_a_penalty_layer() {
         without.heldout.nuisance_rmse
     );
 }
+
+/// Poses probed on the lateral meniscus and replayed on the medial one: the replay has
+/// nothing in common with the measurement, and the verdict read `none` without saying so.
+/// The same trials on the mesh they were probed on leave a residual of a few percent; on the
+/// wrong one the report says the replay does not reproduce the experiment.
+#[test]
+fn a_replay_of_the_wrong_specimen_is_reported_as_unexplained() {
+    let root =
+        std::env::temp_dir().join(format!("arthrosim_wrong_specimen_{}", std::process::id()));
+    let spec = gap::reality::RealitySpec::from_effects(&[], 11)
+        .unwrap()
+        .exact();
+    let exp = root.join("exp");
+    gap::reality::write_experiment(&spec, &exp, &root.join("truth.json")).unwrap();
+    let opts = gap::Options {
+        effects: vec![gap::Effect::Modulus, gap::Effect::Support],
+        pairs: false,
+        ..gap::Options::default()
+    };
+    let right = gap::diagnose_dir(&exp, &opts).unwrap();
+    let toml = exp.join("experiment.toml");
+    let text = std::fs::read_to_string(&toml).unwrap();
+    let swapped = text
+        .replace("default:lateral:coarse", "default:medial:coarse")
+        .replace("preset = \"lateral\"", "preset = \"medial\"");
+    assert_ne!(
+        swapped, text,
+        "the experiment names its lateral specimen:\n{text}"
+    );
+    std::fs::write(&toml, swapped).unwrap();
+    let wrong = gap::diagnose_dir(&exp, &opts).unwrap();
+    let _ = std::fs::remove_dir_all(&root);
+    eprintln!(
+        "residual fraction {:.3} on the probed mesh ({}), {:.3} on the other ({})",
+        right.verdict.residual_fraction,
+        right.verdict.reason,
+        wrong.verdict.residual_fraction,
+        wrong.verdict.reason
+    );
+    assert!(
+        right.verdict.residual_fraction < 0.1 * gap::UNEXPLAINED_FRACTION,
+        "{}",
+        right.verdict.reason
+    );
+    assert!(!right.verdict.reason.contains("does not reproduce"));
+    assert!(
+        wrong.verdict.residual_fraction >= gap::UNEXPLAINED_FRACTION,
+        "{}",
+        wrong.verdict.reason
+    );
+    assert!(
+        wrong
+            .verdict
+            .reason
+            .contains("does not reproduce this experiment"),
+        "{}",
+        wrong.verdict.reason
+    );
+}

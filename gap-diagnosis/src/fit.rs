@@ -408,7 +408,14 @@ impl NuisanceFit {
     }
     /// From the profile's coordinates ([`NuisanceFit::coordinates`]).
     fn from_coordinates(x: [f64; 3]) -> NuisanceFit {
-        let per = |v: f64| if x[0] > 0.0 { v / x[0] } else { 0.0 };
+        // a weight the solve left at −0 is 0: reports printed `"contact_compliance":-0.0`
+        let per = |v: f64| {
+            if x[0] > 0.0 && v != 0.0 {
+                v / x[0]
+            } else {
+                0.0
+            }
+        };
         NuisanceFit {
             stiffness: x[0],
             contact: per(x[1]),
@@ -1449,6 +1456,21 @@ mod tests {
 
     /// A parameter at the edge of its range is flagged unless the edge is where the effect
     /// vanishes: a tool mass at −0.2 kg is, μ at 0 is not; a log-scaled one in log space.
+    /// The profile's solve can leave a weight at −0, and report.json then printed
+    /// `"contact_compliance":-0.0`; a zero weight is +0 whatever its coordinate's sign.
+    #[test]
+    fn a_nuisance_weight_at_minus_zero_reads_as_zero() {
+        let fitted = NuisanceFit::from_coordinates([1.1, -0.0, -0.0]);
+        assert!(fitted.contact.is_sign_positive() && fitted.contact == 0.0);
+        assert!(fitted.material.is_sign_positive() && fitted.material == 0.0);
+        assert!(fitted.contact_compliance().is_sign_positive());
+        let json = serde_json::to_string(&Some(fitted.contact_compliance())).unwrap();
+        assert_eq!(json, "0.0");
+        // a weight that is not zero still comes back as the coordinate over the scale
+        let some = NuisanceFit::from_coordinates([2.0, 1.0, 0.5]);
+        assert_eq!((some.contact, some.material), (0.5, 0.25));
+    }
+
     #[test]
     fn a_parameter_at_a_bound_other_than_neutral_is_flagged() {
         use crate::effects::Effect;

@@ -342,7 +342,7 @@ pub struct Verdict {
 /// reproducing the experiment, whatever the verdict names. Measured: a no-effect case of
 /// the study mesh replayed on it leaves 0.017 (floor 0.21 N of 12.5 N); the self-test's
 /// refined truth, a tissue ×1.6 stiffer than the replay, 0.17–0.20; poses probed on the lateral
-/// mesh and replayed on the medial one 1.0–1.1, where the verdict read `none` with nothing
+/// mesh and replayed on the medial one 0.96–1.12, where the verdict read `none` with nothing
 /// to say that the model and the measurement had nothing in common.
 pub const UNEXPLAINED_FRACTION: f64 = 0.5;
 

@@ -1454,8 +1454,6 @@ mod tests {
         assert!(acc.total().0 > 0.1);
     }
 
-    /// A parameter at the edge of its range is flagged unless the edge is where the effect
-    /// vanishes: a tool mass at −0.2 kg is, μ at 0 is not; a log-scaled one in log space.
     /// The profile's solve can leave a weight at −0, and report.json then printed
     /// `"contact_compliance":-0.0`; a zero weight is +0 whatever its coordinate's sign.
     #[test]
@@ -1471,6 +1469,8 @@ mod tests {
         assert_eq!((some.contact, some.material), (0.5, 0.25));
     }
 
+    /// A parameter at the edge of its range is flagged unless the edge is where the effect
+    /// vanishes: a tool mass at −0.2 kg is, μ at 0 is not; a log-scaled one in log space.
     #[test]
     fn a_parameter_at_a_bound_other_than_neutral_is_flagged() {
         use crate::effects::Effect;

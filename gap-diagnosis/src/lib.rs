@@ -347,13 +347,16 @@ pub struct Verdict {
 pub const UNEXPLAINED_FRACTION: f64 = 0.5;
 
 /// The measured force's RMS per axis over every sample of every trial: the scale
-/// [`Verdict::residual_fraction`] measures the held-out RMSE against.
+/// [`Verdict::residual_fraction`] measures the held-out RMSE against, by the same measure
+/// ([`fit::PhaseSse::rmse`], the residual of predicting no force).
 fn measured_rms(data: &[TrialData]) -> f64 {
-    let (sum, n) = data
-        .iter()
-        .flat_map(|d| &d.f)
-        .fold((0.0, 0usize), |(s, n), f| (s + dot(*f, *f), n + 3));
-    (sum / n.max(1) as f64).sqrt()
+    let mut acc = fit::PhaseSse::default();
+    for d in data {
+        for (&group, f) in d.var_group.iter().zip(&d.f) {
+            acc.push(group, *f);
+        }
+    }
+    acc.rmse()
 }
 
 /// Sets `verdict.residual_fraction` from the held-out RMSE its model leaves and, at or above

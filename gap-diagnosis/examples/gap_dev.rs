@@ -223,7 +223,7 @@ fn rediagnose_kept_cases(root: &Path) -> anyhow::Result<()> {
             .unwrap_or(10);
         for c in r.ranking.iter().take(top) {
             eprintln!(
-                "    {:24} held {:.4} shrink {:6.1}% w {:.4} {:6.1}% dBIC {:9.1} score {:9.1}{} {}",
+                "    {:24} held {:.4} shrink {:6.1}% w {:.4} {:6.1}% dBIC {:9.1} score {:9.1} fz {:5.1}{} {}",
                 c.effect,
                 c.heldout_rmse,
                 100.0 * c.heldout_shrink,
@@ -231,6 +231,7 @@ fn rediagnose_kept_cases(root: &Path) -> anyhow::Result<()> {
                 100.0 * c.heldout_weighted_shrink,
                 c.delta_bic,
                 c.score,
+                c.floor_gain_z,
                 c.stiffness_gain_z
                     .map(|z| format!(" z {z:.2}"))
                     .unwrap_or_default()

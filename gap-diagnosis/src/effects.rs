@@ -156,6 +156,15 @@ impl Effect {
     pub fn needs_tangential(self) -> bool {
         matches!(self, Effect::Friction)
     }
+    /// Effects that change every probing of the protocol: a stiffness, a stiffening, a
+    /// support or a relaxation changes every press, a tilt every path, a device's bias or a
+    /// sensor's lag every sample or onset. Friction acts only where the probe slides and a
+    /// mesh effect only near some sites. The held-out gain of an effect that acts on every
+    /// probing must hold trial by trial to be significant (`decide`, rule (d)); one that acts
+    /// on a few trials has only those to show it on.
+    pub fn acts_on_every_probing(self) -> bool {
+        !matches!(self, Effect::Friction | Effect::Mesh)
+    }
     /// The re-simulation at parameter value `x` of an effect interpolated piecewise-linearly
     /// between knots (`friction`: μ; `support`: compliance, m/N per node); None for the others.
     pub fn knot_variant(self, x: f64) -> Option<Variant> {

@@ -889,20 +889,16 @@ struct Weighing {
 /// [`STRONG_EVIDENCE`] in BIC; (c) its held-out score (the phase-variance likelihood of the
 /// held-out residuals on effective values, with the parameter penalty: a held-out likelihood
 /// ratio) is better by [`STRONG_EVIDENCE`] too; and (d) with `paired` (enough trials), its
-/// per-trial held-out gain ([`separability::gain_over`]) is positive on average: the gain
-/// holds across the trials the effect acts on, not on a few against the rest; and (e) every
+/// per-trial held-out gain ([`separability::gain_over`]) holds across the trials, not on a
+/// few against the rest ([`holds_trial_by_trial`]); and (e) every
 /// effect it names has a fitted strength worth naming ([`strength::negligible`]: a modulus
 /// scale outside the nuisance's band, a Prony g1 of 5% or more, …), so a pair is not named
 /// for a second effect the nuisances and the model error leave room for. Without the
 /// floor a persistent stiffness offset, which every model has against a real specimen, was
 /// read as `support` or `modulus`.
 ///
-/// Why (d) asks for a positive mean and not two standard errors: an effect acts on a few
-/// trials only (friction on the slides, a mesh near some sites), and on the generated
-/// stand-in cases effects that removed 80% of the held-out error reached 1.2–1.9 standard
-/// errors over the 3–9 trials they changed (seed 3; README, "A stiffness nuisance in every
-/// fit"). The held-out likelihood ratio (c) is the significance; (d) guards it against a gain
-/// carried by the largest trials' model error.
+/// The held-out likelihood ratio (c) is the significance over all samples; (d) guards it
+/// against a gain carried by the largest trials' model error.
 ///
 /// Shrinks and gains are weighed on the phase-weighted RMSE (one residual variance per phase,
 /// see [`fit::PhaseSse`]): a sensor bias of tenths of a newton is invisible in the plain RMSE
@@ -955,7 +951,7 @@ fn decide(
         c.floor_shrink >= min_shrink
             && c.bic - floor.bic <= -STRONG_EVIDENCE
             && c.score - floor.score <= -STRONG_EVIDENCE
-            && (!paired || c.floor_gain_z > 0.0)
+            && (!paired || holds_trial_by_trial(c))
             && !strength::any_negligible(&c.effect, &c.params, band)
     };
     let evidence = |c: &CandidateScore| {
@@ -1100,6 +1096,35 @@ fn decide(
         contact_compliance: None,
         material_weight: None,
         residual_fraction: 0.0,
+    }
+}
+
+/// Rule (d) of [`decide`]: `c`'s paired held-out gain over the floor holds trial by trial.
+///
+/// Where every effect of `c` changes every probing ([`Effect::acts_on_every_probing`]: a
+/// stiffness, a support, a tilt, …), every trial can show it, and the gain must be
+/// significant over them: [`separability::SEPARATION_SE`] standard errors, the test that tells
+/// two candidates apart. The refined truth's no-effect case at CI size read `modulus` on a
+/// paired gain of 0.3 SE (12% over the floor, better than the band's ×1.25 on some trials and
+/// worse on others): the other discretisation's shape, not an effect of the specimen. On the
+/// protocol's fifteen trials every effect of this kind that a proxy set or the refined cycle
+/// names right stands at 2.5 SE or more (nine sets, 158 cases, 2026-11-30).
+///
+/// Friction acts only where the probe slides and a mesh effect only near some sites; their
+/// gain has those few trials to show on, and must only be positive on average. On the
+/// generated stand-in cases such effects removed 80% of the held-out error at 1.2–1.9 standard
+/// errors over the 3–9 trials they changed (seed 3; README, "A stiffness nuisance in every
+/// fit"), and the refined cycle's friction case is named at 1.2.
+fn holds_trial_by_trial(c: &CandidateScore) -> bool {
+    let every_probing = c
+        .effect
+        .split('+')
+        .filter_map(Effect::parse)
+        .all(Effect::acts_on_every_probing);
+    if every_probing {
+        c.floor_gain_z >= separability::SEPARATION_SE
+    } else {
+        c.floor_gain_z > 0.0
     }
 }
 
@@ -1339,6 +1364,104 @@ mod tests {
             Some("modulus+friction")
         );
         assert!(nested_simpler(&simpler, &[pair]).is_none());
+    }
+
+    /// Regression: the refined truth's no-effect case at CI size (seed 1) read `modulus`, 12.1%
+    /// over the floor (nuisance at ×1.25) on a paired gain of 0.3 SE: better than the floor on
+    /// some trials and worse on others. A modulus acts on every press, so its gain must hold
+    /// trial by trial.
+    #[test]
+    fn a_modulus_better_on_some_trials_only_is_no_effect() {
+        let mut floor = scored("none", 3.5774, 0.5, 0.0);
+        floor.nuisance_scale = Some(1.25);
+        let modulus = |z: f64| {
+            let c = scored("modulus", 3.1461, 0.44, 356.9);
+            against(fitted(c, &[("modulus", "modulus_scale", 1.4)]), 0.121, z)
+        };
+        let v = decide_singles(vec![modulus(0.3)], &floor, 0.0292);
+        assert_eq!(v.effect, "none", "{}", v.reason);
+        assert!(v.reason.contains("paired gain 0.3 SE"), "{}", v.reason);
+        assert_eq!(
+            decide_singles(vec![modulus(2.5)], &floor, 0.0292).effect,
+            "modulus"
+        );
+        // with too few trials for the paired gain, it is not weighed
+        let singles = vec![modulus(0.3)];
+        let few = Weighing {
+            paired: false,
+            ..weighing(0.0292)
+        };
+        assert_eq!(decide(&singles, &singles, &floor, &few).effect, "modulus");
+    }
+
+    /// Friction acts only where the probe slides: a gain positive on average over the slid
+    /// trials is enough (the refined cycle's friction case is named at 1.2 SE). Beside a global
+    /// effect in a pair it is weighed as friction is.
+    #[test]
+    fn friction_needs_only_a_positive_gain_over_its_slides() {
+        let floor = scored("none", 5.6054, 0.5, 0.0);
+        let friction = |z: f64| {
+            let c = scored("friction", 3.78, 0.35, 900.0);
+            vec![against(fitted(c, &[("friction", "mu", 0.3)]), 0.2, z)]
+        };
+        assert_eq!(
+            decide_singles(friction(1.2), &floor, 0.0275).effect,
+            "friction"
+        );
+        assert_eq!(
+            decide_singles(friction(-0.1), &floor, 0.0275).effect,
+            "none"
+        );
+        let mut c = scored("x", 1.0, 1.0, 0.0);
+        for (effect, z, holds) in [
+            ("friction+device", 1.0, true),
+            ("modulus+sensor", 1.0, false),
+            ("modulus+sensor", 2.0, true),
+            ("tilt", 1.9, false),
+            ("mesh", 0.1, true),
+        ] {
+            c.effect = effect.into();
+            c.floor_gain_z = z;
+            assert_eq!(holds_trial_by_trial(&c), holds, "{effect} at {z} SE");
+        }
+    }
+
+    /// Regression: the refined cycle's hardening case (seed 1, rate 0.28 /mm) read `modulus`:
+    /// hardening removed 5% more than modulus, under the 20% one more parameter needs, but
+    /// the modulus's own gain held on 1.3 SE trial by trial where the hardening's held on 4.9.
+    /// The simpler model replaces the richer one only when it is an effect itself.
+    #[test]
+    fn a_hardening_is_not_replaced_by_a_modulus_that_does_not_hold() {
+        let mut floor = scored("none", 5.0792, 0.48, 0.0);
+        floor.nuisance_scale = Some(1.25);
+        let hardening = fitted(
+            scored("hardening", 4.0667, 0.3866, 2429.2),
+            &[
+                ("hardening", "small_strain_scale", 1.386),
+                ("hardening", "stiffening_rate", 0.474),
+            ],
+        );
+        let hardening = against(hardening, 0.199, 4.9);
+        let modulus = |z: f64| {
+            let c = scored("modulus", 4.1057, 0.4084, 2000.0);
+            against(fitted(c, &[("modulus", "modulus_scale", 2.046)]), 0.192, z)
+        };
+        let v = decide_singles(vec![hardening.clone(), modulus(1.3)], &floor, 0.0289);
+        assert_eq!(v.effect, "hardening", "{}", v.reason);
+        let v = decide_singles(vec![hardening, modulus(2.6)], &floor, 0.0289);
+        assert_eq!(v.effect, "modulus", "{}", v.reason);
+    }
+
+    /// `c` with its standing against the floor: held-out shrink over it and paired gain.
+    fn against(mut c: CandidateScore, floor_shrink: f64, gain_z: f64) -> CandidateScore {
+        c.floor_shrink = floor_shrink;
+        c.floor_gain_z = gain_z;
+        c
+    }
+
+    /// The verdict when only single effects are ranked.
+    fn decide_singles(singles: Vec<CandidateScore>, floor: &CandidateScore, noise: f64) -> Verdict {
+        decide(&singles, &singles, floor, &weighing(noise))
     }
 
     /// The default weighing with enough trials for pairs and paired gains.

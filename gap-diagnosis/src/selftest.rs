@@ -385,7 +385,14 @@ pub fn selftest_with(
                     .map_or("off".to_string(), |v| format!("×{v:.3}")),
                 report.heldout.nuisance_rmse
             );
-            for c in report.ranking.iter().take(6) {
+            // the six best, and every single effect (what rule (d) weighs, `decide`)
+            for c in report
+                .ranking
+                .iter()
+                .enumerate()
+                .filter(|(i, c)| *i < 6 || !c.effect.contains('+'))
+                .map(|(_, c)| c)
+            {
                 eprintln!(
                     "           {:24} held {:.4} shrink {:5.1}% over floor {:5.1}% z {:6.1} score {:10.1}",
                     c.effect,

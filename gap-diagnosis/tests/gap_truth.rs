@@ -25,10 +25,14 @@ use gap_diagnosis::{Region, SimForceModel};
 /// pair.
 const CASES: [&str; 5] = ["none", "modulus", "friction", "support", "modulus+sensor"];
 
-/// What the diagnosis reaches on these cases (README): 2 of 5 right since a face contact
-/// pushes along the bisector of its last two normals (modulus and support; none read as
-/// modulus, friction as hardening+friction, modulus+sensor as sensor), mean held-out shrink
-/// 65.4%. The friction case is on the edge of naming: it read `friction` with the start-of-step
+/// What the diagnosis reaches on these cases (README): 2 of 5 right since an effect that
+/// changes every probing must gain trial by trial (none and support; modulus read as none,
+/// friction as hardening+friction, modulus+sensor as sensor), mean held-out shrink 50.3%
+/// (README, "A gain that holds trial by trial"). The modulus case's gain over the floor, 51%
+/// held-out, held on 0.2 SE trial by trial (hardening 1.1 SE), the no-effect case's `modulus`
+/// on 0.3 SE. Before, 2 of 5 since a face contact pushes along the bisector of its last two
+/// normals (modulus and support; none read as modulus), mean held-out shrink 65.4%. The
+/// friction case is on the edge of naming: it read `friction` with the start-of-step
 /// normal (friction alone 15.0% over the floor), `hardening+friction` with the bisector
 /// (friction alone 9.8%, paired gain 1.6 SE) and `none` with the bisector taken only where a
 /// normal turned back; its truth made with either normal gives the same verdict, so the
@@ -43,7 +47,7 @@ const CASES: [&str; 5] = ["none", "modulus", "friction", "support", "modulus+sen
 /// `hardening` (a scale without a band) fits it best (README, "A contact nuisance beside
 /// it"). (Before the truth was levelled with the replay, 1 of 5.)
 const CORRECT_REACHED: usize = 2;
-const SHRINK_REACHED: f64 = 0.6;
+const SHRINK_REACHED: f64 = 0.5;
 
 /// The refined truth's mean normal force over the replay's, no effect: measured ×0.331 with its
 /// penalty contact and its boundary midpoints on the smooth surface (×0.366 on the facets,
@@ -73,7 +77,7 @@ fn selftest_on_a_refined_truth() {
     );
     assert!(
         s.heldout_shrink_mean >= SHRINK_REACHED,
-        "mean held-out shrink {:.3} (reached 0.654)",
+        "mean held-out shrink {:.3} (reached 0.503)",
         s.heldout_shrink_mean
     );
     // Every effect named right is graded on its strengths (`gap_diagnosis::recovery`): the

@@ -1107,14 +1107,13 @@ fn decide(
 /// two candidates apart. The refined truth's no-effect case at CI size read `modulus` on a
 /// paired gain of 0.3 SE (12% over the floor, better than the band's ×1.25 on some trials and
 /// worse on others): the other discretisation's shape, not an effect of the specimen. On the
-/// protocol's fifteen trials every effect of this kind that a proxy set or the refined cycle
-/// names right stands at 2.5 SE or more (nine sets, 158 cases, 2026-11-30).
+/// protocol's fifteen trials every verdict of this kind that a proxy set or the refined cycle
+/// names right stands at 2.5 SE or more (104 of nine sets' 158 cases, 2026-11-30).
 ///
-/// Friction acts only where the probe slides and a mesh effect only near some sites; their
-/// gain has those few trials to show on, and must only be positive on average. On the
-/// generated stand-in cases such effects removed 80% of the held-out error at 1.2–1.9 standard
-/// errors over the 3–9 trials they changed (seed 3; README, "A stiffness nuisance in every
-/// fit"), and the refined cycle's friction case is named at 1.2.
+/// Friction acts only where the probe slides (six of the protocol's fifteen probings) and a
+/// mesh effect only near some sites; their gain has those few trials to show on, and must
+/// only be positive on average: the refined cycle's friction case, named right, stands at
+/// 1.2 SE.
 fn holds_trial_by_trial(c: &CandidateScore) -> bool {
     let every_probing = c
         .effect

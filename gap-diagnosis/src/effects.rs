@@ -109,6 +109,11 @@ impl Effect {
     pub fn parse(s: &str) -> Option<Effect> {
         Effect::ALL.into_iter().find(|e| e.name() == s)
     }
+    /// The effects a `+`-joined candidate name ([`Candidate::name`], e.g. `tilt+support`)
+    /// names; unknown parts are skipped.
+    pub fn of_candidate(name: &str) -> impl Iterator<Item = Effect> + '_ {
+        name.split('+').filter_map(Effect::parse)
+    }
     pub fn params(self) -> Vec<ParamSpec> {
         match self {
             Effect::Modulus => vec![p("modulus_scale", "", 0.02, 5.0, 1.0, true)],

@@ -1115,11 +1115,7 @@ fn decide(
 /// only be positive on average: the refined cycle's friction case, named right, stands at
 /// 1.2 SE.
 fn holds_trial_by_trial(c: &CandidateScore) -> bool {
-    let every_probing = c
-        .effect
-        .split('+')
-        .filter_map(Effect::parse)
-        .all(Effect::acts_on_every_probing);
+    let every_probing = Effect::of_candidate(&c.effect).all(Effect::acts_on_every_probing);
     if every_probing {
         c.floor_gain_z >= separability::SEPARATION_SE
     } else {

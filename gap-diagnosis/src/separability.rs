@@ -181,7 +181,7 @@ fn told_apart(mean: f64, se: f64) -> bool {
 }
 
 fn effects_of(name: &str) -> Vec<Effect> {
-    name.split('+').filter_map(Effect::parse).collect()
+    Effect::of_candidate(name).collect()
 }
 
 fn shares_effect(a: &str, b: &str) -> bool {

@@ -83,10 +83,7 @@ pub fn negligible(effect: Effect, params: &[FittedParam], band: Nuisance) -> boo
 /// Some effect of the `+`-joined `candidate` has a negligible fitted strength in `params`
 /// ([`negligible`]).
 pub fn any_negligible(candidate: &str, params: &[FittedParam], band: Nuisance) -> bool {
-    candidate
-        .split('+')
-        .filter_map(Effect::parse)
-        .any(|e| negligible(e, params, band))
+    Effect::of_candidate(candidate).any(|e| negligible(e, params, band))
 }
 
 #[cfg(test)]

@@ -12,6 +12,9 @@
 //! writes those cases instead (a strength after `=`, as `arthrosim reality --effect`).
 //! `gap_dev DIR eval CANDIDATE θ…` scores one candidate at given parameters on the kept
 //! cases (see [`eval_at`]); `GAP_DEV_TOP=N` prints N ranked candidates in `rediagnose`.
+//! `gap_dev DIR export-specimen [MESH [refined]]` writes MESH (default `study:lateral`) in the
+//! diagnosis' specimen frame as `specimen.msh` and `specimen_fixed.txt`, for an outside code
+//! (`tools/independent_fe`) to model the same specimen.
 use anyhow::{bail, Context};
 use gap_diagnosis::effects::Effect;
 use gap_diagnosis::model::{ForceModel, ProbePath, Variant};
@@ -369,6 +372,41 @@ fn write_contact_layer_cases(root: &Path, seed0: u64, mesh: &str) -> anyhow::Res
     Ok(())
 }
 
+/// Writes the specimen mesh MESH as the diagnosis meshes it (the study's meshes scaled and
+/// turned into the specimen frame) into DIR: `specimen.msh` (Gmsh 2.2, metres) and
+/// `specimen_fixed.txt` (0-based held nodes), the files an experiment names as a `.msh` path
+/// and a fixed list. An outside code (`tools/independent_fe`) builds its own model from them.
+/// With `refined`, the mesh refined once (every tet into eight, midpoints on the facets).
+fn export_specimen(root: &Path, mesh: &str, refined: bool) -> anyhow::Result<()> {
+    let mut scene = launch_config::SceneConfig::default();
+    scene.meniscus.mesh = mesh.to_string();
+    let loaded = physics_node::mesh::load_scene_mesh(&scene.meniscus, &gap::data_dir())
+        .with_context(|| format!("loading {mesh}"))?;
+    let (tets, fixed) = if refined {
+        physics_node::mesh::refine_once(
+            &loaded.mesh,
+            &loaded.fixed_nodes,
+            physics_node::mesh::Midpoints::Flat,
+        )
+    } else {
+        (loaded.mesh, loaded.fixed_nodes)
+    };
+    std::fs::create_dir_all(root)?;
+    let msh = root.join("specimen.msh");
+    physics_node::mesh::write_msh22(&tets, &msh)
+        .with_context(|| format!("writing {}", msh.display()))?;
+    let held: Vec<String> = fixed.iter().map(|i| i.to_string()).collect();
+    std::fs::write(root.join("specimen_fixed.txt"), held.join(" "))?;
+    eprintln!(
+        "{mesh}: {} nodes, {} tets, {} held, written to {}",
+        tets.nodes.len(),
+        tets.tets.len(),
+        fixed.len(),
+        root.display()
+    );
+    Ok(())
+}
+
 /// One candidate at given parameters, `θ` as `a,b,…` in the candidate's order: the RMSE,
 /// phase-weighted RMSE, the likelihood's Σ n ln(MSE) and the RMS per variance group (free,
 /// near contact, loading, hold, unloading, sliding), at the nuisance `GAP_DEV_NUISANCE=s,w`
@@ -482,9 +520,17 @@ fn main() -> anyhow::Result<()> {
             write_contact_layer_cases(&root, seed, mesh)
         }
         Some("eval") if args.len() >= 3 => eval_at(&root, &args[2], &args[3..]),
+        Some("export-specimen") => {
+            let mesh = args.get(2).map_or("study:lateral", String::as_str);
+            export_specimen(
+                &root,
+                mesh,
+                args.get(3).map(String::as_str) == Some("refined"),
+            )
+        }
         Some(other) => bail!(
-            "unknown mode {other:?} (expected rediagnose, phase-table, contact-layer-cases or \
-             eval CANDIDATE θ…)"
+            "unknown mode {other:?} (expected rediagnose, phase-table, contact-layer-cases, \
+             export-specimen [MESH [refined]] or eval CANDIDATE θ…)"
         ),
     }
 }

@@ -372,37 +372,16 @@ fn write_contact_layer_cases(root: &Path, seed0: u64, mesh: &str) -> anyhow::Res
     Ok(())
 }
 
-/// Writes the specimen mesh MESH as the diagnosis meshes it (the study's meshes scaled and
-/// turned into the specimen frame) into DIR: `specimen.msh` (Gmsh 2.2, metres) and
-/// `specimen_fixed.txt` (0-based held nodes), the files an experiment names as a `.msh` path
-/// and a fixed list. An outside code (`tools/independent_fe`) builds its own model from them.
-/// With `refined`, the mesh refined once (every tet into eight, midpoints on the facets).
+/// Writes MESH's specimen files into DIR ([`gap::reality::export_specimen`]).
 fn export_specimen(root: &Path, mesh: &str, refined: bool) -> anyhow::Result<()> {
-    let mut scene = launch_config::SceneConfig::default();
-    scene.meniscus.mesh = mesh.to_string();
-    let loaded = physics_node::mesh::load_scene_mesh(&scene.meniscus, &gap::data_dir())
-        .with_context(|| format!("loading {mesh}"))?;
-    let (tets, fixed) = if refined {
-        physics_node::mesh::refine_once(
-            &loaded.mesh,
-            &loaded.fixed_nodes,
-            physics_node::mesh::Midpoints::Flat,
-        )
-    } else {
-        (loaded.mesh, loaded.fixed_nodes)
-    };
-    std::fs::create_dir_all(root)?;
-    let msh = root.join("specimen.msh");
-    physics_node::mesh::write_msh22(&tets, &msh)
-        .with_context(|| format!("writing {}", msh.display()))?;
-    let held: Vec<String> = fixed.iter().map(|i| i.to_string()).collect();
-    std::fs::write(root.join("specimen_fixed.txt"), held.join(" "))?;
+    let files = gap::reality::export_specimen(mesh, root, refined)?;
     eprintln!(
-        "{mesh}: {} nodes, {} tets, {} held, written to {}",
-        tets.nodes.len(),
-        tets.tets.len(),
-        fixed.len(),
-        root.display()
+        "{mesh}{}: {} nodes, {} tets, written to {} and {}",
+        if refined { " refined once" } else { "" },
+        files.nodes,
+        files.tets,
+        files.msh.display(),
+        files.fixed.display()
     );
     Ok(())
 }

@@ -26,7 +26,7 @@ use launch_config::SceneConfig;
 use msgs::Pose;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// Small deterministic generator (SplitMix64) so cases are reproducible from a seed.
 #[derive(Debug, Clone)]
@@ -437,6 +437,50 @@ pub fn write_experiment(
     let sites = model.sites()?;
     let truth = spec.truth_mesh.model(&model)?;
     write_experiment_with(spec, truth.as_ref(), &sites, dir, truth_path)
+}
+
+/// Where [`export_specimen`] wrote a specimen.
+#[derive(Debug, Clone)]
+pub struct SpecimenFiles {
+    /// Gmsh 2.2, metres, the diagnosis' specimen frame (`[specimen] mesh` as a path).
+    pub msh: PathBuf,
+    /// Its held nodes, 0-based (`[specimen] fixed` as a path).
+    pub fixed: PathBuf,
+    pub nodes: usize,
+    pub tets: usize,
+}
+
+/// Writes the specimen `mesh` (a scene's mesh spec, e.g. `study:lateral`) as the diagnosis
+/// meshes it, the study's meshes scaled and turned into the specimen frame, into `dir` as
+/// `specimen.msh` and `specimen_fixed.txt`: what an outside code needs to model the same
+/// specimen and what an experiment folder names by path (`tools/independent_fe`). With
+/// `refined`, the mesh refined once (every tet into eight, midpoints on the facets).
+pub fn export_specimen(mesh: &str, dir: &Path, refined: bool) -> Result<SpecimenFiles, GapError> {
+    let mut scene = SceneConfig::default();
+    scene.meniscus.mesh = mesh.to_string();
+    let loaded = physics_node::mesh::load_scene_mesh(&scene.meniscus, &super::data_dir())
+        .map_err(|e| GapError::Sim(format!("specimen {mesh}: {e}")))?;
+    let (tets, fixed) = if refined {
+        physics_node::mesh::refine_once(
+            &loaded.mesh,
+            &loaded.fixed_nodes,
+            physics_node::mesh::Midpoints::Flat,
+        )
+    } else {
+        (loaded.mesh, loaded.fixed_nodes)
+    };
+    std::fs::create_dir_all(dir).map_err(|e| GapError::Io(dir.to_path_buf(), e))?;
+    let msh = dir.join("specimen.msh");
+    physics_node::mesh::write_msh22(&tets, &msh).map_err(|e| GapError::Io(msh.clone(), e))?;
+    let list = dir.join("specimen_fixed.txt");
+    let held: Vec<String> = fixed.iter().map(|i| i.to_string()).collect();
+    std::fs::write(&list, held.join(" ")).map_err(|e| GapError::Io(list.clone(), e))?;
+    Ok(SpecimenFiles {
+        msh,
+        fixed: list,
+        nodes: tets.nodes.len(),
+        tets: tets.tets.len(),
+    })
 }
 
 /// [`write_experiment`] with the truth on the replay's own mesh and solve but another contact

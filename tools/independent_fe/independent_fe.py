@@ -11,8 +11,10 @@ discretisation and another contact formulation:
   linear elasticity (E, nu), the held nodes fixed (with P2: their vertex and edge dofs), or
   the held face on an elastic foundation (a support);
 - a frictionless rigid ball in contact with the surface through a penalty pressure
-  integrated over the surface (every boundary face sampled at about SPACING_M), solved by
-  semi-smooth Newton on the sampled pressures with a direct factorisation of K;
+  integrated over the surface (every boundary face sampled at about SPACING_M), each sample
+  pushed along the ball's radius through its rest position (small sliding); the sample
+  forces solve one convex problem, by Newton on the samples' compliance B K^-1 B^T from a
+  direct factorisation of K;
 - quasi-static: each sample is solved on its own (no friction, no rate, no history).
 
 It reads an experiment folder (its poses, times and regions) and writes one with the same
@@ -24,7 +26,8 @@ injected goes to a truth file outside the folder.
 
     python3 tools/independent_fe/independent_fe.py generate SRC_EXPERIMENT OUT_DIR \
         --mesh specimen.msh --fixed specimen_fixed.txt --truth OUT_truth.json \
-        [--effect none|modulus=1.4|support=2e9|tilt=4,-3|device=0.2,0,-0.3] [--seed N]
+        [--effect none|modulus=1.4|support=3e8|tilt=4,-3|device=0.2,0,-0.3] [--seed N] \
+        [--level 2.88] [--model-mesh finer.msh --model-fixed finer_fixed.txt]
     python3 tools/independent_fe/independent_fe.py hertz      # the reference against Hertz
 
 (`gap_dev DIR export-specimen study:lateral` writes `specimen.msh` and its fixed list in
@@ -194,7 +197,6 @@ class Specimen:
         self.cache = {}
         self.dofs = self.basis.N
 
-
     def clear(self):
         self.cache = {}
 
@@ -232,7 +234,7 @@ class Specimen:
         # displacement along it. The pressures then solve one convex problem. (Re-aimed at
         # the deformed positions, round after round, the directions of a 25-30 N press fed
         # back into the tangential displacements and the rounds did not settle.)
-        normals = self._normals(X, np.zeros((n, 3)), centre)
+        normals = self._radial(X, centre)
         W = np.einsum("ia,iajb,jb->ij", normals, G.reshape(n, 3, n, 3), normals, optimize=True)
         g0 = radius - np.linalg.norm(X - centre, axis=1)
         kw = PENALTY_PA_PER_M * self.wq[idx]
@@ -243,15 +245,16 @@ class Specimen:
         return -F, max(penetration, 0.0), {q: v for q, v in zip(idx, p) if v > 1e-12}
 
     @staticmethod
-    def _normals(X, d, c):
-        r = X + d - c
+    def _radial(X, c):
+        """Unit directions from the ball's centre `c` to the points `X`."""
+        r = X - c
         return r / np.maximum(np.linalg.norm(r, axis=1), 1e-12)[:, None]
 
 
 def solve_smooth_penalty(W, kw, g0, p0):
     """Pressures p with p = kw * ramp(g0 - W p): the penalty with its kink rounded over
     RAMP_WIDTH_M, so samples at the edge of the patch carry a part of their share instead of
-    toggling in and out between rounds. Newton with a backtracking line search."""
+    toggling in and out between Newton steps. Newton with a backtracking line search."""
     eps = RAMP_WIDTH_M
     p = p0.copy()
 

@@ -35,6 +35,7 @@ the specimen frame the diagnosis uses.)
 """
 
 import argparse
+import csv
 import json
 import math
 import os
@@ -195,7 +196,6 @@ class Specimen:
         centroid = nodes[tets[owner_tet]].mean(axis=1)
         self.inside = self.xq + 1e-6 * (centroid - self.xq)
         self.cache = {}
-        self.dofs = self.basis.N
 
     def clear(self):
         self.cache = {}
@@ -279,7 +279,7 @@ def solve_smooth_penalty(W, kw, g0, p0):
     return p
 
 
-def quat_tilt(a, b):
+def tilt_matrix(a, b):
     """Rotation matrix of the diagnosis' tilt: about x by a, then about y by b (rad)."""
     ca, sa, cb, sb = math.cos(a), math.sin(a), math.cos(b), math.sin(b)
     rx = np.array([[1, 0, 0], [0, ca, -sa], [0, sa, ca]])
@@ -288,8 +288,6 @@ def quat_tilt(a, b):
 
 
 def read_trial(path):
-    import csv
-
     with open(path) as f:
         rows = list(csv.DictReader(f))
     if not rows:
@@ -343,7 +341,7 @@ def generate(args):
             support = vals[0]
             truth["effects"]["support"] = {"foundation_pa_per_m": support}
         elif name == "tilt":
-            tilt = quat_tilt(math.radians(vals[0]), math.radians(vals[1]))
+            tilt = tilt_matrix(math.radians(vals[0]), math.radians(vals[1]))
             truth["effects"]["tilt"] = {"tilt_x_deg": vals[0], "tilt_y_deg": vals[1]}
         elif name == "device":
             bias = np.array(vals[:3], float)
@@ -404,7 +402,7 @@ def generate(args):
         out.write("\n".join(toml))
     truth.update(
         {
-            "dofs": int(spec.dofs),
+            "dofs": int(spec.basis.N),
             "surface_samples": int(len(spec.xq)),
             "largest_penetration_m": worst,
 
@@ -436,7 +434,7 @@ def hertz(args):
         print(
             json.dumps(
                 {"depth_mm": depth * 1e3, "force_n": f[2], "hertz_n": ref, "error": f[2] / ref - 1,
-                 "dofs": int(spec.dofs), "penetration_um": pen * 1e6}
+                 "dofs": int(spec.basis.N), "penetration_um": pen * 1e6}
             )
         )
 

@@ -9,7 +9,8 @@
 //! and 1000 N/m per node, the study-mesh proxies' supports of 1818 and 1993 N/m were fitted
 //! 19% and 18% soft; with a centre at the support's own fit, 10% and 3%.
 //!
-//! A tilt moves where the probe first touches. Between the baseline and the knots at ±6° the
+//! A tilt moves where the probe first touches. Between the baseline and the knots (then at ±6°,
+//! now ±3°: [`crate::effects::TILT_STEP`]) the
 //! quadratic interpolation then puts part of a knot's early touch into trials whose true
 //! tilt does not touch yet (1.7 N RMS in the free approach at the true 4.1°, 2.3° of a
 //! study-mesh case, where the measurement carries only its 0.02 N of noise). The
@@ -47,11 +48,12 @@ pub const MIN_CENTRE_SUPPORT: f64 = crate::strength::MIN_SUPPORT_COMPLIANCE;
 /// At most this many re-simulations per trial and centre: the fit with the first centre moves
 /// towards the true parameters (the interpolation's error shrinks near the centre), and
 /// another centre at the refit is made when it moved by at least [`SETTLED`] (in
-/// [`crate::effects::centre_unit`]s: 0.5° of tilt, 8.3·10⁻⁵ m/N of support compliance).
+/// [`crate::effects::centre_unit`]s: 0.25° of tilt, 8.3·10⁻⁵ m/N of support compliance).
 pub const ROUNDS: usize = 3;
 /// At most this many for a pair: each of its centres moves the fit only as far as the
 /// centre's weight reaches (its own distance from the neutral point), and a pair's tilt
-/// beyond the ±6° knots took five (a coarse-mesh case's −2.6° → −6.1° for a true −6.9°).
+/// beyond the knots (then at ±6°) took five (a coarse-mesh case's −2.6° → −6.1° for a true
+/// −6.9°).
 /// They are made on the pair's search trials ([`search_trials`]) until the fit there settles;
 /// the other trials then get that centre, and rounds over every trial go on from it within
 /// the same count.
@@ -512,10 +514,10 @@ fn settle_with_slopes(
 /// The pairs of a tilt with an effect that is not re-simulated (modulus, hardening, device,
 /// sensor, viscoelastic) use the tilt's own centre ([`crate::effects::centre_for`]), which
 /// stands where the tilt fits alone: the tilt takes some of the other effect for itself. A
-/// pair's fit then leaves the centre along the quadratic's slopes, which the knots at ±6°
-/// set wrongly near an onset, and it stayed near the centre: of eighteen proxy pairs outside
-/// the hidden sets' list, tilt+device on both meshes and modulus+tilt on the coarse one read
-/// `tilt`. With the replay's slopes the pairs reach their own tilt (README, "Slopes at the
+/// pair's fit then leaves the centre along the quadratic's slopes, which the knots (then at
+/// ±6°) set wrongly near an onset, and it stayed near the centre: of eighteen proxy pairs
+/// outside the hidden sets' list, tilt+device on both meshes and modulus+tilt on the coarse
+/// one read `tilt`. With the replay's slopes the pairs reach their own tilt (README, "Slopes at the
 /// tilt's centre"). Made once, after the rounds settle: in every round they cost three
 /// times the replays for the same verdicts.
 fn add_slopes(
@@ -611,7 +613,7 @@ fn slopes_at(
         .collect()
 }
 
-/// A pair centre's slope step, in [`crate::effects::centre_unit`]s: 0.6° of tilt, 10⁻⁴ m/N
+/// A pair centre's slope step, in [`crate::effects::centre_unit`]s: 0.3° of tilt, 10⁻⁴ m/N
 /// of support compliance; small against the distances a refit moves, large against the
 /// replay's own tolerance.
 pub const SLOPE_STEP: f64 = 0.1;

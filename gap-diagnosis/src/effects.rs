@@ -69,8 +69,15 @@ const fn opt(p: ParamSpec) -> ParamSpec {
     }
 }
 
-/// Tilt re-simulation step (rad) for the quadratic interpolation.
-pub const TILT_STEP: f64 = 0.10472; // 6°
+/// Tilt re-simulation step (rad) for the quadratic interpolation. The tilt turns the specimen
+/// about the frame's origin, and the probe sites stand 15–20 mm from it, so a step of θ moves a
+/// press by about 18 mm · θ along its normal: 0.94 mm at 3°, the size of the study's presses
+/// (0.5–1.2 mm). At 6° a knot's press moved 1.9 mm, and missed the tissue or pressed it two to
+/// three times as deep; the quadratic through such knots put a 2–2.5° tilt at a fitted 0.3°,
+/// below [`crate::centres::MIN_CENTRE_DEG`], so no replay ever came near it. Knots at ±3° and
+/// ±6° together fitted large tilts better but lost a small one on the independent code's
+/// truth, at four replays a trial more (README, "Tilt knots at ±3°").
+pub const TILT_STEP: f64 = 0.05236; // 3°
 pub const FRICTION_KNOTS: [f64; 2] = [0.15, 0.4];
 /// Support compliance knots, m/N per node (k = 4000, 2000 and 1000 N/m). A support is a
 /// spring in series with the tissue, so the force is convex in its compliance and a chord
@@ -542,7 +549,7 @@ fn axpy_resimulated_where(
 }
 
 /// One unit of each re-simulated parameter in [`centre_weight`]'s distance: the span its
-/// default knots cover (tilt: the ±6° step; support and friction: the larger knot).
+/// default knots cover (tilt: the ±3° step; support and friction: the larger knot).
 pub fn centre_unit(e: Effect) -> f64 {
     match e {
         Effect::Tilt => TILT_STEP.to_degrees(),

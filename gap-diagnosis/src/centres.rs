@@ -9,13 +9,12 @@
 //! and 1000 N/m per node, the study-mesh proxies' supports of 1818 and 1993 N/m were fitted
 //! 19% and 18% soft; with a centre at the support's own fit, 10% and 3%.
 //!
-//! A tilt moves where the probe first touches. Between the baseline and the knots (then at ±6°,
-//! now ±3°: [`crate::effects::TILT_STEP`]) the
-//! quadratic interpolation then puts part of a knot's early touch into trials whose true
-//! tilt does not touch yet (1.7 N RMS in the free approach at the true 4.1°, 2.3° of a
-//! study-mesh case, where the measurement carries only its 0.02 N of noise). The
-//! phase-variance likelihood weighs that approach error heavily, so a fold rejected the true
-//! tilt and the case read `none`.
+//! A tilt moves where the probe first touches. Between the baseline and the knots (then at
+//! ±6°, now ±3°: [`crate::effects::TILT_STEP`]) the quadratic interpolation then puts part of
+//! a knot's early touch into trials whose true tilt does not touch yet (1.7 N RMS in the free
+//! approach at the true 4.1°, 2.3° of a study-mesh case, where the measurement carries only
+//! its 0.02 N of noise). The phase-variance likelihood weighs that approach error heavily, so
+//! a fold rejected the true tilt and the case read `none`.
 //!
 //! A tilt on a soft support is a third case of the same kind: the tilted knots are replayed
 //! on the fixed base and the support's knots untilted, so their deltas, added, overstate the
@@ -517,8 +516,8 @@ fn settle_with_slopes(
 /// pair's fit then leaves the centre along the quadratic's slopes, which the knots (then at
 /// ±6°) set wrongly near an onset, and it stayed near the centre: of eighteen proxy pairs
 /// outside the hidden sets' list, tilt+device on both meshes and modulus+tilt on the coarse
-/// one read `tilt`. With the replay's slopes the pairs reach their own tilt (README, "Slopes at the
-/// tilt's centre"). Made once, after the rounds settle: in every round they cost three
+/// one read `tilt`. With the replay's slopes the pairs reach their own tilt (README, "Slopes
+/// at the tilt's centre"). Made once, after the rounds settle: in every round they cost three
 /// times the replays for the same verdicts.
 fn add_slopes(
     data: &mut [TrialData],

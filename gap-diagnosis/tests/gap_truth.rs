@@ -284,8 +284,8 @@ fn selftest_on_another_contact_formulation() {
 /// relaxation beside it where that relaxes over the hold (`gap_diagnosis::centres`). This is
 /// that case, made the way the self-test makes it. With the knots at ±6° the centre stood
 /// within 20%; with them at ±3° (where a 2° tilt is fitted at all, `a_two_degree_tilt_…`) it
-/// stands at (3.02°, −2.38°), 2.05° off (35%), as the 5.8° lies beyond the knots: the bound is
-/// 40% since, against the 55% (3.2°) of what broke.
+/// stands at (3.02°, −2.38°), 2.05° off (35%), as the 5.8° lies beyond the knots: the bound has
+/// been 40% since, against the 55% (3.2°) of what broke.
 #[test]
 fn a_tilt_beside_a_relaxation_is_centred_near_its_tilt() {
     use gap_diagnosis::effects::Effect;

@@ -17,7 +17,7 @@
 //! (`tools/independent_fe`) to model the same specimen.
 use anyhow::{bail, Context};
 use gap_diagnosis::effects::Effect;
-use gap_diagnosis::model::{ForceModel, ProbePath, Variant};
+use gap_diagnosis::model::{ForceModel, ProbePath, Replayed, Variant};
 use gap_diagnosis::{self as gap, GapError, SimForceModel};
 use std::collections::HashMap;
 use std::hash::{Hash, Hasher};
@@ -26,9 +26,14 @@ use std::sync::Mutex;
 
 struct Cached<'a> {
     inner: &'a dyn ForceModel,
-    map: Mutex<HashMap<u64, Vec<[f64; 3]>>>,
+    map: Mutex<HashMap<u64, CachedReplay>>,
     dirty: Mutex<bool>,
 }
+
+/// A replay's forces and its faulty steps; `None` from a cache written before the faults
+/// were kept, which is replayed again once (the diagnosis sets a faulty replay aside, and a
+/// cache that answered 0 for every replay read tilts the CLI names as `none`).
+type CachedReplay = (Vec<[f64; 3]>, Option<u64>);
 
 fn key(v: &Variant, p: &ProbePath) -> u64 {
     let mut h = std::collections::hash_map::DefaultHasher::new();
@@ -51,14 +56,23 @@ fn key(v: &Variant, p: &ProbePath) -> u64 {
 
 impl ForceModel for Cached<'_> {
     fn replay_untilted(&self, v: &Variant, p: &ProbePath) -> Result<Vec<[f64; 3]>, GapError> {
+        self.replay_untilted_checked(v, p).map(|r| r.forces)
+    }
+    fn replay_untilted_checked(&self, v: &Variant, p: &ProbePath) -> Result<Replayed, GapError> {
         let k = key(v, p);
-        if let Some(f) = self.map.lock().unwrap().get(&k) {
-            return Ok(f.clone());
+        if let Some((forces, Some(faulty_steps))) = self.map.lock().unwrap().get(&k) {
+            return Ok(Replayed {
+                forces: forces.clone(),
+                faulty_steps: *faulty_steps,
+            });
         }
-        let f = self.inner.replay_untilted(v, p)?;
-        self.map.lock().unwrap().insert(k, f.clone());
+        let r = self.inner.replay_untilted_checked(v, p)?;
+        self.map
+            .lock()
+            .unwrap()
+            .insert(k, (r.forces.clone(), Some(r.faulty_steps)));
         *self.dirty.lock().unwrap() = true;
-        Ok(f)
+        Ok(r)
     }
     fn describe(&self) -> String {
         self.inner.describe()
@@ -66,14 +80,34 @@ impl ForceModel for Cached<'_> {
     fn has_refinement(&self) -> bool {
         self.inner.has_refinement()
     }
+    fn support_scale(&self) -> f64 {
+        self.inner.support_scale()
+    }
 }
 
-fn load_cache(p: &Path) -> HashMap<u64, Vec<[f64; 3]>> {
-    std::fs::read_to_string(p)
-        .ok()
-        .and_then(|s| serde_json::from_str::<Vec<(u64, Vec<[f64; 3]>)>>(&s).ok())
-        .map(|v| v.into_iter().collect())
+/// The cache at `p`: entries with their faulty steps, or (written before those were kept)
+/// without them.
+fn load_cache(p: &Path) -> HashMap<u64, CachedReplay> {
+    let Ok(text) = std::fs::read_to_string(p) else {
+        return HashMap::new();
+    };
+    if let Ok(v) = serde_json::from_str::<Vec<(u64, Vec<[f64; 3]>, u64)>>(&text) {
+        return v.into_iter().map(|(k, f, n)| (k, (f, Some(n)))).collect();
+    }
+    serde_json::from_str::<Vec<(u64, Vec<[f64; 3]>)>>(&text)
+        .map(|v| v.into_iter().map(|(k, f)| (k, (f, None))).collect())
         .unwrap_or_default()
+}
+
+/// Writes `map` to `p` with every entry's faulty steps (entries never replayed again stay
+/// out: they are replayed on the next run).
+fn save_cache(p: &Path, map: HashMap<u64, CachedReplay>) -> anyhow::Result<()> {
+    let v: Vec<(u64, Vec<[f64; 3]>, u64)> = map
+        .into_iter()
+        .filter_map(|(k, (f, n))| n.map(|n| (k, f, n)))
+        .collect();
+    std::fs::write(p, serde_json::to_string(&v)?)
+        .with_context(|| format!("writing {}", p.display()))
 }
 
 /// One kept case folder: its name, ground truth, experiment, physics model and replay cache.
@@ -174,9 +208,7 @@ fn rediagnose_kept_cases(root: &Path) -> anyhow::Result<()> {
         let r = gap::diagnose(exp, &model, &opts)?;
         let el = t0.elapsed().as_secs_f64();
         if *model.dirty.lock().unwrap() {
-            let v: Vec<(u64, Vec<[f64; 3]>)> =
-                model.map.into_inner().unwrap().into_iter().collect();
-            std::fs::write(cache_file, serde_json::to_string(&v)?)?;
+            save_cache(cache_file, model.map.into_inner().unwrap())?;
         }
         n += 1;
         let good = r.verdict.effect == label;

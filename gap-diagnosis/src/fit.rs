@@ -216,6 +216,24 @@ pub fn phase_sse(
 /// discretisation of the same specimen differs from the replay (issue 15), with room to fit it.
 pub const NUISANCE_MAX: f64 = 1.25;
 
+/// How far beyond the scale's band the contact and material terms may move the response's
+/// level ([`Nuisance::level`]), either way: the level's band is [1/[`LEVEL_MAX`], [`LEVEL_MAX`]]
+/// (0.70…1.44).
+///
+/// Why a level band beside the scale's: the contact term lowers the deepest forces by up to
+/// a third, so the scale at its low end with the layer at its knot reached ×0.52–0.57 of the
+/// baseline's level on the independent code's softer tissues (its modulus ×0.55 and a
+/// grade-2 ×0.59), and no softer tissue could beat the floor: both read `none` (README,
+/// "A level band for the nuisances"). An unrelated offset (±15%) behind a discretisation's
+/// softer contact (the same-mesh truth's 4 µm/N layer lowers the level ~15%) stays inside.
+/// Bounding the level alone, at the scale's own band, lost effects whose truth had both ("A
+/// contact nuisance beside it"); here the scale keeps its band and the level only has a floor
+/// and a ceiling 15% wider.
+pub const LEVEL_REACH: f64 = 1.15;
+
+/// The level band's upper end ([`LEVEL_REACH`]).
+pub const LEVEL_MAX: f64 = NUISANCE_MAX * LEVEL_REACH;
+
 /// The contact nuisance's knot: a penalty layer of 1e-5 m/N (100 N/mm) per probe ball in
 /// series with the tissue, replayed once per trial.
 ///
@@ -281,6 +299,14 @@ pub struct Nuisance {
     pub contact_max: f64,
     /// Largest weight of the material knot (0: the material nuisance is off).
     pub material_max: f64,
+    /// Upper end of the response level's band, [1/`level_max`, `level_max`]
+    /// ([`Nuisance::level`], [`LEVEL_MAX`]); binds only where the scale is fitted.
+    pub level_max: f64,
+    /// The contact knot's relative change of the baseline's normal force over the trials
+    /// (about −0.3; [`Nuisance::for_data`]), 0 until the data are known.
+    pub contact_rho: f64,
+    /// The material knot's, likewise.
+    pub material_rho: f64,
 }
 
 impl Nuisance {
@@ -291,13 +317,14 @@ impl Nuisance {
         hi: 1.0,
         contact_max: 0.0,
         material_max: 0.0,
+        level_max: LEVEL_MAX,
+        contact_rho: 0.0,
+        material_rho: 0.0,
     };
     /// The stiffness band [1/[`NUISANCE_MAX`], [`NUISANCE_MAX`]], no contact term.
     pub const STIFFNESS: Nuisance = Nuisance {
-        lo: 1.0 / NUISANCE_MAX,
-        hi: NUISANCE_MAX,
         contact_max: 0.0,
-        material_max: 0.0,
+        ..Nuisance::STIFFNESS_AND_CONTACT
     };
     /// The stiffness band and the contact term up to [`CONTACT_WEIGHT_MAX`].
     pub const STIFFNESS_AND_CONTACT: Nuisance = Nuisance {
@@ -305,6 +332,9 @@ impl Nuisance {
         hi: NUISANCE_MAX,
         contact_max: CONTACT_WEIGHT_MAX,
         material_max: 0.0,
+        level_max: LEVEL_MAX,
+        contact_rho: 0.0,
+        material_rho: 0.0,
     };
     /// All three: the stiffness band, the contact term and the material term up to
     /// [`MATERIAL_WEIGHT_MAX`] (the default).
@@ -345,8 +375,21 @@ impl Nuisance {
             } else {
                 0.0
             },
+            contact_rho: knot_rho(data, |d| d.contact_knot.as_ref()),
+            material_rho: knot_rho(data, |d| d.material_knot.as_ref()),
             ..self
         }
+    }
+    /// The response's level at the nuisances `f`: the scale times the knots' weighted change
+    /// of the baseline's normal force, s·(1 + ρ_c·w + ρ_m·m), what the floor's mean normal
+    /// force is of the baseline's. For a candidate with its own scale (`modulus`), `f`'s
+    /// stiffness is that scale.
+    pub fn level(self, f: NuisanceFit) -> f64 {
+        f.stiffness * (1.0 + self.contact_rho * f.contact + self.material_rho * f.material)
+    }
+    /// `level` lies inside the level's band ([`LEVEL_MAX`]).
+    pub fn level_inside(self, level: f64) -> bool {
+        (1.0 / self.level_max..=self.level_max).contains(&level)
     }
     /// The stiffness scale is a free parameter.
     pub fn stiffness_fitted(self) -> bool {
@@ -370,6 +413,24 @@ impl Nuisance {
     /// material term.
     pub fn held(self) -> NuisanceFit {
         NuisanceFit::scale(self.lo)
+    }
+}
+
+/// A knot's relative change of the baseline's normal force over all trials' replays,
+/// Σ (knot − base)·n / Σ base·n (negative where the knot is softer); 0 without a knot or force.
+fn knot_rho(data: &[TrialData], knot: fn(&TrialData) -> Option<&Vec<[f64; 3]>>) -> f64 {
+    let (mut change, mut base) = (0.0, 0.0);
+    for d in data {
+        let Some(k) = knot(d) else { continue };
+        for (b, f) in d.base.iter().zip(k) {
+            change += dot(*f, d.normal) - dot(*b, d.normal);
+            base += dot(*b, d.normal);
+        }
+    }
+    if base != 0.0 && (change / base).is_finite() {
+        change / base
+    } else {
+        0.0
     }
 }
 
@@ -576,9 +637,18 @@ struct WeightedQuad {
 }
 
 /// The nuisances' region as half-spaces g·x ≤ h: the scale in its band, 0 ≤ u ≤
-/// `contact_max`·s and 0 ≤ v ≤ `material_max`·s (u and v are s × the weights). A term that is
-/// off has both of its weight's bounds at 0; a held scale both of its own at `lo`.
-fn nuisance_region(band: Nuisance) -> [([f64; NUISANCE_DIMS], f64); 6] {
+/// `contact_max`·s and 0 ≤ v ≤ `material_max`·s (u and v are s × the weights), and the level
+/// s + ρ_c·u + ρ_m·v in its band ([`Nuisance::level`]). A term that is off has both of its
+/// weight's bounds at 0; a held scale both of its own at `lo`.
+fn nuisance_region(band: Nuisance) -> [([f64; NUISANCE_DIMS], f64); 8] {
+    // the level s + ρ_c·u + ρ_m·v is linear in the coordinates too; where the scale is held
+    // its rows are empty (0 ≤ 0: never violated, singular when taken as active)
+    let (level, hi) = if band.stiffness_fitted() {
+        ([1.0, band.contact_rho, band.material_rho], band.level_max)
+    } else {
+        ([0.0; NUISANCE_DIMS], 0.0)
+    };
+    let lo = if hi > 0.0 { 1.0 / hi } else { 0.0 };
     [
         ([1.0, 0.0, 0.0], band.hi),
         ([-1.0, 0.0, 0.0], -band.lo),
@@ -586,6 +656,8 @@ fn nuisance_region(band: Nuisance) -> [([f64; NUISANCE_DIMS], f64); 6] {
         ([-band.contact_max, 1.0, 0.0], 0.0),
         ([0.0, 0.0, -1.0], 0.0),
         ([-band.material_max, 0.0, 1.0], 0.0),
+        (level, hi),
+        (level.map(|g| -g), -lo),
     ]
 }
 
@@ -595,8 +667,8 @@ impl WeightedQuad {
     }
     /// The minimum over the region ([`nuisance_region`]), exactly: a convex quadratic's
     /// minimum over a polytope is the minimum over some face's affine hull, so sets of at most
-    /// three of its six half-spaces taken as equalities are solved (a 3–6 unknown KKT system;
-    /// up to 42 sets), fewest first, until one's point is feasible with multipliers ≥ 0. A
+    /// three of its eight half-spaces taken as equalities are solved (a 3–6 unknown KKT system;
+    /// up to 93 sets), fewest first, until one's point is feasible with multipliers ≥ 0. A
     /// tiny ridge keeps a term the data barely see from making the systems singular.
     fn minimum(&self, band: Nuisance) -> [f64; NUISANCE_DIMS] {
         let region = nuisance_region(band);
@@ -1204,6 +1276,12 @@ pub struct CandidateScore {
     /// absent where it is off.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub material_weight: Option<f64>,
+    /// The fitted response's level on all trials ([`Nuisance::level`]): the stiffness
+    /// nuisance's, or `modulus`'s own scale, times the contact and material terms' change of
+    /// the normal force; absent where neither scale is fitted (`hardening`: its stiffening
+    /// has no one level; the floor with the nuisance off).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub level: Option<f64>,
     /// Held-out shrink against the nuisance floor (the baseline with the stiffness nuisance
     /// fitted per fold): the larger of the phase-weighted and plain shrinks. What the verdict
     /// requires of an effect, beside its significance ([`CandidateScore::floor_gain_z`]).
@@ -1375,12 +1453,34 @@ pub fn score_candidate(
             .contact_fitted()
             .then_some(fitted.contact_compliance()),
         material_weight: nuisance.material_fitted().then_some(fitted.material),
+        level: level_of(c, &theta, fitted, nuisance),
         floor_shrink: 0.0,
         floor_gain_z: 0.0,
         stiffness_gain_z: None,
         theta,
         heldout_pred: held_pred,
     }
+}
+
+/// The level of `c` at `theta` and the nuisances `fitted` ([`CandidateScore::level`]).
+fn level_of(c: &Candidate, theta: &[f64], fitted: NuisanceFit, band: Nuisance) -> Option<f64> {
+    let stiffness = if band.stiffness_fitted() {
+        fitted.stiffness
+    } else {
+        let mut k = 0;
+        let mut own = None;
+        for &e in &c.0 {
+            if e == Effect::Modulus {
+                own = theta.get(k).copied();
+            }
+            k += e.params().len();
+        }
+        own?
+    };
+    Some(band.level(NuisanceFit {
+        stiffness,
+        ..fitted
+    }))
 }
 
 /// Held-out shrink of `x` against `x0` (fraction; 0 when `x0` is 0).
@@ -1543,6 +1643,55 @@ mod tests {
         let (f, _) = quad_for(1.1, 0.0, false).profile(Nuisance::STIFFNESS_AND_CONTACT);
         assert_eq!(f.contact, 0.0);
         assert!((f.stiffness - 1.1).abs() < 1e-4, "{f:?}");
+    }
+
+    /// Regression: the scale at its band's low end behind the layer at its knot reached a
+    /// level of ×0.57, and an independent code's modulus ×0.55 and grade-2 ×0.59 read `none`.
+    /// The level's band stops the floor at 1/[`LEVEL_MAX`]; a level inside it is found
+    /// exactly as before, and a held scale (`modulus`) is not bounded by it.
+    #[test]
+    fn a_softer_tissue_than_the_level_band_is_not_taken_by_the_nuisances() {
+        // the knot takes 30% off the normal force: ρ_c = −8.4 / 28
+        let samples = [
+            ([0.0, 0.0, 2.0], [0.0, 0.0, -0.1]),
+            ([0.1, 0.0, 5.0], [0.0, 0.0, -0.9]),
+            ([0.0, -0.2, 9.0], [0.0, 0.05, -2.8]),
+            ([0.0, 0.3, 12.0], [0.0, -0.1, -4.6]),
+        ];
+        let quad_for = |s_true: f64, w_true: f64| {
+            let mut q = PhaseQuad::default();
+            for (i, (m, d)) in samples.iter().enumerate() {
+                let group = [VarGroup::Hold, VarGroup::Loading][i % 2];
+                let truth: [f64; 3] = std::array::from_fn(|k| s_true * (m[k] + w_true * d[k]));
+                q.push(group, [*m, *d, [0.0; 3]], truth.map(|v| -v));
+            }
+            q
+        };
+        let band = Nuisance {
+            contact_rho: -0.3,
+            ..Nuisance::STIFFNESS_AND_CONTACT
+        };
+        let (f, _) = quad_for(0.81, 1.0).profile(band);
+        assert!(
+            (band.level(f) - 1.0 / LEVEL_MAX).abs() < 1e-6,
+            "{f:?} level {}",
+            band.level(f)
+        );
+        // inside the band: the truth itself
+        let (f, acc) = quad_for(1.1, 0.45).profile(band);
+        assert!((f.stiffness - 1.1).abs() < 1e-3, "{f:?}");
+        assert!((f.contact - 0.45).abs() < 1e-3, "{f:?}");
+        assert!(acc.total().0 < 1e-5);
+        // a held scale: the weight alone, unbounded by the level (its own scale is the level)
+        // (a steeper ρ here, so that the knot's full weight would leave the level's band)
+        let held = Nuisance {
+            contact_rho: -0.4,
+            ..band
+        }
+        .for_candidate(&Candidate::single(Effect::Modulus));
+        let (f, _) = quad_for(1.0, 1.0).profile(held);
+        assert!((f.contact - 1.0).abs() < 1e-6, "{f:?}");
+        assert!(band.level_inside(1.0) && !band.level_inside(0.6) && !band.level_inside(1.5));
     }
 
     /// The three nuisances profiled together: a scale, a contact weight and a material weight

@@ -290,6 +290,11 @@ pub struct Heldout {
     /// neo-Hookean law against the corotational one (0…1). Absent when it is off.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub material_weight: Option<f64>,
+    /// The baseline's response level with those nuisances ([`fit::Nuisance::level`]): its
+    /// mean normal force as a fraction of the replay's, within [1/1.44, 1.44]
+    /// ([`fit::LEVEL_MAX`]). Absent when the nuisance is off.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub level: Option<f64>,
     /// The nuisance floor: held-out RMSE of the baseline with the nuisance fitted per fold, N.
     /// An effect must shrink this, significantly, to be named.
     #[serde(default)]
@@ -330,6 +335,13 @@ pub struct Verdict {
     /// replay's law.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub material_weight: Option<f64>,
+    /// The response level fitted with `effect` (for `none`: with the baseline;
+    /// [`fit::Nuisance::level`]): the stiffness nuisance's scale, or `modulus`'s own, times
+    /// the contact and material terms' change of the normal force. What a modulus is judged
+    /// by beside its scale ([`strength::negligible`]). Absent for `hardening` and with the
+    /// nuisance off.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub level: Option<f64>,
     /// The held-out RMSE the verdict's model leaves (for `none`: the baseline with its
     /// nuisances), as a fraction of the measured force's RMS over the same samples and axes:
     /// 1 is no better than predicting no force. At [`UNEXPLAINED_FRACTION`] or above the
@@ -696,9 +708,10 @@ pub fn diagnose_data(
         &Weighing {
             noise,
             min_shrink: opts.min_shrink,
-            band: nuisance,
+            band: nuisance.for_data(data),
             pairs_allowed: data.len() >= 3,
             paired: data.len() >= separability::MIN_TRIALS,
+            measured_rms: measured_rms(data),
         },
     );
     if let Some(set) = separability::indistinguishable(&verdict.effect, &ranking, data) {
@@ -729,6 +742,7 @@ pub fn diagnose_data(
     verdict.nuisance_scale = fitted_with.nuisance_scale;
     verdict.contact_compliance = fitted_with.contact_compliance;
     verdict.material_weight = fitted_with.material_weight;
+    verdict.level = fitted_with.level;
     weigh_residual(&mut verdict, fitted_with.heldout_rmse, data);
     let heldout = Heldout {
         scheme,
@@ -740,6 +754,7 @@ pub fn diagnose_data(
         nuisance_scale: floor.nuisance_scale,
         contact_compliance: floor.contact_compliance,
         material_weight: floor.material_weight,
+        level: floor.level,
         nuisance_rmse: floor.heldout_rmse,
         shrink_over_nuisance: winner
             .map(|w| shrink(w.heldout_rmse, floor.heldout_rmse))
@@ -791,15 +806,25 @@ pub fn diagnose_data(
 
 /// The nuisances fitted to the floor, as the verdict's reason names them.
 fn nuisance_note(floor: &CandidateScore) -> String {
+    // a weight the solve left at 1e-17 is none: it printed "a neo-Hookean weight of 0.00"
+    let contact = floor.contact_compliance.filter(|&c| c >= 0.05e-6);
+    let material = floor.material_weight.filter(|&m| m >= 0.005);
     let mut parts = Vec::new();
     if let Some(s) = floor.nuisance_scale {
         parts.push(format!("a stiffness nuisance ×{s:.3}"));
     }
-    if let Some(c) = floor.contact_compliance.filter(|&c| c > 0.0) {
+    if let Some(c) = contact {
         parts.push(format!("a contact compliance of {:.1} µm/N", 1e6 * c));
     }
-    if let Some(m) = floor.material_weight.filter(|&m| m > 0.0) {
+    if let Some(m) = material {
         parts.push(format!("a neo-Hookean weight of {m:.2}"));
+    }
+    // the level differs from the scale only where a knot's term is taken
+    if let Some(l) = floor
+        .level
+        .filter(|_| contact.is_some() || material.is_some())
+    {
+        parts.push(format!("the response at ×{l:.3} of the replay's level"));
     }
     if parts.is_empty() {
         String::new()
@@ -876,6 +901,9 @@ struct Weighing {
     pairs_allowed: bool,
     /// Enough trials for the per-trial paired gain.
     paired: bool,
+    /// The measured force's RMS over every sample and axis, N ([`measured_rms`]): a model
+    /// that leaves as much held out does no better than predicting no force, and names nothing.
+    measured_rms: f64,
 }
 
 /// The verdict: the best-ranked candidate if it beats the nuisance floor (the baseline with
@@ -893,7 +921,9 @@ struct Weighing {
 /// few against the rest ([`holds_trial_by_trial`]); and (e) every
 /// effect it names has a fitted strength worth naming ([`strength::negligible`]: a modulus
 /// scale outside the nuisance's band, a Prony g1 of 5% or more, …), so a pair is not named
-/// for a second effect the nuisances and the model error leave room for. Without the
+/// for a second effect the nuisances and the model error leave room for; and (f) it leaves
+/// less held out than the measured force's RMS (a model no better than no force explains
+/// nothing, whatever it gains on a floor that does worse). Without the
 /// floor a persistent stiffness offset, which every model has against a real specimen, was
 /// read as `support` or `modulus`.
 ///
@@ -916,6 +946,7 @@ fn decide(
         band,
         pairs_allowed,
         paired,
+        measured_rms,
     } = *weighing;
     let none = |reason: String| Verdict {
         effect: "none".into(),
@@ -927,6 +958,7 @@ fn decide(
         nuisance_scale: None,
         contact_compliance: None,
         material_weight: None,
+        level: None,
         residual_fraction: 0.0,
     };
     let nuisance_note = nuisance_note(floor);
@@ -940,19 +972,24 @@ fn decide(
     // the modulus below it, not a reason to name nothing
     let best = match singles
         .iter()
-        .find(|c| !strength::any_negligible(&c.effect, &c.params, band))
+        .find(|c| !strength::any_negligible(&c.effect, &c.params, band, c.level))
         .or(singles.first())
     {
         Some(b) => b,
         None => return none("no candidate could be assessed".into()),
     };
-    // (e): every effect it names at a strength worth naming ([`strength`])
+    // (e): every effect it names at a strength worth naming ([`strength`]); (f): it leaves
+    // less than the measured force itself held out. Where the replay does not reproduce the
+    // experiment (a tilt whose presses miss a region and press others 100 N deep), an effect
+    // that only lowers every force (a Prony g1 of 0.9 relaxing in 50 ms) beat the floor and
+    // was named while predicting no better than no force at all.
     let identified = |c: &CandidateScore| {
-        c.floor_shrink >= min_shrink
+        c.heldout_rmse < measured_rms
+            && c.floor_shrink >= min_shrink
             && c.bic - floor.bic <= -STRONG_EVIDENCE
             && c.score - floor.score <= -STRONG_EVIDENCE
             && (!paired || holds_trial_by_trial(c))
-            && !strength::any_negligible(&c.effect, &c.params, band)
+            && !strength::any_negligible(&c.effect, &c.params, band, c.level)
     };
     let evidence = |c: &CandidateScore| {
         format!(
@@ -973,7 +1010,8 @@ fn decide(
         let mut pairs: Vec<&CandidateScore> = ranking
             .iter()
             .filter(|c| {
-                c.effect.contains('+') && !strength::any_negligible(&c.effect, &c.params, band)
+                c.effect.contains('+')
+                    && !strength::any_negligible(&c.effect, &c.params, band, c.level)
             })
             .collect();
         pairs.sort_by(|a, b| a.score.total_cmp(&b.score));
@@ -1007,6 +1045,7 @@ fn decide(
                 nuisance_scale: None,
                 contact_compliance: None,
                 material_weight: None,
+                level: None,
                 residual_fraction: 0.0,
             };
         }
@@ -1095,6 +1134,7 @@ fn decide(
         nuisance_scale: None,
         contact_compliance: None,
         material_weight: None,
+        level: None,
         residual_fraction: 0.0,
     }
 }
@@ -1124,7 +1164,8 @@ fn holds_trial_by_trial(c: &CandidateScore) -> bool {
 }
 
 /// A stiffness beside `best` that the nuisance cannot take: `best`'s stiffness nuisance sits
-/// at a bound of its band, and the pair `modulus`+`best` (a) removes at least `min_shrink` of
+/// at a bound of its band, or its response level at a bound of the level's
+/// ([`fit::LEVEL_MAX`]), and the pair `modulus`+`best` (a) removes at least `min_shrink` of
 /// `best`'s held-out residual, the bar an effect meets against the floor, not a pair's
 /// [`RICHER_GAIN`], (b) does so trial by trial by [`separability::SEPARATION_SE`]
 /// ([`CandidateScore::stiffness_gain_z`]), (c) scores better, and (d) fits a modulus
@@ -1146,7 +1187,11 @@ fn stiffness_beyond_the_band<'a>(
 ) -> Option<&'a CandidateScore> {
     let at_bound = best
         .nuisance_scale
-        .is_some_and(|s| band.lo < band.hi && (s <= band.lo * 1.001 || s >= band.hi * 0.999));
+        .is_some_and(|s| band.lo < band.hi && (s <= band.lo * 1.001 || s >= band.hi * 0.999))
+        || best.nuisance_scale.is_some()
+            && best
+                .level
+                .is_some_and(|l| l <= 1.001 / band.level_max || l >= 0.999 * band.level_max);
     if !at_bound {
         return None;
     }
@@ -1161,7 +1206,7 @@ fn stiffness_beyond_the_band<'a>(
                 .stiffness_gain_z
                 .is_some_and(|z| z >= separability::SEPARATION_SE)
             && pair.score < best.score
-            && !strength::any_negligible(&pair.effect, &pair.params, band)
+            && !strength::any_negligible(&pair.effect, &pair.params, band, pair.level)
     })
 }
 
@@ -1459,6 +1504,34 @@ mod tests {
         decide(&singles, &singles, floor, &weighing(noise))
     }
 
+    /// Regression: on the independent code's tilt (5°, −3°), whose presses miss the mid
+    /// region and press the anterior one 91–144 N deep, a Prony g1 of 0.9 relaxing in 50 ms
+    /// (both at their range's ends) beat the floor held out and was named, while leaving
+    /// more than the measured force's RMS: no better than predicting no force.
+    #[test]
+    fn an_effect_that_does_no_better_than_no_force_is_not_named() {
+        let floor = scored("none", 20.4178, 11.86, 0.0);
+        let relaxation = against(
+            fitted(
+                scored("viscoelastic", 19.2, 9.0, 2000.0),
+                &[
+                    ("viscoelastic", "prony_g1", 0.9),
+                    ("viscoelastic", "prony_tau1", 0.05),
+                ],
+            ),
+            0.2,
+            3.0,
+        );
+        let v = decide_singles(vec![relaxation.clone()], &floor, 0.0225);
+        assert_eq!(v.effect, "viscoelastic", "{}", v.reason);
+        let rms = Weighing {
+            measured_rms: 18.2,
+            ..weighing(0.0225)
+        };
+        let singles = vec![relaxation];
+        assert_eq!(decide(&singles, &singles, &floor, &rms).effect, "none");
+    }
+
     /// The default weighing with enough trials for pairs and paired gains.
     fn weighing(noise: f64) -> Weighing {
         Weighing {
@@ -1467,6 +1540,7 @@ mod tests {
             band: Nuisance::ALL,
             pairs_allowed: true,
             paired: true,
+            measured_rms: f64::INFINITY,
         }
     }
 

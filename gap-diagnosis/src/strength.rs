@@ -53,16 +53,35 @@ fn below_minimum(strength: &str, value: f64) -> Option<bool> {
 
 /// `effect`'s fitted strength in `params` is below what is worth naming (see the module), the
 /// diagnosis fitting the nuisances of `band`: a modulus scale is negligible inside the band
-/// the stiffness nuisance takes (with the nuisance off, only at exactly 1). An effect with
-/// several bounded strengths (the sensor's delay and low-pass) is negligible when all are.
-/// `mesh` has no strength and is never negligible; an effect whose bounded strengths are not
-/// all in `params` is not judged (false).
-pub fn negligible(effect: Effect, params: &[FittedParam], band: Nuisance) -> bool {
+/// the stiffness nuisance takes (with the nuisance off, only at exactly 1) while the
+/// candidate's response `level` ([`crate::fit::CandidateScore::level`], where known) stays
+/// inside the level's band too. An effect with several bounded strengths (the sensor's delay
+/// and low-pass) is negligible when all are. `mesh` has no strength and is never negligible;
+/// an effect whose bounded strengths are not all in `params` is not judged (false).
+pub fn negligible(
+    effect: Effect,
+    params: &[FittedParam],
+    band: Nuisance,
+    level: Option<f64>,
+) -> bool {
     let name = effect.name();
     if effect == Effect::Modulus {
-        // a scale inside the band is what the stiffness nuisance is for
+        // a scale at its range's end (×0.02 or ×5) is no tissue's: the replay fits at no
+        // scale, and the fit drives the force towards none. Once the floor's level was
+        // bounded, tilts whose presses miss a region read `modulus` ×0.02, which predicts
+        // next to no force and leaves more than the measured force's RMS.
+        if params
+            .iter()
+            .any(|p| p.effect == name && p.name == "modulus_scale" && p.at_bound)
+        {
+            return true;
+        }
+        // a scale inside the band is what the stiffness nuisance is for, unless the contact
+        // and material terms beside it take the response below what the floor may reach (a
+        // modulus ×0.81 beside a 10 µm/N layer is a level of ×0.57)
         return recovery::fitted_strength(params, name, "modulus_scale")
-            .is_some_and(|s| (band.lo..=band.hi).contains(&s));
+            .is_some_and(|s| (band.lo..=band.hi).contains(&s))
+            && level.is_none_or(|l| band.level_inside(l));
     }
     let mut judged = false;
     for &(strength, _) in recovery::strengths(name) {
@@ -81,9 +100,14 @@ pub fn negligible(effect: Effect, params: &[FittedParam], band: Nuisance) -> boo
 }
 
 /// Some effect of the `+`-joined `candidate` has a negligible fitted strength in `params`
-/// ([`negligible`]).
-pub fn any_negligible(candidate: &str, params: &[FittedParam], band: Nuisance) -> bool {
-    Effect::of_candidate(candidate).any(|e| negligible(e, params, band))
+/// at the response `level` ([`negligible`]).
+pub fn any_negligible(
+    candidate: &str,
+    params: &[FittedParam],
+    band: Nuisance,
+    level: Option<f64>,
+) -> bool {
+    Effect::of_candidate(candidate).any(|e| negligible(e, params, band, level))
 }
 
 #[cfg(test)]
@@ -110,19 +134,39 @@ mod tests {
             "viscoelastic",
             &[("prony_g1", 0.0169), ("prony_tau1", 0.05)],
         ));
-        assert!(!negligible(Effect::Hardening, &p, ALL));
-        assert!(negligible(Effect::Viscoelastic, &p, ALL));
-        assert!(any_negligible("hardening+viscoelastic", &p, ALL));
-        assert!(!any_negligible("hardening", &p, ALL));
+        assert!(!negligible(Effect::Hardening, &p, ALL, None));
+        assert!(negligible(Effect::Viscoelastic, &p, ALL, None));
+        assert!(any_negligible("hardening+viscoelastic", &p, ALL, None));
+        assert!(!any_negligible("hardening", &p, ALL, None));
     }
 
     #[test]
     fn a_modulus_inside_the_nuisance_band_is_negligible_outside_it_is_not() {
         let modulus = |s: f64| given("modulus", &[("modulus_scale", s)]);
-        assert!(negligible(Effect::Modulus, &modulus(1.2276), ALL));
-        assert!(negligible(Effect::Modulus, &modulus(0.81), ALL));
-        assert!(!negligible(Effect::Modulus, &modulus(1.3), ALL));
-        assert!(!negligible(Effect::Modulus, &modulus(0.7), ALL));
+        assert!(negligible(Effect::Modulus, &modulus(1.2276), ALL, None));
+        assert!(negligible(Effect::Modulus, &modulus(0.81), ALL, None));
+        assert!(!negligible(Effect::Modulus, &modulus(1.3), ALL, None));
+        assert!(!negligible(Effect::Modulus, &modulus(0.7), ALL, None));
+        // inside the scale's band behind a layer that takes the level out of its own: not
+        // negligible (the independent code's modulus ×0.55 at ×0.81 beside 10 µm/N)
+        assert!(!negligible(
+            Effect::Modulus,
+            &modulus(0.81),
+            ALL,
+            Some(0.57)
+        ));
+        assert!(negligible(Effect::Modulus, &modulus(0.81), ALL, Some(0.75)));
+    }
+
+    /// Regression: tilts whose presses miss a region (the independent code's (5°, −3°))
+    /// read `modulus` ×0.02, the range's end, once the floor's level was bounded.
+    #[test]
+    fn a_modulus_at_the_end_of_its_range_is_no_tissue_s() {
+        let mut p = given("modulus", &[("modulus_scale", 0.02)]);
+        assert!(!negligible(Effect::Modulus, &p, ALL, Some(0.01)));
+        p[0].at_bound = true;
+        assert!(negligible(Effect::Modulus, &p, ALL, Some(0.01)));
+        assert!(any_negligible("modulus+tilt", &p, ALL, Some(0.01)));
     }
 
     /// Regression: with the nuisance off, a stiffness offset of ×1.14 read `none`: its modulus
@@ -130,47 +174,63 @@ mod tests {
     #[test]
     fn without_the_nuisance_any_modulus_change_counts() {
         let modulus = |s: f64| given("modulus", &[("modulus_scale", s)]);
-        assert!(!negligible(Effect::Modulus, &modulus(1.14), Nuisance::OFF));
-        assert!(negligible(Effect::Modulus, &modulus(1.0), Nuisance::OFF));
+        assert!(!negligible(
+            Effect::Modulus,
+            &modulus(1.14),
+            Nuisance::OFF,
+            None
+        ));
+        assert!(negligible(
+            Effect::Modulus,
+            &modulus(1.0),
+            Nuisance::OFF,
+            None
+        ));
     }
 
     #[test]
     fn vectors_are_judged_by_their_length() {
         let tilt = given("tilt", &[("tilt_x", 0.8), ("tilt_y", 0.7)]);
-        assert!(!negligible(Effect::Tilt, &tilt, ALL), "1.06° together");
+        assert!(
+            !negligible(Effect::Tilt, &tilt, ALL, None),
+            "1.06° together"
+        );
         let tilt = given("tilt", &[("tilt_x", 0.6), ("tilt_y", 0.7)]);
-        assert!(negligible(Effect::Tilt, &tilt, ALL));
+        assert!(negligible(Effect::Tilt, &tilt, ALL, None));
         let bias = given(
             "device",
             &[("bias_x", 0.03), ("bias_y", -0.03), ("bias_z", 0.03)],
         );
-        assert!(!negligible(Effect::Device, &bias, ALL), "0.052 N together");
+        assert!(
+            !negligible(Effect::Device, &bias, ALL, None),
+            "0.052 N together"
+        );
         let bias = given(
             "device",
             &[("bias_x", 0.001), ("bias_y", 0.0), ("bias_z", -0.001)],
         );
-        assert!(negligible(Effect::Device, &bias, ALL));
+        assert!(negligible(Effect::Device, &bias, ALL, None));
     }
 
     #[test]
     fn a_sensor_counts_by_its_larger_time_and_a_mesh_never_is_negligible() {
         let s = given("sensor", &[("delay", 0.0), ("lowpass_tau", 0.0007)]);
-        assert!(negligible(Effect::Sensor, &s, ALL));
+        assert!(negligible(Effect::Sensor, &s, ALL, None));
         let s = given("sensor", &[("delay", 0.0), ("lowpass_tau", 0.02)]);
-        assert!(!negligible(Effect::Sensor, &s, ALL));
-        assert!(!negligible(Effect::Mesh, &[], ALL));
+        assert!(!negligible(Effect::Sensor, &s, ALL, None));
+        assert!(!negligible(Effect::Mesh, &[], ALL, None));
         // not fitted here: not judged
-        assert!(!negligible(Effect::Friction, &s, ALL));
+        assert!(!negligible(Effect::Friction, &s, ALL, None));
     }
 
     #[test]
     fn a_stiff_support_and_small_friction_are_negligible() {
         let p = given("support", &[("support_compliance", 5.2e-6)]);
-        assert!(negligible(Effect::Support, &p, ALL));
+        assert!(negligible(Effect::Support, &p, ALL, None));
         let p = given("support", &[("support_compliance", 7.5e-4)]);
-        assert!(!negligible(Effect::Support, &p, ALL));
+        assert!(!negligible(Effect::Support, &p, ALL, None));
         let mu = |m: f64| given("friction", &[("mu", m)]);
-        assert!(negligible(Effect::Friction, &mu(0.0017), ALL));
-        assert!(!negligible(Effect::Friction, &mu(0.18), ALL));
+        assert!(negligible(Effect::Friction, &mu(0.0017), ALL, None));
+        assert!(!negligible(Effect::Friction, &mu(0.18), ALL, None));
     }
 }

@@ -670,16 +670,28 @@ impl WeightedQuad {
     /// three of its eight half-spaces taken as equalities are solved (a 3–6 unknown KKT system;
     /// up to 93 sets), fewest first, until one's point is feasible with multipliers ≥ 0. A
     /// tiny ridge keeps a term the data barely see from making the systems singular.
+    ///
+    /// The level's two half-spaces rarely bind, so the six others are solved first and kept
+    /// where their minimum lies inside the level's band (adding constraints a minimum
+    /// satisfies leaves it the minimum): the 93 sets cost the fits 15–20% when always taken.
     fn minimum(&self, band: Nuisance) -> [f64; NUISANCE_DIMS] {
         let region = nuisance_region(band);
+        let x = self.minimum_over(&region[..6], band);
+        if within(&region[6..], &x) {
+            x
+        } else {
+            self.minimum_over(&region, band)
+        }
+    }
+    /// [`WeightedQuad::minimum`] over the half-spaces `region`.
+    fn minimum_over(
+        &self,
+        region: &[([f64; NUISANCE_DIMS], f64)],
+        band: Nuisance,
+    ) -> [f64; NUISANCE_DIMS] {
         let trace: f64 = (0..NUISANCE_DIMS).map(|i| self.aa[i][i].abs()).sum();
         let ridge = 1e-12 * trace.max(f64::MIN_POSITIVE);
-        let feasible = |x: &[f64; NUISANCE_DIMS]| {
-            region.iter().all(|(g, h)| {
-                let gx: f64 = (0..NUISANCE_DIMS).map(|i| g[i] * x[i]).sum();
-                gx <= h + 1e-9 * (1.0 + h.abs() + x[0].abs())
-            })
-        };
+        let feasible = |x: &[f64; NUISANCE_DIMS]| within(region, x);
         let mut best = ([band.lo, 0.0, 0.0], self.value([band.lo, 0.0, 0.0]));
         // fewest active half-spaces first: the first feasible point whose multipliers are all
         // ≥ 0 satisfies the KKT conditions and is the minimum (the problem is convex); the
@@ -735,6 +747,14 @@ impl WeightedQuad {
         }
         best.0
     }
+}
+
+/// `x` lies in every half-space of `region` (to rounding).
+fn within(region: &[([f64; NUISANCE_DIMS], f64)], x: &[f64; NUISANCE_DIMS]) -> bool {
+    region.iter().all(|(g, h)| {
+        let gx: f64 = (0..NUISANCE_DIMS).map(|i| g[i] * x[i]).sum();
+        gx <= h + 1e-9 * (1.0 + h.abs() + x[0].abs())
+    })
 }
 
 /// Solves the n×n system in the augmented matrix `m` (column n the right-hand side) by

@@ -981,8 +981,11 @@ fn decide(
     // (e): every effect it names at a strength worth naming ([`strength`]); (f): it leaves
     // less than the measured force itself held out. Where the replay does not reproduce the
     // experiment (a tilt whose presses miss a region and press others 100 N deep), an effect
-    // that only lowers every force (a Prony g1 of 0.9 relaxing in 50 ms) beat the floor and
-    // was named while predicting no better than no force at all.
+    // that only lowers every force (a modulus ×0.02, a Prony g1 of 0.9 relaxing in 50 ms)
+    // beat the floor and was named while predicting no better than no force at all. A
+    // modulus at its range's end is not refused as such: a table pressed on a scene 50×
+    // too stiff reads `modulus` ×0.02 and leaves 0.57 N of 2.7 N, and calibration takes it
+    // from there ("A probe that crushes the tissue to its far face").
     let identified = |c: &CandidateScore| {
         c.heldout_rmse < measured_rms
             && c.floor_shrink >= min_shrink

@@ -66,16 +66,6 @@ pub fn negligible(
 ) -> bool {
     let name = effect.name();
     if effect == Effect::Modulus {
-        // a scale at its range's end (×0.02 or ×5) is no tissue's: the replay fits at no
-        // scale, and the fit drives the force towards none. Once the floor's level was
-        // bounded, tilts whose presses miss a region read `modulus` ×0.02, which predicts
-        // next to no force and leaves more than the measured force's RMS.
-        if params
-            .iter()
-            .any(|p| p.effect == name && p.name == "modulus_scale" && p.at_bound)
-        {
-            return true;
-        }
         // a scale inside the band is what the stiffness nuisance is for, unless the contact
         // and material terms beside it take the response below what the floor may reach (a
         // modulus ×0.81 beside a 10 µm/N layer is a level of ×0.57)
@@ -156,36 +146,6 @@ mod tests {
             Some(0.57)
         ));
         assert!(negligible(Effect::Modulus, &modulus(0.81), ALL, Some(0.75)));
-    }
-
-    /// Regression: tilts whose presses miss a region (the independent code's (5°, −3°))
-    /// read `modulus` ×0.02, the range's end, once the floor's level was bounded.
-    #[test]
-    fn a_modulus_at_the_end_of_its_range_is_no_tissue_s() {
-        let mut p = given("modulus", &[("modulus_scale", 0.02)]);
-        assert!(!negligible(Effect::Modulus, &p, ALL, Some(0.01)));
-        p[0].at_bound = true;
-        assert!(negligible(Effect::Modulus, &p, ALL, Some(0.01)));
-        assert!(any_negligible("modulus+tilt", &p, ALL, Some(0.01)));
-    }
-
-    /// Regression: with the nuisance off, a stiffness offset of ×1.14 read `none`: its modulus
-    /// was judged against a band no fit had taken up (`gap_stats`).
-    #[test]
-    fn without_the_nuisance_any_modulus_change_counts() {
-        let modulus = |s: f64| given("modulus", &[("modulus_scale", s)]);
-        assert!(!negligible(
-            Effect::Modulus,
-            &modulus(1.14),
-            Nuisance::OFF,
-            None
-        ));
-        assert!(negligible(
-            Effect::Modulus,
-            &modulus(1.0),
-            Nuisance::OFF,
-            None
-        ));
     }
 
     #[test]

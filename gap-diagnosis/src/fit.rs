@@ -221,10 +221,10 @@ pub const NUISANCE_MAX: f64 = 1.25;
 /// (0.70…1.44).
 ///
 /// Why a level band beside the scale's: the contact term lowers the deepest forces by up to
-/// a third, so the scale at its low end with the layer at its knot reached ×0.52–0.57 of the
-/// baseline's level on the independent code's softer tissues (its modulus ×0.55 and a
-/// grade-2 ×0.59), and no softer tissue could beat the floor: both read `none` (README,
-/// "A level band for the nuisances"). An unrelated offset (±15%) behind a discretisation's
+/// 40% on the study mesh, so the scale low in its band with the layer at its knot reached
+/// ×0.49–0.55 of the baseline's level on the independent code's softer tissues (its modulus
+/// ×0.55 and a grade-2 ×0.59), and no softer tissue could beat the floor: both read `none`
+/// (README, "A level band for the nuisances"). An unrelated offset (±15%) behind a discretisation's
 /// softer contact (the same-mesh truth's 4 µm/N layer lowers the level ~15%) stays inside.
 /// Bounding the level alone, at the scale's own band, lost effects whose truth had both ("A
 /// contact nuisance beside it"); here the scale keeps its band and the level only has a floor
@@ -303,7 +303,7 @@ pub struct Nuisance {
     /// ([`Nuisance::level`], [`LEVEL_MAX`]); binds only where the scale is fitted.
     pub level_max: f64,
     /// The contact knot's relative change of the baseline's normal force over the trials
-    /// (about −0.3; [`Nuisance::for_data`]), 0 until the data are known.
+    /// (about −0.4 on the study mesh; [`Nuisance::for_data`]), 0 until the data are known.
     pub contact_rho: f64,
     /// The material knot's, likewise.
     pub material_rho: f64,
@@ -636,11 +636,15 @@ struct WeightedQuad {
     ac: [f64; NUISANCE_DIMS],
 }
 
+/// Half-spaces of the nuisances' region before the level's two ([`nuisance_region`]): each
+/// term's two bounds.
+const BAND_HALF_SPACES: usize = 2 * NUISANCE_DIMS;
+
 /// The nuisances' region as half-spaces g·x ≤ h: the scale in its band, 0 ≤ u ≤
 /// `contact_max`·s and 0 ≤ v ≤ `material_max`·s (u and v are s × the weights), and the level
 /// s + ρ_c·u + ρ_m·v in its band ([`Nuisance::level`]). A term that is off has both of its
 /// weight's bounds at 0; a held scale both of its own at `lo`.
-fn nuisance_region(band: Nuisance) -> [([f64; NUISANCE_DIMS], f64); 8] {
+fn nuisance_region(band: Nuisance) -> [([f64; NUISANCE_DIMS], f64); BAND_HALF_SPACES + 2] {
     // the level s + ρ_c·u + ρ_m·v is linear in the coordinates too; where the scale is held
     // its rows are empty (0 ≤ 0: never violated, singular when taken as active)
     let (level, hi) = if band.stiffness_fitted() {
@@ -676,8 +680,8 @@ impl WeightedQuad {
     /// satisfies leaves it the minimum): the 93 sets cost the fits 15–20% when always taken.
     fn minimum(&self, band: Nuisance) -> [f64; NUISANCE_DIMS] {
         let region = nuisance_region(band);
-        let x = self.minimum_over(&region[..6], band);
-        if within(&region[6..], &x) {
+        let x = self.minimum_over(&region[..BAND_HALF_SPACES], band);
+        if within(&region[BAND_HALF_SPACES..], &x) {
             x
         } else {
             self.minimum_over(&region, band)

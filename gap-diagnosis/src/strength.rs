@@ -148,6 +148,25 @@ mod tests {
         assert!(negligible(Effect::Modulus, &modulus(0.81), ALL, Some(0.75)));
     }
 
+    /// Regression: with the nuisance off, a stiffness offset of ×1.14 read `none`: its modulus
+    /// was judged against a band no fit had taken up (`gap_stats`).
+    #[test]
+    fn without_the_nuisance_any_modulus_change_counts() {
+        let modulus = |s: f64| given("modulus", &[("modulus_scale", s)]);
+        assert!(!negligible(
+            Effect::Modulus,
+            &modulus(1.14),
+            Nuisance::OFF,
+            None
+        ));
+        assert!(negligible(
+            Effect::Modulus,
+            &modulus(1.0),
+            Nuisance::OFF,
+            None
+        ));
+    }
+
     #[test]
     fn vectors_are_judged_by_their_length() {
         let tilt = given("tilt", &[("tilt_x", 0.8), ("tilt_y", 0.7)]);

@@ -1429,7 +1429,7 @@ pub fn score_candidate(
     let heldout_rmse = held.rmse();
     let heldout_weighted_rmse = held.weighted_rmse();
     let se = uncertainty(c, &theta, fitted, data, &free);
-    let params = c
+    let params: Vec<FittedParam> = c
         .params()
         .into_iter()
         .zip(theta.iter().zip(&se))
@@ -1455,6 +1455,7 @@ pub fn score_candidate(
         / data.len().max(1) as f64;
     let ne = effective_n(held.total().1);
     let score = held.log_mse_sum(ne) + (k + extra) as f64 * ne.ln();
+    let level = level_of(&params, fitted, nuisance);
     CandidateScore {
         effect: if c.0.is_empty() {
             "none".into()
@@ -1477,7 +1478,7 @@ pub fn score_candidate(
             .contact_fitted()
             .then_some(fitted.contact_compliance()),
         material_weight: nuisance.material_fitted().then_some(fitted.material),
-        level: level_of(c, &theta, fitted, nuisance),
+        level,
         floor_shrink: 0.0,
         floor_gain_z: 0.0,
         stiffness_gain_z: None,
@@ -1486,20 +1487,12 @@ pub fn score_candidate(
     }
 }
 
-/// The level of `c` at `theta` and the nuisances `fitted` ([`CandidateScore::level`]).
-fn level_of(c: &Candidate, theta: &[f64], fitted: NuisanceFit, band: Nuisance) -> Option<f64> {
+/// The level at the fitted `params` and nuisances `fitted` ([`CandidateScore::level`]).
+fn level_of(params: &[FittedParam], fitted: NuisanceFit, band: Nuisance) -> Option<f64> {
     let stiffness = if band.stiffness_fitted() {
         fitted.stiffness
     } else {
-        let mut k = 0;
-        let mut own = None;
-        for &e in &c.0 {
-            if e == Effect::Modulus {
-                own = theta.get(k).copied();
-            }
-            k += e.params().len();
-        }
-        own?
+        crate::recovery::fitted_strength(params, Effect::Modulus.name(), "modulus_scale")?
     };
     Some(band.level(NuisanceFit {
         stiffness,
@@ -1610,14 +1603,11 @@ mod tests {
         assert!(!at_bound(&scale, f64::NAN));
     }
 
-    /// Both nuisances profiled together recover a scale and a contact weight inside their
-    /// bands, stop at the contact band's edge beyond it, and the contact term stays at 0 when
-    /// it is off or the data cannot see it (a knot equal to the baseline). The scale's band
-    /// holds beside the contact term.
-    #[test]
-    fn the_contact_nuisance_profile_finds_the_weight_with_the_scale() {
-        // per sample: the baseline m and the knot's change to it d (a series compliance takes
-        // most off the largest forces)
+    /// Residual sums of a truth `s_true` × (baseline + `w_true` × the knot's change) against
+    /// the baseline and, where `visible`, the knot's change: the baseline m and the change d
+    /// per sample (a series compliance takes most off the largest forces; Σd/Σm = −0.3 along
+    /// the normal), a last sample out of contact.
+    fn contact_quad(s_true: f64, w_true: f64, visible: bool) -> PhaseQuad {
         let samples = [
             ([0.0, 0.0, 2.0], [0.0, 0.0, -0.1]),
             ([0.1, 0.0, 5.0], [0.0, 0.0, -0.9]),
@@ -1625,22 +1615,29 @@ mod tests {
             ([0.0, 0.3, 12.0], [0.0, -0.1, -4.6]),
             ([0.0, 0.0, 0.0], [0.0, 0.0, 0.0]),
         ];
-        let quad_for = |s_true: f64, w_true: f64, visible: bool| {
-            let mut q = PhaseQuad::default();
-            for (i, (m, d)) in samples.iter().enumerate() {
-                let group = if i == 4 {
-                    VarGroup::Free
-                } else if i % 2 == 0 {
-                    VarGroup::Hold
-                } else {
-                    VarGroup::Loading
-                };
-                let truth: [f64; 3] = std::array::from_fn(|k| s_true * (m[k] + w_true * d[k]));
-                let b = if visible { *d } else { [0.0; 3] };
-                q.push(group, [*m, b, [0.0; 3]], truth.map(|v| -v));
-            }
-            q
-        };
+        let mut q = PhaseQuad::default();
+        for (i, (m, d)) in samples.iter().enumerate() {
+            let group = if i == 4 {
+                VarGroup::Free
+            } else if i % 2 == 0 {
+                VarGroup::Hold
+            } else {
+                VarGroup::Loading
+            };
+            let truth: [f64; 3] = std::array::from_fn(|k| s_true * (m[k] + w_true * d[k]));
+            let b = if visible { *d } else { [0.0; 3] };
+            q.push(group, [*m, b, [0.0; 3]], truth.map(|v| -v));
+        }
+        q
+    }
+
+    /// Both nuisances profiled together recover a scale and a contact weight inside their
+    /// bands, stop at the contact band's edge beyond it, and the contact term stays at 0 when
+    /// it is off or the data cannot see it (a knot equal to the baseline). The scale's band
+    /// holds beside the contact term.
+    #[test]
+    fn the_contact_nuisance_profile_finds_the_weight_with_the_scale() {
+        let quad_for = contact_quad;
         let (f, acc) = quad_for(1.1, 0.45, true).profile(Nuisance::STIFFNESS_AND_CONTACT);
         assert!((f.stiffness - 1.1).abs() < 1e-3, "{f:?}");
         assert!((f.contact - 0.45).abs() < 1e-3, "{f:?}");
@@ -1676,21 +1673,7 @@ mod tests {
     #[test]
     fn a_softer_tissue_than_the_level_band_is_not_taken_by_the_nuisances() {
         // the knot takes 30% off the normal force: ρ_c = −8.4 / 28
-        let samples = [
-            ([0.0, 0.0, 2.0], [0.0, 0.0, -0.1]),
-            ([0.1, 0.0, 5.0], [0.0, 0.0, -0.9]),
-            ([0.0, -0.2, 9.0], [0.0, 0.05, -2.8]),
-            ([0.0, 0.3, 12.0], [0.0, -0.1, -4.6]),
-        ];
-        let quad_for = |s_true: f64, w_true: f64| {
-            let mut q = PhaseQuad::default();
-            for (i, (m, d)) in samples.iter().enumerate() {
-                let group = [VarGroup::Hold, VarGroup::Loading][i % 2];
-                let truth: [f64; 3] = std::array::from_fn(|k| s_true * (m[k] + w_true * d[k]));
-                q.push(group, [*m, *d, [0.0; 3]], truth.map(|v| -v));
-            }
-            q
-        };
+        let quad_for = |s_true: f64, w_true: f64| contact_quad(s_true, w_true, true);
         let band = Nuisance {
             contact_rho: -0.3,
             ..Nuisance::STIFFNESS_AND_CONTACT

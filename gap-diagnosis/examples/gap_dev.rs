@@ -243,13 +243,21 @@ fn rediagnose_kept_cases(root: &Path) -> anyhow::Result<()> {
             eprintln!("    recovery {g}");
         }
         eprintln!(
-            "    verdict params: {}",
+            "    verdict params: {} (level {})",
             r.verdict
                 .params
                 .iter()
                 .map(|p| format!("{}={:.4e}", p.name, p.value))
                 .collect::<Vec<_>>()
-                .join(" ")
+                .join(" "),
+            r.verdict
+                .level
+                .map_or("none".to_string(), |l| format!("{l:.4}"))
+                + &r.heldout
+                    .measured_level
+                    .zip(r.heldout.measured_level_se)
+                    .map(|(l, se)| format!(", measured {l:.4} ± {se:.4}"))
+                    .unwrap_or_default()
         );
         // GAP_DEV_TOP=N: how many ranked candidates to print (10)
         let top = std::env::var("GAP_DEV_TOP")
@@ -272,7 +280,11 @@ fn rediagnose_kept_cases(root: &Path) -> anyhow::Result<()> {
                     .unwrap_or_default()
                     + &c.nuisance_scale
                         .map(|s| format!(" nu {s:.3}"))
-                        .unwrap_or_default(),
+                        .unwrap_or_default()
+                    + &c.contact_compliance
+                        .map(|w| format!(" cc {:.1}", 1e6 * w))
+                        .unwrap_or_default()
+                    + &c.level.map(|l| format!(" lvl {l:.3}")).unwrap_or_default(),
                 c.params
                     .iter()
                     .map(|p| format!("{}={:.4e}", p.name, p.value))

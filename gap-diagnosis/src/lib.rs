@@ -48,6 +48,7 @@ pub mod experiment;
 pub mod fd;
 pub mod fit;
 pub mod html;
+pub mod level;
 pub mod metrics;
 pub mod model;
 pub mod reality;
@@ -295,6 +296,14 @@ pub struct Heldout {
     /// ([`fit::LEVEL_MAX`]). Absent when the nuisance is off.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub level: Option<f64>,
+    /// The measured normal force over the replay's where the replay presses, pooled over the
+    /// trials ([`level::data_level`]): the response level the data show, with no model.
+    /// Absent with fewer than [`level::MIN_LEVEL_TRIALS`] trials in contact.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub measured_level: Option<f64>,
+    /// Its between-trial standard error (delete-one jackknife).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub measured_level_se: Option<f64>,
     /// The nuisance floor: held-out RMSE of the baseline with the nuisance fitted per fold, N.
     /// An effect must shrink this, significantly, to be named.
     #[serde(default)]
@@ -700,6 +709,7 @@ pub fn diagnose_data(
     ranking.sort_by(|a, b| a.score.total_cmp(&b.score));
     beside_modulus_gains(&mut ranking, data);
 
+    let measured_level = level::data_level(data);
     // two effects need several independent trials to be told apart (not one table)
     let mut verdict = decide(
         &singles,
@@ -712,6 +722,7 @@ pub fn diagnose_data(
             pairs_allowed: data.len() >= 3,
             paired: data.len() >= separability::MIN_TRIALS,
             measured_rms: measured_rms(data),
+            level: measured_level,
         },
     );
     if let Some(set) = separability::indistinguishable(&verdict.effect, &ranking, data) {
@@ -755,6 +766,8 @@ pub fn diagnose_data(
         contact_compliance: floor.contact_compliance,
         material_weight: floor.material_weight,
         level: floor.level,
+        measured_level: measured_level.map(|l| l.ratio),
+        measured_level_se: measured_level.map(|l| l.se),
         nuisance_rmse: floor.heldout_rmse,
         shrink_over_nuisance: winner
             .map(|w| shrink(w.heldout_rmse, floor.heldout_rmse))
@@ -904,6 +917,9 @@ struct Weighing {
     /// The measured force's RMS over every sample and axis, N ([`measured_rms`]): a model
     /// that leaves as much held out does no better than predicting no force, and names nothing.
     measured_rms: f64,
+    /// The measured response's level against the replay's, trial by trial
+    /// ([`level::data_level`]; None with too few trials).
+    level: Option<level::DataLevel>,
 }
 
 /// The verdict: the best-ranked candidate if it beats the nuisance floor (the baseline with
@@ -927,6 +943,16 @@ struct Weighing {
 /// floor a persistent stiffness offset, which every model has against a real specimen, was
 /// read as `support` or `modulus`.
 ///
+/// (g) Where nothing is identified, a `modulus` is named when the measured response's level
+/// lies beyond the nuisances' level band by [`separability::SEPARATION_SE`] of its
+/// between-trial error ([`level::DataLevel::beyond`]), its own fitted level lies beyond it on
+/// that side, and it passes (b), (c), (e) and (f) with any positive gain for (a) and (d): the
+/// floor stops at the band's bound, so what is left for the modulus to remove is the level
+/// beyond it, small beside a model error that differs from trial to trial, while every
+/// trial reads the level. The independent P2 code's modulus ×1.7 case read `none` with the
+/// modulus 36% over the floor at 1.8 SE; its measured level is ×1.77 ± 0.11, 2.9 SE beyond
+/// ×1.44, and the modulus fits ×1.71 (README, "A level beyond the nuisances' reach").
+///
 /// The held-out likelihood ratio (c) is the significance over all samples; (d) guards it
 /// against a gain carried by the largest trials' model error.
 ///
@@ -947,19 +973,13 @@ fn decide(
         pairs_allowed,
         paired,
         measured_rms,
+        level,
     } = *weighing;
     let none = |reason: String| Verdict {
         effect: "none".into(),
         heldout_shrink: 0.0,
         params: vec![],
-        reason,
-        indistinguishable: Vec::new(),
-        separate_by: Vec::new(),
-        nuisance_scale: None,
-        contact_compliance: None,
-        material_weight: None,
-        level: None,
-        residual_fraction: 0.0,
+        ..named(floor, reason)
     };
     let nuisance_note = nuisance_note(floor);
     let r0 = floor.heldout_rmse;
@@ -1029,11 +1049,9 @@ fn decide(
             identified(pair) && gain_over_best(pair) > RICHER_GAIN && pair.score < best.score
         });
         if let Some(pair) = passing.filter(|_| pairs_allowed) {
-            return Verdict {
-                effect: pair.effect.clone(),
-                heldout_shrink: pair.heldout_shrink,
-                params: pair.params.clone(),
-                reason: format!(
+            return named(
+                pair,
+                format!(
                     "no single effect shrinks the held-out RMSE clearly (best {}: {}); \
                      the pair {} does: {:.4} → {:.4} N ({})",
                     best.effect,
@@ -1043,19 +1061,69 @@ fn decide(
                     pair.heldout_rmse,
                     evidence(pair)
                 ),
-                indistinguishable: Vec::new(),
-                separate_by: Vec::new(),
-                nuisance_scale: None,
-                contact_compliance: None,
-                material_weight: None,
-                level: None,
-                residual_fraction: 0.0,
-            };
+            );
+        }
+        // (g) a response level beyond the nuisances' reach, read trial by trial: a modulus
+        // there needs only to gain on the floor, in every other respect as identified. The
+        // grade-2 case of the P2 code (×0.59) measures ×0.580 ± 0.065, 1.8 SE under ×0.696:
+        // the trials disagree too much for it, and it still reads `none`.
+        // Only a modulus: the other candidates' levels are the nuisances', inside the band.
+        let beyond = level
+            .filter(|_| band.stiffness_fitted())
+            .and_then(|l| l.beyond(band).map(|side| (l, side)));
+        let reaching = beyond.and_then(|(l, side)| {
+            let found = singles.iter().find(|c| {
+                c.effect == Effect::Modulus.name()
+                    && c.level.is_some_and(|v| side.holds(v, band))
+                    && c.heldout_rmse < measured_rms
+                    && c.floor_shrink > 0.0
+                    && c.floor_gain_z > 0.0
+                    && c.bic - floor.bic <= -STRONG_EVIDENCE
+                    && c.score - floor.score <= -STRONG_EVIDENCE
+                    && !strength::any_negligible(&c.effect, &c.params, band, c.level)
+            });
+            found.map(|c| (l, c))
+        });
+        if let Some((l, c)) = reaching {
+            return named(
+                c,
+                format!(
+                    "the measured response lies at ×{:.3} ± {:.3} of the replay's over {} \
+                     trials, {:.1} SE beyond what the nuisances may take (×{:.3}–×{:.3}), and \
+                     {} reaches it (×{:.3}): {:.4} → {:.4} N ({}){}",
+                    l.ratio,
+                    l.se,
+                    l.trials,
+                    l.beyond_se(band),
+                    1.0 / band.level_max,
+                    band.level_max,
+                    c.effect,
+                    c.level.unwrap_or(f64::NAN),
+                    r0,
+                    c.heldout_rmse,
+                    evidence(c),
+                    if std::ptr::eq(c, best) {
+                        String::new()
+                    } else {
+                        format!(
+                            "; the best-scored single, {}: {}",
+                            best.effect,
+                            evidence(best)
+                        )
+                    }
+                ),
+            );
         }
         return none(format!(
-            "best candidate {} does not beat the nuisance floor {r0:.4} N: {}",
+            "best candidate {} does not beat the nuisance floor {r0:.4} N: {}{}",
             best.effect,
-            evidence(best)
+            evidence(best),
+            level
+                .map(|l| format!(
+                    "; the measured response lies at ×{:.3} ± {:.3} of the replay's",
+                    l.ratio, l.se
+                ))
+                .unwrap_or_default()
         ));
     }
     let mut win = best;
@@ -1127,10 +1195,16 @@ fn decide(
             win = simpler;
         }
     }
+    named(win, reason)
+}
+
+/// The verdict naming `c` for `reason`; the nuisances, the level and the residual fraction are
+/// set after [`decide`], from the winner's fit.
+fn named(c: &CandidateScore, reason: String) -> Verdict {
     Verdict {
-        effect: win.effect.clone(),
-        heldout_shrink: win.heldout_shrink,
-        params: win.params.clone(),
+        effect: c.effect.clone(),
+        heldout_shrink: c.heldout_shrink,
+        params: c.params.clone(),
         reason,
         indistinguishable: Vec::new(),
         separate_by: Vec::new(),
@@ -1535,6 +1609,75 @@ mod tests {
         assert_eq!(decide(&singles, &singles, &floor, &rms).effect, "none");
     }
 
+    /// Regression: the independent P2 code's modulus ×1.7 case read `none`: the floor stopped
+    /// at the level band's ×1.44, and the modulus (×1.71 in level) removed 36% more held out
+    /// at 1.8 SE, the trials' model error differing too much for 2. Its trials measure the
+    /// level at ×1.77 ± 0.11, 2.9 SE beyond the band.
+    #[test]
+    fn a_stiffer_tissue_than_the_level_band_is_named_from_the_measured_level() {
+        let floor = scored("none", 9.6903, 1.0, 0.0);
+        let modulus_at = |level: f64| {
+            let mut c = against(
+                fitted(
+                    scored("modulus", 6.1696, 0.8, 3420.0),
+                    &[("modulus", "modulus_scale", 2.645)],
+                ),
+                0.363,
+                1.8,
+            );
+            c.level = Some(level);
+            c
+        };
+        let measured = |ratio: f64, se: f64| Weighing {
+            level: Some(level::DataLevel {
+                ratio,
+                se,
+                trials: 15,
+            }),
+            ..weighing(0.0283)
+        };
+        let decide_with = |c: CandidateScore, w: &Weighing| {
+            let singles = vec![c];
+            decide(&singles, &singles, &floor, w)
+        };
+        assert_eq!(
+            decide_singles(vec![modulus_at(1.711)], &floor, 0.0283).effect,
+            "none"
+        );
+        let v = decide_with(modulus_at(1.711), &measured(1.769, 0.113));
+        assert_eq!(v.effect, "modulus", "{}", v.reason);
+        assert!(v.reason.contains("2.9 SE beyond"), "{}", v.reason);
+        // the trials disagree too much (1.9 SE), or the modulus stays inside the band
+        assert_eq!(
+            decide_with(modulus_at(1.711), &measured(1.769, 0.175)).effect,
+            "none"
+        );
+        assert_eq!(
+            decide_with(modulus_at(1.3), &measured(1.769, 0.113)).effect,
+            "none"
+        );
+        // beyond on the other side: a softer level says nothing for a stiffer modulus
+        assert_eq!(
+            decide_with(modulus_at(1.711), &measured(0.4, 0.05)).effect,
+            "none"
+        );
+        // with the nuisances off there is no band for the level to lie beyond
+        let off = Weighing {
+            band: Nuisance::OFF,
+            ..measured(1.769, 0.113)
+        };
+        assert_eq!(decide_with(modulus_at(1.711), &off).effect, "none");
+        // (f) still holds, and a modulus that does worse than the floor trial by trial is not
+        // named
+        let no_force = Weighing {
+            measured_rms: 6.0,
+            ..measured(1.769, 0.113)
+        };
+        assert_eq!(decide_with(modulus_at(1.711), &no_force).effect, "none");
+        let losing = against(modulus_at(1.711), 0.363, -0.5);
+        assert_eq!(decide_with(losing, &measured(1.769, 0.113)).effect, "none");
+    }
+
     /// The default weighing with enough trials for pairs and paired gains.
     fn weighing(noise: f64) -> Weighing {
         Weighing {
@@ -1544,6 +1687,7 @@ mod tests {
             pairs_allowed: true,
             paired: true,
             measured_rms: f64::INFINITY,
+            level: None,
         }
     }
 

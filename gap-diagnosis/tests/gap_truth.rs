@@ -25,7 +25,14 @@ use gap_diagnosis::{Region, SimForceModel};
 /// pair.
 const CASES: [&str; 5] = ["none", "modulus", "friction", "support", "modulus+sensor"];
 
-/// What the diagnosis reaches on these cases (README): 2 of 5 right since an effect that
+/// What the diagnosis reaches on these cases (README): 3 of 5 right since a modulus is named
+/// where the trials measure a level beyond the nuisances' reach (README, "A level beyond the
+/// nuisances' reach"): none, modulus (its trials measure ×1.975 ± 0.132 of the replay's, 4.1
+/// SE over the band's ×1.44, the modulus ×1.93 in level) and modulus+sensor; friction read as
+/// hardening+friction, support as modulus; mean held-out shrink 65.2%. Before, 2 of 5 since
+/// the nuisances' level has a band (README, "A level band for the nuisances"), 50.1%: none
+/// and modulus+sensor right, support read as `modulus`, the modulus case `none`. Before that,
+/// 2 of 5 since an effect that
 /// changes every probing must gain trial by trial (none and support; modulus read as none,
 /// friction as hardening+friction, modulus+sensor as sensor), mean held-out shrink 50.3%
 /// (README, "A gain that holds trial by trial"). The modulus case's gain over the floor, 51%
@@ -45,11 +52,9 @@ const CASES: [&str; 5] = ["none", "modulus", "friction", "support", "modulus+sen
 /// (none, friction, support), 67.7%: the levelled refined truth is a tissue 2.7× stiffer in
 /// modulus behind a contact 2.7× softer than the replay's, beyond both nuisances' bands, and
 /// `hardening` (a scale without a band) fits it best (README, "A contact nuisance beside
-/// it"). (Before the truth was levelled with the replay, 1 of 5.) Since the nuisances' level
-/// has a band (README, "A level band for the nuisances"): 2 of 5, 50.1%, none and
-/// modulus+sensor right, support read as `modulus`.
-const CORRECT_REACHED: usize = 2;
-const SHRINK_REACHED: f64 = 0.5;
+/// it"). (Before the truth was levelled with the replay, 1 of 5.)
+const CORRECT_REACHED: usize = 3;
+const SHRINK_REACHED: f64 = 0.6;
 
 /// The refined truth's mean normal force over the replay's, no effect: measured ×0.331 with its
 /// penalty contact and its boundary midpoints on the smooth surface (×0.366 on the facets,
@@ -79,7 +84,7 @@ fn selftest_on_a_refined_truth() {
     );
     assert!(
         s.heldout_shrink_mean >= SHRINK_REACHED,
-        "mean held-out shrink {:.3} (reached 0.501)",
+        "mean held-out shrink {:.3} (reached 0.652)",
         s.heldout_shrink_mean
     );
     // Every effect named right is graded on its strengths (`gap_diagnosis::recovery`): the

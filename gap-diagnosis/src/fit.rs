@@ -387,9 +387,14 @@ impl Nuisance {
     pub fn level(self, f: NuisanceFit) -> f64 {
         f.stiffness * (1.0 + self.contact_rho * f.contact + self.material_rho * f.material)
     }
-    /// `level` lies inside the level's band ([`LEVEL_MAX`]).
+    /// The level's band, [1/`level_max`, `level_max`] ([`LEVEL_MAX`]).
+    pub fn level_band(self) -> (f64, f64) {
+        (1.0 / self.level_max, self.level_max)
+    }
+    /// `level` lies inside the level's band ([`Nuisance::level_band`]).
     pub fn level_inside(self, level: f64) -> bool {
-        (1.0 / self.level_max..=self.level_max).contains(&level)
+        let (lo, hi) = self.level_band();
+        (lo..=hi).contains(&level)
     }
     /// The stiffness scale is a free parameter.
     pub fn stiffness_fitted(self) -> bool {

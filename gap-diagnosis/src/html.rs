@@ -504,15 +504,14 @@ fn other_nuisances(r: &Report) -> String {
         );
     }
     if let (Some(l), Some(se)) = (r.heldout.measured_level, r.heldout.measured_level_se) {
-        let max = crate::fit::LEVEL_MAX;
+        let (lo, hi) = crate::fit::Nuisance::ALL.level_band();
         let _ = write!(
             h,
             "<p><b>Measured level.</b> The measured normal force over the replay's where the \
              replay presses, pooled over the trials: <b>×{l:.3} ± {se:.3}</b> (between-trial \
-             standard error), against the ×{:.3}–×{max:.3} the nuisances may take together. A \
+             standard error), against the ×{lo:.3}–×{hi:.3} the nuisances may take together. A \
              level beyond that by two standard errors is a stiffness no nuisance explains, and \
-             names <code>modulus</code> where it reaches it.</p>",
-            1.0 / max
+             names <code>modulus</code> where it reaches it.</p>"
         );
     }
     h

@@ -4,13 +4,15 @@
 //! The nuisances' level band ([`crate::fit::LEVEL_MAX`]) lets the floor take a persistent
 //! offset of the response. Where the measured level lies beyond it, the floor stops at the
 //! band's bound, and what is left of the level is small beside the model error of a replay
-//! that is not the specimen: on the independent P2 code's grade-2 case (modulus ×0.59) the
-//! floor stopped at ×0.696, the modulus fitted ×0.564, and the modulus removed only 5.6% more
-//! of the held-out residual, 1.7 SE trial by trial, so the case read `none`. The level itself
-//! is read far more precisely than that residual: every trial gives it, and they agree.
+//! that is not the specimen: on the independent P2 code's modulus ×1.7 case the floor stopped
+//! at ×1.44, and the modulus (×1.71 in level) removed 36% more of the held-out residual at
+//! only 1.8 SE trial by trial, so the case read `none`. Every trial reads the level, and there
+//! they agree: ×1.769 ± 0.113, 2.9 SE beyond the band (rule (g) of `decide`). Where they do
+//! not agree, no level is beyond: the grade-2 case (×0.59) measures ×0.580 ± 0.065.
 use crate::dataset::TrialData;
 use crate::fit::Nuisance;
 use crate::separability::SEPARATION_SE;
+use crate::signal::dot;
 
 /// The measured normal force over the replay's where the replay presses, pooled over the
 /// trials, with its between-trial standard error.
@@ -40,10 +42,9 @@ pub fn data_level(data: &[TrialData]) -> Option<DataLevel> {
     let sums: Vec<(f64, f64)> = data
         .iter()
         .map(|d| {
-            let dot = |v: [f64; 3]| v[0] * d.normal[0] + v[1] * d.normal[1] + v[2] * d.normal[2];
             d.f.iter()
                 .zip(&d.base_at_t)
-                .map(|(&f, &b)| (dot(f), dot(b)))
+                .map(|(&f, &b)| (dot(f, d.normal), dot(b, d.normal)))
                 .filter(|&(_, b)| b != 0.0)
                 .fold((0.0, 0.0), |(m, r), (f, b)| (m + f, r + b))
         })
@@ -75,7 +76,7 @@ impl DataLevel {
     /// The side of `band`'s level band ([`Nuisance::level_inside`]) this level lies beyond
     /// by at least [`SEPARATION_SE`] of its error; None where it may lie inside.
     pub fn beyond(&self, band: Nuisance) -> Option<Beyond> {
-        let (lo, hi) = (1.0 / band.level_max, band.level_max);
+        let (lo, hi) = band.level_band();
         let margin = SEPARATION_SE * self.se;
         if self.ratio + margin <= lo {
             Some(Beyond::Below)
@@ -87,7 +88,7 @@ impl DataLevel {
     }
     /// How many of its errors this level lies beyond `band`'s level band (0 inside).
     pub fn beyond_se(&self, band: Nuisance) -> f64 {
-        let (lo, hi) = (1.0 / band.level_max, band.level_max);
+        let (lo, hi) = band.level_band();
         let out = (lo - self.ratio).max(self.ratio - hi).max(0.0);
         if self.se > 0.0 {
             out / self.se
@@ -103,8 +104,8 @@ impl Beyond {
     /// `level` lies beyond `band`'s level band on this side.
     pub fn holds(self, level: f64, band: Nuisance) -> bool {
         match self {
-            Beyond::Below => level < 1.0 / band.level_max,
-            Beyond::Above => level > band.level_max,
+            Beyond::Below => level < band.level_band().0,
+            Beyond::Above => level > band.level_band().1,
         }
     }
 }
@@ -179,7 +180,7 @@ mod tests {
     #[test]
     fn a_level_is_beyond_the_band_only_by_two_of_its_errors() {
         let band = Nuisance::ALL;
-        let (lo, hi) = (1.0 / band.level_max, band.level_max);
+        let (lo, hi) = band.level_band();
         let at = |ratio: f64, se: f64| DataLevel {
             ratio,
             se,

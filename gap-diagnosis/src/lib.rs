@@ -1085,6 +1085,7 @@ fn decide(
             found.map(|c| (l, c))
         });
         if let Some((l, c)) = reaching {
+            let (lo, hi) = band.level_band();
             return named(
                 c,
                 format!(
@@ -1095,8 +1096,8 @@ fn decide(
                     l.se,
                     l.trials,
                     l.beyond_se(band),
-                    1.0 / band.level_max,
-                    band.level_max,
+                    lo,
+                    hi,
                     c.effect,
                     c.level.unwrap_or(f64::NAN),
                     r0,

@@ -120,18 +120,33 @@ pub fn median(v: &mut [f64]) -> f64 {
     }
 }
 
-/// First-order low-pass on a uniform grid, in place (time constant `tau`, s).
+/// First-order low-pass on a uniform grid, in place (time constant `tau`, s): exact for a
+/// signal linear between grid points, as the relaxation's convolution is
+/// ([`crate::effects::qlv_in_place`]). Over a step of `dt` with slope m from u₀, the output
+/// goes to u₀ + m·dt − m·τ + (y₀ − u₀ + m·τ)·e^{−dt/τ}, so a ramp lags by exactly τ.
+///
+/// It used the step's end value for the whole step (y += (1 − e^{−dt/τ})(u − y)), half a
+/// step ahead of the signal: a ramp lagged by τ − dt/2, so on the replay's 20 ms grid a
+/// sensor's fitted τ came out 10 ms long. The project's truths applied the same filter and
+/// could not show it; the independent code's sensor case (delay 30 ms, τ 20 ms, its
+/// filter exact between its own samples) fitted a delay of 24.1 ms and a τ of 27.8 ms
+/// (README, "Signal effects on the independent code").
 pub fn lowpass_in_place(y: &mut [[f64; 3]], dt: f64, tau: f64) {
     if tau <= 0.0 || y.is_empty() {
         return;
     }
-    let a = 1.0 - (-dt / tau).exp();
-    let mut s = y[0];
+    let e = (-dt / tau).exp();
+    // the share of the step's increment the output takes within the step
+    let ramp = 1.0 - tau / dt * (1.0 - e);
+    let mut out = y[0];
+    let mut prev = y[0];
     for v in y.iter_mut() {
+        let cur = *v;
         for k in 0..3 {
-            s[k] += a * (v[k] - s[k]);
+            out[k] = e * out[k] + (1.0 - e) * prev[k] + ramp * (cur[k] - prev[k]);
         }
-        *v = s;
+        prev = cur;
+        *v = out;
     }
 }
 
@@ -244,6 +259,27 @@ mod tests {
         assert!((s - 0.05).abs() < 0.006, "sigma {s}");
     }
 
+    /// A sensor's τ fitted 10 ms long on the replay's 20 ms grid: the filter took each step's
+    /// end value for the whole step, so a ramp lagged by τ − dt/2 instead of τ.
+    #[test]
+    fn a_low_pass_on_a_coarse_grid_lags_a_ramp_by_its_time_constant() {
+        let (dt, tau) = (0.02, 0.02);
+        let mut y: Vec<[f64; 3]> = (0..200).map(|k| [k as f64 * dt, 0.0, 1.0]).collect();
+        lowpass_in_place(&mut y, dt, tau);
+        // settled on the ramp (slope 1): the output is the input τ earlier
+        let lag = 199.0 * dt - y[199][0];
+        assert!((lag - tau).abs() < 1e-9, "lag {lag} for tau {tau}");
+        assert_eq!(y[199][2], 1.0);
+        // and on a grid point, the closed form of a ramp from rest: t − τ(1 − e^{−t/τ})
+        let t = 3.0 * dt;
+        let exact = t - tau * (1.0 - (-t / tau).exp());
+        assert!(
+            (y[3][0] - exact).abs() < 1e-12,
+            "{} against {exact}",
+            y[3][0]
+        );
+    }
+
     #[test]
     fn interp_and_lowpass() {
         assert_eq!(interp(&[0.0, 1.0, 3.0], &[0.0, 2.0, 6.0], 2.0), 4.0);
@@ -251,7 +287,7 @@ mod tests {
         let mut y = vec![[0.0; 3]; 1];
         y.extend(std::iter::repeat_n([1.0; 3], 1000));
         lowpass_in_place(&mut y, 0.001, 0.05);
-        // step response at t = tau reaches 1 - 1/e
+        // step response at t = tau reaches 1 - 1/e (the step is a ramp over the first 1 ms)
         assert!(
             (y[50][0] - (1.0 - (-1.0f64).exp())).abs() < 0.01,
             "{}",

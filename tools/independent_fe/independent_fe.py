@@ -15,7 +15,10 @@ discretisation and another contact formulation:
   pushed along the ball's radius through its rest position (small sliding); the sample
   forces solve one convex problem, by Newton on the samples' compliance B K^-1 B^T from a
   direct factorisation of K;
-- quasi-static: each sample is solved on its own (no friction, no rate, no history).
+- quasi-static: each sample is solved on its own (no friction, no rate, no history); a
+  relaxation (quasi-linear viscoelasticity, one Prony term) and a sensor's delay and
+  low-pass act on the sampled force history afterwards, each exact for a force linear
+  between samples.
 
 It reads an experiment folder (its poses, times and regions) and writes one with the same
 poses and the forces this model gives, with the effects named on the command line, sampled
@@ -26,7 +29,8 @@ injected goes to a truth file outside the folder.
 
     python3 tools/independent_fe/independent_fe.py generate SRC_EXPERIMENT OUT_DIR \
         --mesh specimen.msh --fixed specimen_fixed.txt --truth OUT_truth.json \
-        [--effect none|modulus=1.4|support=3e8|tilt=4,-3|device=0.2,0,-0.3] [--seed N] \
+        [--effect none|modulus=1.4|support=3e8|tilt=4,-3|device=0.2,0,-0.3|viscoelastic=0.3,1.2
+                  |sensor=0.03,0.02] [--seed N] \
         [--level 2.88] [--model-mesh finer.msh --model-fixed finer_fixed.txt]
     python3 tools/independent_fe/independent_fe.py hertz      # the reference against Hertz
 
@@ -303,6 +307,46 @@ def read_trial(path):
     return t, pos, quat
 
 
+def relax(t, f, g1, tau):
+    """A quasi-linear viscoelastic tissue's force from its elastic force history `f` (samples
+    at times `t`, one row each): F = (1 - g1) Fe + g1 h, h the elastic force's increments
+    each decaying as exp(-t/tau), the reduced relaxation function G(t) = 1 - g1 (1 -
+    exp(-t/tau)). Exact for an elastic force linear between samples: over a step of dt with
+    slope m, h takes exp(-dt/tau) h + m tau (1 - exp(-dt/tau)). Starts relaxed."""
+    out = np.empty_like(f)
+    h = f[0].copy()
+    out[0] = f[0]
+    for k in range(1, len(t)):
+        dt = t[k] - t[k - 1]
+        e = math.exp(-dt / tau)
+        slope = (f[k] - f[k - 1]) / dt if dt > 0 else np.zeros(3)
+        h = e * h + slope * tau * (1.0 - e) if dt > 0 else h + (f[k] - f[k - 1])
+        out[k] = (1.0 - g1) * f[k] + g1 * h
+    return out
+
+
+def sense(t, f, delay, tau):
+    """What a sensor reads of the force `f` (samples at times `t`): the force `delay` seconds
+    earlier (linear between samples, the first one held before the start) through a
+    first-order low-pass of time constant `tau`, exact for an input linear between samples:
+    y(dt) = u0 + m dt - m tau + (y0 - u0 + m tau) exp(-dt/tau). Starts settled."""
+    u = np.column_stack([np.interp(t - delay, t, f[:, q]) for q in range(3)])
+    if tau <= 0.0:
+        return u
+    out = np.empty_like(u)
+    y = u[0].copy()
+    out[0] = y
+    for k in range(1, len(t)):
+        dt = t[k] - t[k - 1]
+        if dt <= 0:
+            out[k] = y
+            continue
+        m = (u[k] - u[k - 1]) / dt
+        y = u[k - 1] + m * dt - m * tau + (y - u[k - 1] + m * tau) * math.exp(-dt / tau)
+        out[k] = y
+    return out
+
+
 def parse_effect(text):
     name, _, value = text.partition("=")
     try:
@@ -333,6 +377,8 @@ def generate(args):
     support = None
     tilt = np.eye(3)
     bias = np.zeros(3)
+    relaxation = None
+    sensor = None
     for name, vals in effects.items():
         if name == "modulus":
             scale = vals[0]
@@ -346,8 +392,21 @@ def generate(args):
         elif name == "device":
             bias = np.array(vals[:3], float)
             truth["effects"]["device"] = {"bias_n": bias.tolist()}
+        elif name == "viscoelastic":
+            if len(vals) != 2 or not (0.0 <= vals[0] < 1.0 and vals[1] > 0.0):
+                raise InputError(f"--effect {name}: give g1,tau_s with 0 <= g1 < 1, tau > 0")
+            relaxation = (vals[0], vals[1])
+            truth["effects"]["viscoelastic"] = {"prony_g1": vals[0], "prony_tau1_s": vals[1]}
+        elif name == "sensor":
+            if len(vals) != 2 or min(vals) < 0.0:
+                raise InputError(f"--effect {name}: give delay_s,lowpass_tau_s, both >= 0")
+            sensor = (vals[0], vals[1])
+            truth["effects"]["sensor"] = {"delay_s": vals[0], "lowpass_tau_s": vals[1]}
         else:
-            raise InputError(f"--effect {name}: this reference injects modulus, support, tilt, device")
+            raise InputError(
+                f"--effect {name}: this reference injects modulus, support, tilt, device, "
+                "viscoelastic, sensor"
+            )
     start = time.time()
     # levelled: the whole tissue scaled by a factor that is not an effect (the stiffness
     # offset between two discretisations of one specimen, and a lab's systematic one)
@@ -382,7 +441,13 @@ def generate(args):
             local = tilt.T @ pos[k]
             f, pen, warm = spec.contact(local, radius, warm)
             worst = max(worst, pen)
-            forces[k] = tilt @ f + bias
+            forces[k] = tilt @ f
+        # the tissue relaxes, then the device adds its bias and the sensor reads the total
+        if relaxation is not None:
+            forces = relax(t, forces, *relaxation)
+        forces += bias
+        if sensor is not None:
+            forces = sense(t, forces, *sensor)
         forces += rng.normal(0.0, NOISE_SIGMA_N, forces.shape)
         with open(os.path.join(args.out, trial["file"]), "w") as out:
             out.write("t_s,fx_N,fy_N,fz_N,px_m,py_m,pz_m,qx,qy,qz,qw\n")

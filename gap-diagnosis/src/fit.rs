@@ -1326,6 +1326,11 @@ pub struct CandidateScore {
     /// band beside an effect (`decide`).
     #[serde(default)]
     pub stiffness_gain_z: Option<f64>,
+    /// For a pair of `sensor` and another effect: its paired held-out gain over that other
+    /// effect alone, trial by trial, in standard errors; absent otherwise or with too few
+    /// trials. What names a sensor beside an effect (`decide`).
+    #[serde(default)]
+    pub sensor_gain_z: Option<f64>,
     #[serde(skip)]
     pub theta: Vec<f64>,
     /// Held-out prediction at every measurement time, per trial.
@@ -1487,6 +1492,7 @@ pub fn score_candidate(
         floor_shrink: 0.0,
         floor_gain_z: 0.0,
         stiffness_gain_z: None,
+        sensor_gain_z: None,
         theta,
         heldout_pred: held_pred,
     }

@@ -870,8 +870,10 @@ fn beside_gains(ranking: &mut [CandidateScore], data: &[TrialData]) {
 
 /// The pair `candidate`'s effect other than `partner`, if it is a pair with `partner`.
 fn other_than<'a>(candidate: &'a str, partner: &str) -> Option<&'a str> {
-    let parts: Vec<&str> = candidate.split('+').collect();
-    let [a, b] = parts[..] else { return None };
+    let (a, b) = candidate.split_once('+')?;
+    if b.contains('+') {
+        return None;
+    }
     match (a == partner, b == partner) {
         (true, false) => Some(b),
         (false, true) => Some(a),

@@ -86,6 +86,16 @@ fn spawn_case(
     }
 }
 
+/// Waits for `generator` (of case `name`) and checks it wrote its experiment.
+fn wait_written(name: &str, generator: std::process::Child) {
+    let run = generator.wait_with_output().expect("python3 runs");
+    assert!(
+        run.status.success(),
+        "independent_fe {name}: {}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+}
+
 /// Waits for `case`'s generator, then diagnoses its experiment.
 fn diagnose_case(root: &Path, case: Case) -> Report {
     let Case {
@@ -94,12 +104,7 @@ fn diagnose_case(root: &Path, case: Case) -> Report {
         effects,
         generator,
     } = case;
-    let run = generator.wait_with_output().expect("python3 runs");
-    assert!(
-        run.status.success(),
-        "independent_fe {name}: {}",
-        String::from_utf8_lossy(&run.stderr)
-    );
+    wait_written(name, generator);
     let report = gap::diagnose_dir(&root.join(name), &gap::Options::default()).expect("diagnosed");
     eprintln!(
         "{name} (level {level:.3}, {effects:?}): {} — {}; measured {:.2} N, replayed {:.2} N",
@@ -178,12 +183,7 @@ fn another_code_s_truth_levelled_reads_none_a_device_a_support_a_relaxation_and_
     // unlevelled: the baseline replays alone give the ratio (a diagnosis of it reads `modulus`,
     // README)
     let raw = spawn_case(&root, &source, &specimen, "raw", 1.0, &[]);
-    let run = raw.generator.wait_with_output().expect("python3 runs");
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
+    wait_written(raw.name, raw.generator);
     let ratio = replay_over_measured(&root.join("raw"));
     eprintln!("the replay presses ×{ratio:.3} the independent code's mean normal force");
     // measured 2.88 (+188%); the project's own refined meshes put it at ×3.0-4.4

@@ -203,6 +203,13 @@ pub struct GapArgs {
     /// up to 24 for the pair; for comparison). `--no-tilt-centre` is its older name.
     #[arg(long, alias = "no-tilt-centre")]
     pub no_centres: bool,
+    /// The band the nuisances may move the response's level in, as a fraction of the
+    /// replay's mean normal force (default 0.694,1.15): how far the specimen may differ from
+    /// the replay in level without an effect. A lab that knows its reference (e.g. only ever
+    /// softer than the replay) narrows it; a modulus beyond it is named from the measured
+    /// level (README, "A level beyond the nuisances' reach").
+    #[arg(long, value_name = "LO,HI")]
+    pub level_band: Option<String>,
     /// Also write a launch file whose scene carries the verdict as physics (modulus →
     /// modulus_scale, support → support_stiffness, friction → friction, …; see the README).
     /// A force–displacement table is then fitted in the base scene (press at `--site`,

@@ -374,10 +374,14 @@ fn gap_command(args: GapArgs) -> Result<i32> {
         contact_nuisance: !args.no_contact_nuisance,
         material_nuisance: !args.no_material_nuisance,
         centres: !args.no_centres,
+        level_band: match &args.level_band {
+            Some(text) => parse_level_band(text)?,
+            None => gap::Options::default().level_band,
+        },
         ..gap::Options::default()
     };
     // checked before anything is read: a bad flag fails before minutes of replays
-    opts.check().context("--dt")?;
+    opts.check().context("--dt or --level-band")?;
     // (clap's `requires` did not hold against the positional EXPERIMENT_DIR)
     if let (Some(s), None) = (&args.site, &args.force_displacement) {
         bail!(
@@ -819,5 +823,16 @@ fn trainees(cmd: TraineesCommand) -> Result<i32> {
             }
             Ok(0)
         }
+    }
+}
+
+/// `--level-band LO,HI`: two numbers (their bounds are `gap::Options::check`'s).
+fn parse_level_band(text: &str) -> anyhow::Result<(f64, f64)> {
+    let parsed = text
+        .split_once(',')
+        .map(|(lo, hi)| (lo.trim().parse::<f64>(), hi.trim().parse::<f64>()));
+    match parsed {
+        Some((Ok(lo), Ok(hi))) => Ok((lo, hi)),
+        _ => bail!("--level-band {text:?}: give two numbers LO,HI (e.g. 0.694,1.15)"),
     }
 }

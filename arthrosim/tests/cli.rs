@@ -1,7 +1,7 @@
 //! The `arthrosim` command line as a user meets it: exit codes and messages of `validate`,
 //! `run` on a bad file, recordings commands on bad input, and the hidden `node` command.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 mod common;
 use common::{arthrosim, text};
@@ -177,22 +177,47 @@ fn train_refuses_zero_or_too_many_cases_before_touching_anything() {
 #[test]
 fn gap_refuses_a_replay_step_outside_the_scene_bounds() {
     let dir = scratch("gap-dt");
-    let table = dir.join("table.csv");
-    std::fs::write(&table, "displacement_mm,force_N\n0,0.3\n1,0.5\n2,1.0\n").unwrap();
     for dt in ["1e-300", "1e-9", "0.5", "1e300", "nan", "-1"] {
-        let out = arthrosim(&[
-            "gap",
-            "--force-displacement",
-            table.to_str().unwrap(),
-            "--out",
-            dir.join("report").to_str().unwrap(),
-            &format!("--dt={dt}"),
-        ]);
-        let all = text(&out);
-        assert_eq!(out.status.code(), Some(1), "--dt={dt}: {all}");
+        let all = gap_refused_with(&dir, &format!("--dt={dt}"));
         assert!(
             all.contains("--dt") && all.contains("0.00001 to 0.1 s"),
             "--dt={dt} names the flag and the bounds: {all}"
+        );
+    }
+}
+
+/// `arthrosim gap` on a small force–displacement table with `flag`: it must exit 1 without
+/// writing a report; returns what it printed.
+fn gap_refused_with(dir: &Path, flag: &str) -> String {
+    let table = dir.join("table.csv");
+    std::fs::write(&table, "displacement_mm,force_N\n0,0.3\n1,0.5\n2,1.0\n").unwrap();
+    let report = dir.join("report");
+    let out = arthrosim(&[
+        "gap",
+        "--force-displacement",
+        table.to_str().unwrap(),
+        "--out",
+        report.to_str().unwrap(),
+        flag,
+    ]);
+    let all = text(&out);
+    assert_eq!(out.status.code(), Some(1), "{flag}: {all}");
+    assert!(!report.exists(), "{flag}: report written");
+    all
+}
+
+/// `gap --level-band LO,HI` must hold 1 with a positive lower end, and be two numbers: the
+/// error names the flag before anything is replayed.
+#[test]
+fn gap_refuses_a_level_band_that_does_not_hold_one() {
+    let dir = scratch("gap-level-band");
+    for band in [
+        "1.1,1.4", "0.7,0.9", "0,1.2", "nan,1.2", "0.7", "a,b", "0.7,inf",
+    ] {
+        let all = gap_refused_with(&dir, &format!("--level-band={band}"));
+        assert!(
+            all.contains("level-band") || all.contains("level band"),
+            "--level-band={band} names the flag: {all}"
         );
     }
 }

@@ -211,6 +211,17 @@ fn rediagnose_kept_cases(root: &Path) -> anyhow::Result<()> {
             // GAP_DEV_NO_MATERIAL=1: without the material nuisance
             material_nuisance: std::env::var_os("GAP_DEV_NO_MATERIAL").is_none(),
             centres: std::env::var_os("GAP_DEV_NO_CENTRES").is_none(),
+            // GAP_DEV_LEVEL_BAND=0.69,1.15: another level band for the nuisances
+            level_band: match std::env::var("GAP_DEV_LEVEL_BAND") {
+                Ok(v) => match v
+                    .split_once(',')
+                    .map(|(a, b)| (a.trim().parse(), b.trim().parse()))
+                {
+                    Some((Ok(lo), Ok(hi))) => (lo, hi),
+                    _ => bail!("GAP_DEV_LEVEL_BAND {v:?}: give lo,hi"),
+                },
+                Err(_) => gap::Options::default().level_band,
+            },
             ..gap::Options::default()
         };
         let r = gap::diagnose(exp, &model, &opts)?;

@@ -204,7 +204,7 @@ pub struct GapArgs {
     #[arg(long, alias = "no-tilt-centre")]
     pub no_centres: bool,
     /// The band the nuisances may move the response's level in, as a fraction of the
-    /// replay's mean normal force (default 0.694,1.15): how far the specimen may differ from
+    /// replay's mean normal force (default 0.696,1.15): how far the specimen may differ from
     /// the replay in level without an effect. A lab that knows its reference (e.g. only ever
     /// softer than the replay) narrows it; a modulus beyond it is named from the measured
     /// level (README, "A level beyond the nuisances' reach").

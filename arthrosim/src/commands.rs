@@ -833,6 +833,6 @@ fn parse_level_band(text: &str) -> anyhow::Result<(f64, f64)> {
         .map(|(lo, hi)| (lo.trim().parse::<f64>(), hi.trim().parse::<f64>()));
     match parsed {
         Some((Ok(lo), Ok(hi))) => Ok((lo, hi)),
-        _ => bail!("--level-band {text:?}: give two numbers LO,HI (e.g. 0.694,1.15)"),
+        _ => bail!("--level-band {text:?}: give two numbers LO,HI (e.g. 0.696,1.15)"),
     }
 }

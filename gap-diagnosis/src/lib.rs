@@ -305,7 +305,7 @@ pub struct Heldout {
     pub material_weight: Option<f64>,
     /// The baseline's response level with those nuisances ([`fit::Nuisance::level`]): its
     /// mean normal force as a fraction of the replay's, within `level_band` (by default
-    /// [0.694, 1.15]: [`fit::LEVEL_MIN`], [`fit::LEVEL_MAX`]). Absent when the nuisance is off.
+    /// [0.696, 1.15]: [`fit::LEVEL_MIN`], [`fit::LEVEL_MAX`]). Absent when the nuisance is off.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub level: Option<f64>,
     /// The level band the nuisances were held to, [lo, hi] ([`Options::level_band`]). Absent

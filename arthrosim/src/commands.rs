@@ -375,7 +375,7 @@ fn gap_command(args: GapArgs) -> Result<i32> {
         material_nuisance: !args.no_material_nuisance,
         centres: !args.no_centres,
         level_band: match &args.level_band {
-            Some(text) => parse_level_band(text)?,
+            Some(text) => gap::Options::parse_level_band(text).context("--level-band")?,
             None => gap::Options::default().level_band,
         },
         ..gap::Options::default()
@@ -823,16 +823,5 @@ fn trainees(cmd: TraineesCommand) -> Result<i32> {
             }
             Ok(0)
         }
-    }
-}
-
-/// `--level-band LO,HI`: two numbers (their bounds are `gap::Options::check`'s).
-fn parse_level_band(text: &str) -> anyhow::Result<(f64, f64)> {
-    let parsed = text
-        .split_once(',')
-        .map(|(lo, hi)| (lo.trim().parse::<f64>(), hi.trim().parse::<f64>()));
-    match parsed {
-        Some((Ok(lo), Ok(hi))) => Ok((lo, hi)),
-        _ => bail!("--level-band {text:?}: give two numbers LO,HI (e.g. 0.696,1.15)"),
     }
 }

@@ -213,13 +213,7 @@ fn rediagnose_kept_cases(root: &Path) -> anyhow::Result<()> {
             centres: std::env::var_os("GAP_DEV_NO_CENTRES").is_none(),
             // GAP_DEV_LEVEL_BAND=0.69,1.15: another level band for the nuisances
             level_band: match std::env::var("GAP_DEV_LEVEL_BAND") {
-                Ok(v) => match v
-                    .split_once(',')
-                    .map(|(a, b)| (a.trim().parse(), b.trim().parse()))
-                {
-                    Some((Ok(lo), Ok(hi))) => (lo, hi),
-                    _ => bail!("GAP_DEV_LEVEL_BAND {v:?}: give lo,hi"),
-                },
+                Ok(v) => gap::Options::parse_level_band(&v).context("GAP_DEV_LEVEL_BAND")?,
                 Err(_) => gap::Options::default().level_band,
             },
             ..gap::Options::default()

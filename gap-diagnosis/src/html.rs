@@ -504,10 +504,10 @@ fn other_nuisances(r: &Report) -> String {
         );
     }
     if let (Some(l), Some(se)) = (r.heldout.measured_level, r.heldout.measured_level_se) {
-        let [lo, hi] = r.heldout.level_band.unwrap_or_else(|| {
-            let (lo, hi) = crate::fit::Nuisance::ALL.level_band();
-            [lo, hi]
-        });
+        let (lo, hi) = r
+            .heldout
+            .level_band
+            .unwrap_or_else(|| crate::fit::Nuisance::ALL.level_band());
         let _ = write!(
             h,
             "<p><b>Measured level.</b> The measured normal force over the replay's where the \

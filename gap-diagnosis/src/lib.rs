@@ -183,6 +183,19 @@ impl Options {
         }
         Ok(())
     }
+    /// A level band written `LO,HI` (the CLI's `--level-band`); its bounds are
+    /// [`Options::check`]'s.
+    pub fn parse_level_band(text: &str) -> Result<(f64, f64), GapError> {
+        let parsed = text
+            .split_once(',')
+            .map(|(lo, hi)| (lo.trim().parse::<f64>(), hi.trim().parse::<f64>()));
+        match parsed {
+            Some((Ok(lo), Ok(hi))) => Ok((lo, hi)),
+            _ => Err(GapError::Other(format!(
+                "level band {text:?}: give two numbers LO,HI (e.g. 0.696,1.15)"
+            ))),
+        }
+    }
     /// The nuisances these options fit ([`fit::Nuisance`]).
     pub fn nuisance_band(&self) -> Nuisance {
         if !self.nuisance {
@@ -309,10 +322,10 @@ pub struct Heldout {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub level: Option<f64>,
     /// The level band the nuisances were held to, [lo, hi] ([`Options::level_band`]). Absent
-    /// when the nuisance is off (and in reports written before it was an option, whose band
-    /// was the default's).
+    /// when the nuisance is off, and in reports written before it was an option (their
+    /// ceiling was ×1.44; report.html shows them today's default).
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub level_band: Option<[f64; 2]>,
+    pub level_band: Option<(f64, f64)>,
     /// The measured normal force over the replay's where the replay presses, pooled over the
     /// trials ([`level::data_level`]): the response level the data show, with no model.
     /// Absent with fewer than [`level::MIN_LEVEL_TRIALS`] trials in contact.
@@ -783,10 +796,7 @@ pub fn diagnose_data(
         contact_compliance: floor.contact_compliance,
         material_weight: floor.material_weight,
         level: floor.level,
-        level_band: nuisance.stiffness_fitted().then(|| {
-            let (lo, hi) = nuisance.level_band();
-            [lo, hi]
-        }),
+        level_band: nuisance.stiffness_fitted().then(|| nuisance.level_band()),
         measured_level: measured_level.map(|l| l.ratio),
         measured_level_se: measured_level.map(|l| l.se),
         nuisance_rmse: floor.heldout_rmse,

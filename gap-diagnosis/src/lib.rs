@@ -331,7 +331,8 @@ pub struct Heldout {
     /// Absent with fewer than [`level::MIN_LEVEL_TRIALS`] trials in contact.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub measured_level: Option<f64>,
-    /// Its between-trial standard error (delete-one jackknife).
+    /// Its between-trial standard error (delete-one jackknife, within the probing regions where
+    /// every region has [`level::MIN_STRATUM_TRIALS`] trials in contact: [`level::data_level`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub measured_level_se: Option<f64>,
     /// The nuisance floor: held-out RMSE of the baseline with the nuisance fitted per fold, N.
@@ -1140,11 +1141,12 @@ fn decide(
                 c,
                 format!(
                     "the measured response lies at ×{:.3} ± {:.3} of the replay's over {} \
-                     trials, {:.1} SE beyond what the nuisances may take (×{:.3}–×{:.3}), and \
+                     trials{}, {:.1} SE beyond what the nuisances may take (×{:.3}–×{:.3}), and \
                      {} reaches it (×{:.3}): {:.4} → {:.4} N ({}){}",
                     l.ratio,
                     l.se,
                     l.trials,
+                    l.error_basis(),
                     l.beyond_se(band),
                     lo,
                     hi,
@@ -1171,8 +1173,10 @@ fn decide(
             evidence(best),
             level
                 .map(|l| format!(
-                    "; the measured response lies at ×{:.3} ± {:.3} of the replay's",
-                    l.ratio, l.se
+                    "; the measured response lies at ×{:.3} ± {:.3} of the replay's{}",
+                    l.ratio,
+                    l.se,
+                    l.error_basis()
                 ))
                 .unwrap_or_default()
         ));
@@ -1822,6 +1826,7 @@ mod tests {
                 ratio,
                 se,
                 trials: 15,
+                strata: 3,
             }),
             ..weighing(noise)
         }

@@ -4,7 +4,8 @@
 //! quadratic tets, small-strain elasticity, a frictionless ball held against the surface by a
 //! penalty integrated over it, a direct solve. It shares nothing with the replay but the mesh
 //! it is handed, and writes experiment folders as a lab would (the specimen as a `.msh` path,
-//! the probe a `sphere`), which `diagnose_dir` reads as it reads theirs.
+//! the probe a `sphere`), which `diagnose_dir` reads as it reads theirs. Its friction (an
+//! option the cases here do not use) is checked on a block by its `slide` command.
 //!
 //! Needs the study data and python3 with the tool's requirements (`.ci/run` installs
 //! `tools/independent_fe/requirements.txt`); outside CI it skips without them. About
@@ -247,4 +248,51 @@ fn another_code_s_truth_levelled_reads_none_a_device_a_support_a_relaxation_and_
         "delay {delay} s + low-pass {tau} s for 0.05 s"
     );
     let _ = std::fs::remove_dir_all(&root);
+}
+
+/// The independent code's own friction, which its friction cases stand on (README, "Friction
+/// on the independent code"): a ball pressed 0.2 mm into a block and slid 2 mm settles,
+/// every sample slipping, at −Fx/Fz 0.255 for μ 0.3 (under μ: the pressure moves to the
+/// trailing side) and at none without friction. On a coarse block (6 cells across, ~1 min).
+#[test]
+fn the_independent_code_s_friction_slides_under_its_coulomb_bound() {
+    if !ready() {
+        eprintln!("skipped: needs the study data and python3 with scikit-fem");
+        return;
+    }
+    let sliding_ratio = |mu: f64| -> f64 {
+        let out = Command::new("python3")
+            .arg(tool())
+            .args(["slide", "--cells", "6", "--mu", &mu.to_string()])
+            .output()
+            .expect("python3 runs");
+        assert!(
+            out.status.success(),
+            "slide --mu {mu}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        // after the press (steps 0–10) and the slide's first 0.5 mm, where the traction builds
+        let rows: Vec<serde_json::Value> = String::from_utf8_lossy(&out.stdout)
+            .lines()
+            .map(|l| serde_json::from_str(l).expect("one JSON object a line"))
+            .filter(|r: &serde_json::Value| r["step"].as_u64().unwrap() >= 21)
+            .collect();
+        assert!(
+            rows.len() >= 20,
+            "slide --mu {mu}: {} sliding steps",
+            rows.len()
+        );
+        assert!(
+            rows.iter().all(|r| r["unconverged"].as_u64() == Some(0)),
+            "slide --mu {mu}: a contact solve did not converge"
+        );
+        rows.iter()
+            .map(|r| r["ratio"].as_f64().unwrap())
+            .sum::<f64>()
+            / rows.len() as f64
+    };
+    let (with, without) = (sliding_ratio(0.3), sliding_ratio(0.0));
+    eprintln!("-Fx/Fz sliding: {with:.3} with mu 0.3, {without:.3} without");
+    assert!(without.abs() < 0.05, "frictionless: {without}");
+    assert!((0.2..0.3).contains(&with), "mu 0.3: {with}");
 }

@@ -10,15 +10,19 @@ discretisation and another contact formulation:
 - quadratic tetrahedra (P2) on the specimen mesh the experiment is handed, small-strain
   linear elasticity (E, nu), the held nodes fixed (with P2: their vertex and edge dofs), or
   the held face on an elastic foundation (a support);
-- a frictionless rigid ball in contact with the surface through a penalty pressure
-  integrated over the surface (every boundary face sampled at about SPACING_M), each sample
-  pushed along the ball's radius through its rest position (small sliding); the sample
-  forces solve one convex problem, by Newton on the samples' compliance B K^-1 B^T from a
-  direct factorisation of K;
-- quasi-static: each sample is solved on its own (no friction, no rate, no history); a
-  relaxation (quasi-linear viscoelasticity, one Prony term) and a sensor's delay and
-  low-pass act on the sampled force history afterwards, each exact for a force linear
-  between samples.
+- a rigid ball in contact with the surface through a penalty pressure integrated over the
+  surface (every boundary face sampled at about SPACING_M), each sample pushed along the
+  ball's radius through its rest position (small sliding); frictionless, the sample forces
+  solve one convex problem, by Newton on the samples' compliance B K^-1 B^T from a direct
+  factorisation of K;
+- with friction (`--effect friction=MU`), Coulomb's law at every sample: its traction sticks
+  to the ball's surface through a stiff tangential penalty and slips on the disc mu * p,
+  carried from one sample time to the next (the only history this code keeps); pressures
+  and tractions solve one coupled problem by semi-smooth Newton (`slide` checks it on a
+  block);
+- quasi-static: each sample time is solved on its own (no rate); a relaxation (quasi-linear
+  viscoelasticity, one Prony term) and a sensor's delay and low-pass act on the sampled
+  force history afterwards, each exact for a force linear between samples.
 
 It reads an experiment folder (its poses, times and regions) and writes one with the same
 poses and the forces this model gives, with the effects named on the command line, sampled
@@ -30,9 +34,10 @@ injected goes to a truth file outside the folder.
     python3 tools/independent_fe/independent_fe.py generate SRC_EXPERIMENT OUT_DIR \
         --mesh specimen.msh --fixed specimen_fixed.txt --truth OUT_truth.json \
         [--effect none|modulus=1.4|support=3e8|tilt=4,-3|device=0.2,0,-0.3|viscoelastic=0.3,1.2
-                  |sensor=0.03,0.02] [--seed N] \
+                  |sensor=0.03,0.02|friction=0.3] [--seed N] \
         [--level 2.88] [--model-mesh finer.msh --model-fixed finer_fixed.txt]
     python3 tools/independent_fe/independent_fe.py hertz      # the reference against Hertz
+    python3 tools/independent_fe/independent_fe.py slide      # its friction on a block
 
 (`gap_dev DIR export-specimen study:lateral` writes `specimen.msh` and its fixed list in
 the specimen frame the diagnosis uses.)
@@ -76,6 +81,9 @@ CANDIDATE_MARGIN_M = 0.2e-3
 # The penalty's kink rounded over this width (m), a quarter of the 0.4 um at 2 MPa: samples at the
 # patch's edge carry a part of their share instead of toggling in and out.
 RAMP_WIDTH_M = 1e-7
+# Tangential penalty (Pa/m) of a sticking sample: 0.1 N of traction on a sample of the
+# 0.35 mm grid (about 6e-8 m^2) slips it about 2 um, against the millimetres a probe slides.
+TANGENTIAL_PENALTY_PA_PER_M = 1e12
 NOISE_SIGMA_N = 0.02
 LATERAL = (3.5e6, 0.29)
 MEDIAL = (3.84e6, 0.26)
@@ -200,6 +208,7 @@ class Specimen:
         centroid = nodes[tets[owner_tet]].mean(axis=1)
         self.inside = self.xq + 1e-6 * (centroid - self.xq)
         self.cache = {}
+        self.unconverged = 0
 
     def clear(self):
         self.cache = {}
@@ -248,6 +257,71 @@ class Specimen:
         F = (p[:, None] * normals).sum(axis=0)  # on the tissue
         return -F, max(penetration, 0.0), {q: v for q, v in zip(idx, p) if v > 1e-12}
 
+    def contact_frictional(self, centre, radius, mu, state):
+        """Force the tissue exerts on a ball at `centre` with Coulomb friction `mu`, the
+        largest penetration, and the state the next sample starts from. `state` is the last
+        sample's (None at a trial's start): its ball centre and every sample's force on the
+        tissue (N, 3-vectors).
+
+        Each sample's traction sticks by a stiff tangential penalty to the ball's surface:
+        its trial traction is the last one plus TANGENTIAL_PENALTY times the ball's slip over
+        the sample since then (the ball's motion less the sample's own displacement), and it
+        is returned onto the Coulomb disc mu * p. The pressures and tractions solve one
+        problem, by semi-smooth Newton on the samples' compliance, the normal and tangential
+        responses coupled through it (a traction also moves the surface normally)."""
+        idx = self.tree.query_ball_point(centre, radius + CANDIDATE_MARGIN_M)
+        if not idx:
+            return np.zeros(3), 0.0, {"centre": centre.copy(), "forces": {}}
+        idx = sorted(idx)
+        n = len(idx)
+        resp = self.responses(idx)
+        B = sp.vstack([r[0] for r in resp]).tocsr()
+        Y = np.hstack([r[1] for r in resp])
+        G = np.asarray(B @ Y).reshape(n, 3, n, 3)
+        X = self.xq[idx]
+        normals = self._radial(X, centre)
+        # a tangent basis per sample
+        helper = np.where(np.abs(normals[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+        e1 = np.cross(normals, helper)
+        e1 /= np.linalg.norm(e1, axis=1)[:, None]
+        e2 = np.cross(normals, e1)
+        E = np.stack([e1, e2], axis=2)  # n x 3 x 2
+        W = np.einsum("ia,iajb,jb->ij", normals, G, normals, optimize=True)
+        Cnt = np.einsum("ia,iajb,jbc->ijc", normals, G, E, optimize=True).reshape(n, 2 * n)
+        Ctn = np.einsum("iac,iajb,jb->icj", E, G, normals, optimize=True).reshape(2 * n, n)
+        Ctt = np.einsum("iac,iajb,jbd->icjd", E, G, E, optimize=True).reshape(2 * n, 2 * n)
+        g0 = radius - np.linalg.norm(X - centre, axis=1)
+        kw = PENALTY_PA_PER_M * self.wq[idx]
+        kt = np.repeat(TANGENTIAL_PENALTY_PA_PER_M * self.wq[idx], 2)
+        # the last sample's forces: the surface's displacement then, and each traction
+        old = state["forces"] if state else {}
+        dc = centre - state["centre"] if state else np.zeros(3)
+        u_old = np.zeros((n, 3))
+        t_old = np.zeros((n, 3))
+        p0 = np.zeros(n)
+        if old:
+            jdx = sorted(old)
+            fj = np.concatenate([old[q] for q in jdx])
+            Yj = np.hstack([r[1] for r in self.responses(jdx)])
+            u_old = np.asarray(B @ (Yj @ fj)).reshape(n, 3)
+            for k, q in enumerate(idx):
+                if q in old:
+                    t_old[k] = old[q] - (old[q] @ normals[k]) * normals[k]
+                    p0[k] = max(old[q] @ normals[k], 0.0)
+        # the trial traction, in each sample's tangent basis, before this solve's own motion
+        slip0 = dc[None, :] + u_old  # the ball's motion plus where the surface was
+        z0 = np.einsum("iac,ia->ic", E, t_old).ravel() + kt * np.einsum(
+            "iac,ia->ic", E, slip0
+        ).ravel()
+        tau0 = np.einsum("iac,ia->ic", E, t_old).ravel()
+        p, tau, ok = solve_frictional(W, Cnt, Ctn, Ctt, kw, kt, g0, z0, mu, p0, tau0)
+        self.unconverged += not ok
+        forces = p[:, None] * normals + np.einsum("iac,ic->ia", E, tau.reshape(n, 2))
+        u = np.einsum("iajb,jb->ia", G, forces)
+        penetration = float((g0 - np.einsum("ia,ia->i", normals, u)).max())
+        kept = {q: forces[k].copy() for k, q in enumerate(idx) if p[k] > 1e-12}
+        return -forces.sum(axis=0), max(penetration, 0.0), {"centre": centre.copy(), "forces": kept}
+
     @staticmethod
     def _radial(X, c):
         """Unit directions from the ball's centre `c` to the points `X`."""
@@ -281,6 +355,64 @@ def solve_smooth_penalty(W, kw, g0, p0):
         if np.abs(r).max() < 1e-9:
             break
     return p
+
+
+def solve_frictional(W, Cnt, Ctn, Ctt, kw, kt, g0, z0, mu, p0, tau0):
+    """Pressures p and tangential tractions tau (two per sample, in its tangent basis) with
+    p = kw * ramp(g0 - W p - Cnt tau) (the smooth penalty of solve_smooth_penalty) and
+    tau = the trial traction z = z0 - kt * (Ctn p + Ctt tau) returned onto the disc of
+    radius mu * p (the surface's own motion under the forces slips it back). Semi-smooth
+    Newton with a backtracking line search; returns (p, tau, converged)."""
+    eps = RAMP_WIDTH_M
+    n = len(p0)
+
+    def residual(p, tau):
+        z = (g0 - W @ p - Cnt @ tau) / eps
+        rp = p - kw * eps * np.logaddexp(0.0, z)
+        trial = (z0 - kt * (Ctn @ p + Ctt @ tau)).reshape(n, 2)
+        size = np.linalg.norm(trial, axis=1)
+        bound = mu * np.maximum(p, 0.0)
+        slip = size > bound
+        proj = trial.copy()
+        proj[slip] *= (bound[slip] / np.maximum(size[slip], 1e-300))[:, None]
+        rt = tau - proj.ravel()
+        return np.concatenate([rp, rt]), (z, trial, size, bound, slip)
+
+    p, tau = p0.copy(), tau0.copy()
+    r, aux = residual(p, tau)
+    for _ in range(100):
+        if np.abs(r).max() < 1e-9:
+            return p, tau, True
+        z, trial, size, bound, slip = aux
+        sig = 0.5 * (1.0 + np.tanh(0.5 * z))
+        # d proj / d trial per sample (2 x 2), and d proj / d p
+        D = np.repeat(np.eye(2)[None], n, axis=0)
+        dp = np.zeros((n, 2))
+        zhat = trial[slip] / np.maximum(size[slip], 1e-300)[:, None]
+        D[slip] = (bound[slip] / np.maximum(size[slip], 1e-300))[:, None, None] * (
+            np.eye(2)[None] - zhat[:, :, None] * zhat[:, None, :]
+        )
+        dp[slip] = mu * zhat * (p[slip] > 0.0)[:, None]
+        Dbig = np.zeros((2 * n, 2 * n))
+        for i in range(n):
+            Dbig[2 * i : 2 * i + 2, 2 * i : 2 * i + 2] = D[i]
+        Mp = np.zeros((2 * n, n))
+        Mp[np.arange(2 * n), np.repeat(np.arange(n), 2)] = dp.ravel()
+        J = np.block(
+            [
+                [np.eye(n) + (kw * sig)[:, None] * W, (kw * sig)[:, None] * Cnt],
+                [Dbig @ (kt[:, None] * Ctn) - Mp, np.eye(2 * n) + Dbig @ (kt[:, None] * Ctt)],
+            ]
+        )
+        step = np.linalg.solve(J, -r)
+        norm0, t = np.abs(r).max(), 1.0
+        while True:
+            r_new, aux_new = residual(p + t * step[:n], tau + t * step[n:])
+            if np.abs(r_new).max() < norm0 or t < 1e-4:
+                break
+            t *= 0.5
+        p, tau, r, aux = p + t * step[:n], tau + t * step[n:], r_new, aux_new
+    return p, tau, bool(np.abs(r).max() < 1e-6)
 
 
 def tilt_matrix(a, b):
@@ -379,6 +511,7 @@ def generate(args):
     bias = np.zeros(3)
     relaxation = None
     sensor = None
+    mu = 0.0
     for name, vals in effects.items():
         if name == "modulus":
             scale = vals[0]
@@ -397,6 +530,11 @@ def generate(args):
                 raise InputError(f"--effect {name}: give g1,tau_s with 0 <= g1 < 1, tau > 0")
             relaxation = (vals[0], vals[1])
             truth["effects"]["viscoelastic"] = {"prony_g1": vals[0], "prony_tau1_s": vals[1]}
+        elif name == "friction":
+            if len(vals) != 1 or not 0.0 < vals[0] <= 2.0:
+                raise InputError(f"--effect {name}: give mu, 0 < mu <= 2")
+            mu = vals[0]
+            truth["effects"]["friction"] = {"mu": mu}
         elif name == "sensor":
             if len(vals) != 2 or min(vals) < 0.0:
                 raise InputError(f"--effect {name}: give delay_s,lowpass_tau_s, both >= 0")
@@ -405,7 +543,7 @@ def generate(args):
         else:
             raise InputError(
                 f"--effect {name}: this reference injects modulus, support, tilt, device, "
-                "viscoelastic, sensor"
+                "viscoelastic, sensor, friction"
             )
     start = time.time()
     # levelled: the whole tissue scaled by a factor that is not an effect (the stiffness
@@ -439,7 +577,10 @@ def generate(args):
         forces = np.zeros((len(t), 3))
         for k in range(len(t)):
             local = tilt.T @ pos[k]
-            f, pen, warm = spec.contact(local, radius, warm)
+            if mu > 0.0:
+                f, pen, warm = spec.contact_frictional(local, radius, mu, warm)
+            else:
+                f, pen, warm = spec.contact(local, radius, warm)
             worst = max(worst, pen)
             forces[k] = tilt @ f
         # the tissue relaxes, then the device adds its bias and the sensor reads the total
@@ -470,7 +611,7 @@ def generate(args):
             "dofs": int(spec.basis.N),
             "surface_samples": int(len(spec.xq)),
             "largest_penetration_m": worst,
-
+            "unconverged_samples": int(spec.unconverged),
             "seconds": time.time() - start,
             "source": os.path.abspath(src),
             "model_mesh": os.path.abspath(args.model_mesh or args.mesh),
@@ -481,16 +622,21 @@ def generate(args):
     print(json.dumps(truth))
 
 
-def hertz(args):
-    """A ball on a thick block against Hertz: the reference's own check."""
-    L, H = 8e-3, 4e-3
+def block(width, height, cells):
+    """A width x width x height block of tets, top face at z = 0, `cells` across: its nodes,
+    tets and held (base) nodes."""
     m = MeshTet.init_tensor(
-        np.linspace(-L / 2, L / 2, args.cells + 1),
-        np.linspace(-L / 2, L / 2, args.cells + 1),
-        np.linspace(-H, 0.0, args.cells // 2 + 1),
+        np.linspace(-width / 2, width / 2, cells + 1),
+        np.linspace(-width / 2, width / 2, cells + 1),
+        np.linspace(-height, 0.0, cells // 2 + 1),
     )
     nodes, tets = m.p.T, m.t.T
-    held = np.where(nodes[:, 2] < -H + 1e-9)[0]
+    return nodes, tets, np.where(nodes[:, 2] < -height + 1e-9)[0]
+
+
+def hertz(args):
+    """A ball on a thick block against Hertz: the reference's own check."""
+    nodes, tets, held = block(8e-3, 4e-3, args.cells)
     E, nu, R = 3.5e6, 0.29, 3e-3
     spec = Specimen(nodes, tets, held, E, nu, order=args.order)
     for depth in (0.1e-3, 0.2e-3, 0.3e-3):
@@ -502,6 +648,28 @@ def hertz(args):
                  "dofs": int(spec.basis.N), "penetration_um": pen * 1e6}
             )
         )
+
+
+def slide(args):
+    """A ball pressed into a thick block and slid along it (the reference's own check of its
+    friction): the tangential force builds while the patch sticks and settles once every
+    sample slips, under mu times the normal force, since a traction drags the surface ahead
+    of it into the block and the pressure moves to the trailing side (0.255 at 0.2 mm and
+    0.173 at 0.8 mm for mu 0.3). With mu 0 it is the frictionless contact's force."""
+    nodes, tets, held = block(10e-3, 4e-3, args.cells)
+    R, depth = 1.5e-3, args.depth * 1e-3
+    spec = Specimen(nodes, tets, held, 3.5e6, 0.29, order=args.order)
+    state, warm = None, None
+    path = [np.array([-1e-3, 0.0, R - depth * k / 10]) for k in range(11)]
+    path += [np.array([-1e-3 + 2e-3 * k / 40, 0.0, R - depth]) for k in range(1, 41)]
+    for k, c in enumerate(path):
+        if args.mu > 0.0:
+            f, pen, state = spec.contact_frictional(c, R, args.mu, state)
+        else:
+            f, pen, warm = spec.contact(c, R, warm)
+        print(json.dumps({"step": k, "x_mm": c[0] * 1e3, "depth_mm": (R - c[2]) * 1e3,
+                          "fx_n": f[0], "fz_n": f[2], "ratio": -f[0] / f[2] if f[2] else 0.0,
+                          "unconverged": spec.unconverged}))
 
 
 def main():
@@ -523,9 +691,14 @@ def main():
     h = sub.add_parser("hertz")
     h.add_argument("--cells", type=int, default=16)
     h.add_argument("--order", type=int, default=2, choices=(1, 2))
+    sl = sub.add_parser("slide")
+    sl.add_argument("--cells", type=int, default=16)
+    sl.add_argument("--order", type=int, default=2, choices=(1, 2))
+    sl.add_argument("--mu", type=float, default=0.3)
+    sl.add_argument("--depth", type=float, default=0.2, help="press depth, mm")
     a = ap.parse_args()
     try:
-        generate(a) if a.cmd == "generate" else hertz(a)
+        {"generate": generate, "hertz": hertz, "slide": slide}[a.cmd](a)
     except InputError as e:
         print(f"error: {e}", file=sys.stderr)
         sys.exit(2)

@@ -14,6 +14,7 @@ use crate::experiment::Region;
 use crate::fit::Nuisance;
 use crate::separability::SEPARATION_SE;
 use crate::signal::dot;
+use std::collections::BTreeMap;
 
 /// The measured normal force over the replay's where the replay presses, pooled over the
 /// trials, with its between-trial standard error.
@@ -73,21 +74,14 @@ pub fn data_level(data: &[TrialData]) -> Option<DataLevel> {
     if n < MIN_LEVEL_TRIALS {
         return None;
     }
-    let mut regions: Vec<Option<Region>> = sums.iter().map(|s| s.0).collect();
-    regions.sort();
-    regions.dedup();
-    let count = |r: Option<Region>| sums.iter().filter(|s| s.0 == r).count();
-    let stratified = regions.len() > 1 && regions.iter().all(|&r| count(r) >= MIN_STRATUM_TRIALS);
+    let mut by_region: BTreeMap<Option<Region>, Vec<(f64, f64)>> = BTreeMap::new();
+    for &(region, a, b) in &sums {
+        by_region.entry(region).or_default().push((a, b));
+    }
+    let stratified =
+        by_region.len() > 1 && by_region.values().all(|t| t.len() >= MIN_STRATUM_TRIALS);
     let strata: Vec<Vec<(f64, f64)>> = if stratified {
-        regions
-            .iter()
-            .map(|&r| {
-                sums.iter()
-                    .filter(|s| s.0 == r)
-                    .map(|&(_, a, b)| (a, b))
-                    .collect()
-            })
-            .collect()
+        by_region.into_values().collect()
     } else {
         vec![sums.iter().map(|&(_, a, b)| (a, b)).collect()]
     };
@@ -104,12 +98,10 @@ pub fn data_level(data: &[TrialData]) -> Option<DataLevel> {
         .map(|stratum| {
             let k = stratum.len() as f64;
             let (sm, sr) = total(stratum);
+            let up = k / (k - 1.0);
             let without: Vec<f64> = stratum
                 .iter()
-                .map(|&(a, b)| {
-                    let up = k / (k - 1.0);
-                    (measured - sm + up * (sm - a)) / (replayed - sr + up * (sr - b))
-                })
+                .map(|&(a, b)| (measured - sm + up * (sm - a)) / (replayed - sr + up * (sr - b)))
                 .collect();
             let mean = without.iter().sum::<f64>() / k;
             without.iter().map(|r| (r - mean).powi(2)).sum::<f64>() * (k - 1.0) / k

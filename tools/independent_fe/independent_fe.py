@@ -232,25 +232,12 @@ class Specimen:
     def contact(self, centre, radius, warm=None):
         """Force the tissue exerts on a frictionless ball at `centre` (specimen frame), and
         the largest penetration (m); `warm` is the last solve's sample forces (N), by sample."""
-        idx = self.tree.query_ball_point(centre, radius + CANDIDATE_MARGIN_M)
-        if not idx:
+        patch = self._patch(centre, radius)
+        if patch is None:
             return np.zeros(3), 0.0, {}
-        idx = sorted(idx)
-        resp = self.responses(idx)
-        B = sp.vstack([r[0] for r in resp]).tocsr()
-        Y = np.hstack([r[1] for r in resp])
-        G = np.asarray(B @ Y)  # 3n x 3n, sample displacement per sample force
+        idx, B, G, normals, g0, kw = patch
         n = len(idx)
-        X = self.xq[idx]
-        # Small sliding, as the small-strain elasticity assumes: each sample is pushed along
-        # the ball's radius through its rest position, and its gap is linear in its
-        # displacement along it. The pressures then solve one convex problem. (Re-aimed at
-        # the deformed positions, round after round, the directions of a 25-30 N press fed
-        # back into the tangential displacements and the rounds did not settle.)
-        normals = self._radial(X, centre)
-        W = np.einsum("ia,iajb,jb->ij", normals, G.reshape(n, 3, n, 3), normals, optimize=True)
-        g0 = radius - np.linalg.norm(X - centre, axis=1)
-        kw = PENALTY_PA_PER_M * self.wq[idx]
+        W = np.einsum("ia,iajb,jb->ij", normals, G, normals, optimize=True)
         p0 = np.array([warm.get(q, 0.0) for q in idx]) if warm else np.zeros(n)
         p = solve_smooth_penalty(W, kw, g0, p0)
         penetration = float((g0 - W @ p).max())
@@ -269,17 +256,11 @@ class Specimen:
         is returned onto the Coulomb disc mu * p. The pressures and tractions solve one
         problem, by semi-smooth Newton on the samples' compliance, the normal and tangential
         responses coupled through it (a traction also moves the surface normally)."""
-        idx = self.tree.query_ball_point(centre, radius + CANDIDATE_MARGIN_M)
-        if not idx:
+        patch = self._patch(centre, radius)
+        if patch is None:
             return np.zeros(3), 0.0, {"centre": centre.copy(), "forces": {}}
-        idx = sorted(idx)
+        idx, B, G, normals, g0, kw = patch
         n = len(idx)
-        resp = self.responses(idx)
-        B = sp.vstack([r[0] for r in resp]).tocsr()
-        Y = np.hstack([r[1] for r in resp])
-        G = np.asarray(B @ Y).reshape(n, 3, n, 3)
-        X = self.xq[idx]
-        normals = self._radial(X, centre)
         # a tangent basis per sample
         helper = np.where(np.abs(normals[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
         e1 = np.cross(normals, helper)
@@ -290,8 +271,6 @@ class Specimen:
         Cnt = np.einsum("ia,iajb,jbc->ijc", normals, G, E, optimize=True).reshape(n, 2 * n)
         Ctn = np.einsum("iac,iajb,jb->icj", E, G, normals, optimize=True).reshape(2 * n, n)
         Ctt = np.einsum("iac,iajb,jbd->icjd", E, G, E, optimize=True).reshape(2 * n, 2 * n)
-        g0 = radius - np.linalg.norm(X - centre, axis=1)
-        kw = PENALTY_PA_PER_M * self.wq[idx]
         kt = np.repeat(TANGENTIAL_PENALTY_PA_PER_M * self.wq[idx], 2)
         # the last sample's forces: the surface's displacement then, and each traction
         old = state["forces"] if state else {}
@@ -321,6 +300,30 @@ class Specimen:
         penetration = float((g0 - np.einsum("ia,ia->i", normals, u)).max())
         kept = {q: forces[k].copy() for k, q in enumerate(idx) if p[k] > 1e-12}
         return -forces.sum(axis=0), max(penetration, 0.0), {"centre": centre.copy(), "forces": kept}
+
+    def _patch(self, centre, radius):
+        """The contact candidates of a ball at `centre`: their sample indices (sorted), the
+        interpolation B of their displacements, their compliance G (n x 3 x n x 3, sample
+        displacement per sample force on the tissue), their directions, their rest gaps and
+        penalties; None when no sample is near.
+
+        Small sliding, as the small-strain elasticity assumes: each sample is pushed along
+        the ball's radius through its rest position, and its gap is linear in its
+        displacement along it. (Re-aimed at the deformed positions, round after round, the
+        directions of a 25-30 N press fed back into the tangential displacements and the
+        rounds did not settle.)"""
+        idx = self.tree.query_ball_point(centre, radius + CANDIDATE_MARGIN_M)
+        if not idx:
+            return None
+        idx = sorted(idx)
+        n = len(idx)
+        resp = self.responses(idx)
+        B = sp.vstack([r[0] for r in resp]).tocsr()
+        Y = np.hstack([r[1] for r in resp])
+        G = np.asarray(B @ Y).reshape(n, 3, n, 3)
+        X = self.xq[idx]
+        g0 = radius - np.linalg.norm(X - centre, axis=1)
+        return idx, B, G, self._radial(X, centre), g0, PENALTY_PA_PER_M * self.wq[idx]
 
     @staticmethod
     def _radial(X, c):

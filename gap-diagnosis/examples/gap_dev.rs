@@ -17,6 +17,8 @@
 //! `gap_dev DIR export-specimen [MESH [refined]]` writes MESH (default `study:lateral`) in the
 //! diagnosis' specimen frame as `specimen.msh` and `specimen_fixed.txt`, for an outside code
 //! (`tools/independent_fe`) to model the same specimen.
+//! `gap_dev FRICTIONLESS friction-share FRICTIONAL MU` compares what friction adds in an outside
+//! code with what it adds in the replay (see [`friction_share`]).
 use anyhow::{bail, Context};
 use gap_diagnosis::effects::Effect;
 use gap_diagnosis::model::{ForceModel, ProbePath, Replayed, Variant};
@@ -559,6 +561,147 @@ fn eval_at(root: &Path, cand: &str, thetas: &[String]) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// What friction adds, in an outside code and in the replay, on the same probings.
+///
+/// `frictionless` and `frictional` are one experiment's folders written by an outside code
+/// from the same poses (and the same sensor noise), without and with friction μ. Per trial,
+/// over the samples in contact: the mean of |F_μ − F_0| / |F_0|, and, where the probe moves,
+/// the mean of (F_μ − F_0)·v̂ / |F_0| along its motion v̂ (negative: friction resists). The
+/// replay's two figures come from its own replays of the trial at μ and at 0, on the
+/// frictionless folder's specimen and probe. If the replay's friction adds what the outside
+/// code's adds, the two columns agree; a fit of μ scales the replay's column to the outside
+/// one's, so their ratio is what a fitted μ is short by.
+///
+/// It also audits the work each code's forces do over the trial (the probe starts and ends
+/// out of contact): without friction an elastic contact returns it all, and friction adds
+/// what it dissipates (`signal::net_work`; the replay is held to both in `tests/gap_work.rs`).
+fn friction_share(frictionless: &Path, frictional: &Path, mu: f64) -> anyhow::Result<()> {
+    let data = gap::data_dir();
+    let plain = gap::experiment::load_experiment(frictionless, &data)?;
+    let rough = gap::experiment::load_experiment(frictional, &data)?;
+    let model = SimForceModel::for_experiment(&plain, &data)?;
+    let dt = gap::Options::default().dt;
+    use gap::signal::{dot, net_work, norm, sub as diff};
+    let mut totals = [0.0; 4];
+    // net work without friction and what friction adds, outside and in the replay; then the
+    // scales Σ|F||dx| of the two
+    let mut work = [0.0; 6];
+    let (mut trials, mut sliding) = (0usize, 0usize);
+    println!("trial: mean |ΔF|/|F| outside, replay; along the motion outside, replay");
+    for t0 in &plain.trials {
+        let t1 = rough
+            .trials
+            .iter()
+            .find(|t| t.name == t0.name && t.t == t0.t)
+            .with_context(|| {
+                format!(
+                    "{}: no trial {} at the same times",
+                    frictional.display(),
+                    t0.name
+                )
+            })?;
+        let path = gap::dataset::grid_path(t0, dt);
+        let at = |forces: &[[f64; 3]], t: f64| -> [f64; 3] {
+            let k = ((t - path.t0) / dt)
+                .round()
+                .clamp(0.0, (forces.len() - 1) as f64) as usize;
+            forces[k]
+        };
+        let replay = |m: f64| {
+            let v = Variant {
+                friction: m,
+                ..Variant::default()
+            };
+            model.replay_untilted(&v, &path)
+        };
+        let (r0, r1) = (replay(0.0)?, replay(mu)?);
+        let poses: Vec<[f64; 3]> = t0.pose.iter().map(|p| p.position).collect();
+        let grid: Vec<[f64; 3]> = path.poses.iter().map(|p| p.position).collect();
+        let (w0, scale) = net_work(&poses, &t0.force);
+        let (w1, _) = net_work(&poses, &t1.force);
+        let (v0, replay_scale) = net_work(&grid, &r0);
+        let (v1, _) = net_work(&grid, &r1);
+        work[0] += w0;
+        work[1] += w1 - w0;
+        work[2] += v0;
+        work[3] += v1 - v0;
+        work[4] += scale;
+        work[5] += replay_scale;
+        let (mut share, mut along) = ([0.0; 2], [0.0; 2]);
+        let (mut n, mut moving) = (0usize, 0usize);
+        for i in 1..t0.t.len() {
+            let (f0, f1) = (t0.force[i], t1.force[i]);
+            let (g0, g1) = (at(&r0, t0.t[i]), at(&r1, t0.t[i]));
+            // in contact in both codes, well above the sensor's noise
+            if norm(f0) < 1.0 || norm(g0) < 1.0 {
+                continue;
+            }
+            n += 1;
+            share[0] += norm(diff(f1, f0)) / norm(f0);
+            share[1] += norm(diff(g1, g0)) / norm(g0);
+            let step = diff(t0.pose[i].position, t0.pose[i - 1].position);
+            let speed = norm(step) / (t0.t[i] - t0.t[i - 1]);
+            // a hold is not a motion: 0.1 mm/s against the protocol's 1–3 mm/s
+            if speed > 1e-4 {
+                let unit = step.map(|x| x / norm(step));
+                moving += 1;
+                along[0] += dot(diff(f1, f0), unit) / norm(f0);
+                along[1] += dot(diff(g1, g0), unit) / norm(g0);
+            }
+        }
+        if n == 0 {
+            println!("{}: no sample in contact", t0.name);
+            continue;
+        }
+        let m = moving.max(1) as f64;
+        println!(
+            "{}: {:.3} {:.3}; {:+.3} {:+.3}; frictionless net work {:+.2} mJ of {:.1} (replay \
+             {:+.2} of {:.1}); friction adds {:+.2} mJ (replay {:+.2})",
+            t0.name,
+            share[0] / n as f64,
+            share[1] / n as f64,
+            along[0] / m,
+            along[1] / m,
+            w0 * 1e3,
+            scale * 1e3,
+            v0 * 1e3,
+            replay_scale * 1e3,
+            (w1 - w0) * 1e3,
+            (v1 - v0) * 1e3
+        );
+        trials += 1;
+        totals[0] += share[0] / n as f64;
+        totals[1] += share[1] / n as f64;
+        // a slide is a trial whose friction resists its motion by more than 1% in either code
+        if along[0] / m < -0.01 || along[1] / m < -0.01 {
+            sliding += 1;
+            totals[2] += along[0] / m;
+            totals[3] += along[1] / m;
+        }
+    }
+    let (nt, ns) = (trials.max(1) as f64, sliding.max(1) as f64);
+    println!(
+        "{trials} trials: |ΔF|/|F| outside {:.3}, replay {:.3} (×{:.2}); {sliding} sliding: along the motion outside {:+.3}, replay {:+.3} (×{:.2})",
+        totals[0] / nt,
+        totals[1] / nt,
+        totals[1] / totals[0],
+        totals[2] / ns,
+        totals[3] / ns,
+        totals[3] / totals[2]
+    );
+    println!(
+        "work: frictionless outside {:+.1} mJ of Σ|F||dx| {:.1} mJ, replay {:+.1} of {:.1}; \
+         friction adds outside {:+.1} mJ, replay {:+.1} mJ",
+        work[0] * 1e3,
+        work[4] * 1e3,
+        work[2] * 1e3,
+        work[5] * 1e3,
+        work[1] * 1e3,
+        work[3] * 1e3
+    );
+    Ok(())
+}
+
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let Some(root) = args.first() else {
@@ -574,6 +717,12 @@ fn main() -> anyhow::Result<()> {
             write_contact_layer_cases(&root, seed, mesh)
         }
         Some("eval") if args.len() >= 3 => eval_at(&root, &args[2], &args[3..]),
+        Some("friction-share") if args.len() == 4 => {
+            let mu = args[3]
+                .parse::<f64>()
+                .with_context(|| format!("μ {:?} is not a number", args[3]))?;
+            friction_share(&root, Path::new(&args[2]), mu)
+        }
         Some("export-specimen") => {
             let mesh = args.get(2).map_or("study:lateral", String::as_str);
             export_specimen(
@@ -584,7 +733,7 @@ fn main() -> anyhow::Result<()> {
         }
         Some(other) => bail!(
             "unknown mode {other:?} (expected rediagnose, phase-table, contact-layer-cases, \
-             export-specimen [MESH [refined]] or eval CANDIDATE θ…)"
+             export-specimen [MESH [refined]], eval CANDIDATE θ… or friction-share DIR μ)"
         ),
     }
 }

@@ -1004,6 +1004,10 @@ struct Weighing {
 /// [`RICHER_GAIN`]: a sensor only delays and smooths, so what it removes is the onsets' share
 /// of a residual the model error sets (see [`sensor_beside`]).
 ///
+/// (i) Beside an identified single that changes no stiffness, `modulus`+single is named where
+/// the trials' measured level lies beyond the level band and the single's nuisances took it
+/// there (see [`level_beside`]).
+///
 /// The held-out likelihood ratio (c) is the significance over all samples; (d) guards it
 /// against a gain carried by the largest trials' model error.
 ///
@@ -1228,6 +1232,27 @@ fn decide(
             win = pair;
         }
     }
+    // (i) a stiffness the trials' level reads beyond the band, beside a single without one
+    if std::ptr::eq(win, best) && pairs_allowed {
+        if let Some((pair, l)) = level_beside(best, ranking, band, level) {
+            reason = format!(
+                "{reason}; the measured response lies at ×{:.3} ± {:.3} of the replay's{}, {:.1} \
+                 SE beyond what the nuisances may take, where {} stands at ×{:.3} on them, and \
+                 {} reaches it (×{:.3}, held out {:.4} N against {:.4} N)",
+                l.ratio,
+                l.se,
+                l.error_basis(),
+                l.beyond_se(band),
+                best.effect,
+                best.level.unwrap_or(f64::NAN),
+                pair.effect,
+                pair.level.unwrap_or(f64::NAN),
+                pair.heldout_rmse,
+                best.heldout_rmse
+            );
+            win = pair;
+        }
+    }
     // (h) a sensor's lag beside the single
     if std::ptr::eq(win, best) && pairs_allowed && paired {
         if let Some(pair) = sensor_beside(best, ranking, band, min_shrink) {
@@ -1347,6 +1372,52 @@ fn stiffness_beyond_the_band<'a>(
     })
     .find(|pair| pair.score < best.score)
 }
+
+/// Rule (i) of [`decide`]: `modulus`+`best` where the trials' measured level lies beyond the
+/// nuisances' level band by [`separability::SEPARATION_SE`] of its error
+/// ([`level::DataLevel::beyond`]) and `best`, an effect that changes no stiffness, stands on
+/// nuisances that took the level beyond the band on that side: the pair's own level lies
+/// beyond it on the same side, its modulus is worth naming, and it holds out no worse than
+/// `best` by more than [`LEVEL_PAIR_SLACK`].
+///
+/// Why the level and not a held-out gain: with `best` the stiffness nuisance takes the
+/// stiffness up to its bound (×1.25), so what is left for the modulus to remove held out is
+/// the small part beyond it, under a model error that differs from trial to trial, while
+/// every trial reads the level (rule (g), for the same reason where nothing is identified).
+/// The independent code's linear elements, modulus ×1.42 with a sensor's 25 ms delay and
+/// 25 ms low-pass (at an offset ×0.90), read `sensor`: its level stood at ×1.250 on the
+/// nuisances, the trials measured ×1.359 ± 0.040 (5.2 SE over ×1.15), and `modulus+sensor`
+/// fitted ×1.340 in level, a modulus ×1.45, held out 0.4% worse (README, "A stiffness the
+/// level reads beside another effect").
+fn level_beside<'a>(
+    best: &'a CandidateScore,
+    ranking: &'a [CandidateScore],
+    band: Nuisance,
+    level: Option<level::DataLevel>,
+) -> Option<(&'a CandidateScore, level::DataLevel)> {
+    let l = level.filter(|_| band.stiffness_fitted())?;
+    let side = l.beyond(band)?;
+    let stiffness = [Effect::Modulus, Effect::Hardening, Effect::Support];
+    if Effect::of_candidate(&best.effect).any(|e| stiffness.contains(&e))
+        || !best.level.is_some_and(|v| side.holds(v, band))
+    {
+        return None;
+    }
+    ranking
+        .iter()
+        .find(|pair| {
+            other_than(&pair.effect, Effect::Modulus.name()) == Some(best.effect.as_str())
+                && pair.level.is_some_and(|v| side.holds(v, band))
+                && gain_over(pair, best) >= -LEVEL_PAIR_SLACK
+                && !strength::any_negligible(&pair.effect, &pair.params, band, pair.level)
+        })
+        .map(|pair| (pair, l))
+}
+
+/// How much more a pair that reaches the measured level may leave held out than the single
+/// it joins (rule (i), [`level_beside`]): 2%, a tenth of a pair's [`RICHER_GAIN`]. The level
+/// is the evidence; this only keeps a pair that fits the rest worse from being named for it.
+pub const LEVEL_PAIR_SLACK: f64 = 0.02;
 
 /// The pairs of `partner` beside `best` that remove at least `min_shrink` of its held-out
 /// residual, trial by trial by [`separability::SEPARATION_SE`] (`gain_z`: the pair's paired
@@ -1899,6 +1970,67 @@ mod tests {
         let mut inside = friction.clone();
         inside.nuisance_scale = Some(1.19);
         assert_eq!(decide_with(&inside, pair(1.515, 2.70)).effect, "friction");
+    }
+
+    /// Regression: the independent code's linear elements, modulus ×1.42 with a sensor (25 ms
+    /// delay, 25 ms low-pass; seed 4284's poses at an offset ×0.90), read `sensor`: the
+    /// nuisances took its level to ×1.250, beyond the band's ×1.15, while the trials measured
+    /// ×1.359 ± 0.040. `modulus+sensor` (×1.340 in level, a modulus ×1.45) held out 0.4% worse
+    /// and scored worse, so neither a pair's gain nor the band's bound named it.
+    #[test]
+    fn a_stiffness_the_level_reads_beside_a_sensor_is_named() {
+        let floor = scored("none", 8.1958, 0.60, 0.0);
+        let lag = [
+            ("sensor", "delay", 0.0172),
+            ("sensor", "lowpass_tau", 0.0270),
+        ];
+        let mut sensor = fitted(scored("sensor", 5.2031, 0.4082, 6299.3), &lag);
+        sensor.floor_shrink = 0.195;
+        sensor.floor_gain_z = 4.4;
+        sensor.nuisance_scale = Some(1.25);
+        sensor.level = Some(1.250);
+        let pair = |level: f64, heldout: f64| {
+            let mut params = vec![("modulus", "modulus_scale", 1.4498)];
+            params.extend(lag);
+            let mut c = fitted(scored("modulus+sensor", heldout, 0.4178, 6713.2), &params);
+            c.level = Some(level);
+            c
+        };
+        let decide_with = |single: &CandidateScore, pair: CandidateScore, w: &Weighing| {
+            let singles = vec![single.clone()];
+            let ranking = vec![single.clone(), pair];
+            decide(&singles, &ranking, &floor, w)
+        };
+        let measured = measured_level(1.359, 0.040, 0.0264);
+        let v = decide_with(&sensor, pair(1.340, 5.2245), &measured);
+        assert_eq!(v.effect, "modulus+sensor", "{}", v.reason);
+        assert!(v.reason.contains("5.2 SE beyond"), "{}", v.reason);
+        // without the trials' level, or with one inside the band's reach, the single stands
+        assert_eq!(
+            decide_with(&sensor, pair(1.340, 5.2245), &weighing(0.0264)).effect,
+            "sensor"
+        );
+        let near = measured_level(1.20, 0.040, 0.0264);
+        assert_eq!(
+            decide_with(&sensor, pair(1.340, 5.2245), &near).effect,
+            "sensor"
+        );
+        // a pair whose level does not reach beyond the band, or that holds out 3% worse
+        assert_eq!(
+            decide_with(&sensor, pair(1.10, 5.2245), &measured).effect,
+            "sensor"
+        );
+        assert_eq!(
+            decide_with(&sensor, pair(1.340, 5.36), &measured).effect,
+            "sensor"
+        );
+        // the single's nuisances kept its level inside the band: nothing was taken from it
+        let mut inside = sensor.clone();
+        inside.level = Some(1.12);
+        assert_eq!(
+            decide_with(&inside, pair(1.340, 5.2245), &measured).effect,
+            "sensor"
+        );
     }
 
     /// Regression: the independent P2 code's device bias (0.2, −0.1, 0.25) N with a sensor

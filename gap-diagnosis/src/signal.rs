@@ -1,4 +1,5 @@
-//! Signal helpers: interpolation onto other time bases, lag by cross-correlation, noise level.
+//! Signal helpers: interpolation onto other time bases, lag by cross-correlation, noise level,
+//! the work a force does along a path.
 
 /// Linear interpolation of `y(x)` at `xq`, clamped at the ends. `x` strictly increasing.
 pub fn interp(x: &[f64], y: &[f64], xq: f64) -> f64 {
@@ -151,6 +152,22 @@ pub fn lowpass_in_place(y: &mut [[f64; 3]], dt: f64, tau: f64) {
 }
 
 #[inline]
+/// The net work a probe moved through `positions` does on a tissue whose force on it was
+/// `forces` at the same instants (trapezoidal), J, and Σ |F|·|dx|, the scale it is small
+/// against. Over a probing that starts and ends out of contact, an elastic frictionless
+/// contact gives it all back (0) and friction adds what it dissipates; a negative sum is
+/// energy no passive specimen gives.
+pub fn net_work(positions: &[[f64; 3]], forces: &[[f64; 3]]) -> (f64, f64) {
+    let (mut w, mut scale_sum) = (0.0, 0.0);
+    for k in 1..positions.len().min(forces.len()) {
+        let f = scale(add(forces[k - 1], forces[k]), 0.5);
+        let dx = sub(positions[k], positions[k - 1]);
+        w -= dot(f, dx);
+        scale_sum += norm(f) * norm(dx);
+    }
+    (w, scale_sum)
+}
+
 pub fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }

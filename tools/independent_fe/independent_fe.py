@@ -580,6 +580,7 @@ def generate(args):
         "",
     ]
     worst = 0.0
+    pulling = []
     for trial in trials:
         t, pos, quat = read_trial(os.path.join(src, trial["file"]))
         spec.clear()
@@ -593,6 +594,11 @@ def generate(args):
                 f, pen, warm = spec.contact(local, radius, warm)
             worst = max(worst, pen)
             forces[k] = tilt @ f
+        if pulls_the_probe_in(pos, forces):
+            pulling.append(trial["file"])
+            print(f"warning: {trial['file']}: the contact pulls the probe into the specimen "
+                  "(a ball pressed past its centre under the radial normals): a probing no "
+                  "instrument records", file=sys.stderr)
         # the tissue relaxes, then the device adds its bias and the sensor reads the total
         if relaxation is not None:
             forces = relax(t, forces, *relaxation)
@@ -621,6 +627,7 @@ def generate(args):
             "dofs": int(spec.basis.N),
             "surface_samples": int(len(spec.xq)),
             "largest_penetration_m": worst,
+            "probings_pulling_in": pulling,
             "unconverged_samples": int(spec.unconverged),
             "seconds": time.time() - start,
             "source": os.path.abspath(src),
@@ -630,6 +637,22 @@ def generate(args):
     with open(args.truth, "w") as out:
         json.dump(truth, out, indent=2)
     print(json.dumps(truth))
+
+
+def pulls_the_probe_in(pos, forces):
+    """True when a probing's contact force points mostly along its press (into the specimen)
+    rather than against it: the press direction runs from the first pose to the pose of the
+    largest force. A tilted specimen's press that goes past the ball's centre below the
+    surface meets radial normals pointing in; the project's `reality` draws such a probing
+    again, and a lab discards it."""
+    magnitude = np.linalg.norm(forces, axis=1)
+    if magnitude.max() <= 0.0:
+        return False
+    press = pos[int(np.argmax(magnitude))] - pos[0]
+    if np.linalg.norm(press) <= 0.0:
+        return False
+    along = forces @ (press / np.linalg.norm(press))
+    return bool(np.clip(along, 0.0, None).sum() > 0.5 * magnitude.sum())
 
 
 def block(width, height, cells):

@@ -9,6 +9,7 @@
 //! frictionless forces do −19 to +19 mJ of net work over a probing), so the replay is held to
 //! the laws, on the built-in specimen, not to that code.
 use gap_diagnosis::model::{ForceModel, ProbePath, Variant};
+use gap_diagnosis::signal::{add, cross, dot, norm, scale, sub};
 use gap_diagnosis::{self as gap, SimForceModel};
 
 const RADIUS_M: f64 = 1.5e-3;
@@ -24,14 +25,12 @@ fn work(path: &ProbePath, forces: &[[f64; 3]]) -> (f64, f64) {
 /// Coulomb's dissipation over the slide: μ Σ |F·n| |dx_t|, the normal force times the
 /// tangential distance each step moved.
 fn coulomb(path: &ProbePath, forces: &[[f64; 3]], normal: [f64; 3]) -> f64 {
-    let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
     let mut d = 0.0;
     for k in 1..forces.len() {
-        let (a, b) = (path.poses[k - 1].position, path.poses[k].position);
-        let dx = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
+        let dx = sub(path.poses[k].position, path.poses[k - 1].position);
         let along_n = dot(dx, normal);
         let tangential = (dot(dx, dx) - along_n * along_n).max(0.0).sqrt();
-        let f = [0, 1, 2].map(|q| 0.5 * (forces[k - 1][q] + forces[k][q]));
+        let f = scale(add(forces[k - 1], forces[k]), 0.5);
         d += MU * dot(f, normal).abs() * tangential;
     }
     d
@@ -61,13 +60,8 @@ fn a_slide_returns_its_work_without_friction_and_dissipates_coulomb_s_with_it() 
         } else {
             [0.0, 1.0, 0.0]
         };
-        let c = [
-            n[1] * axis[2] - n[2] * axis[1],
-            n[2] * axis[0] - n[0] * axis[2],
-            n[0] * axis[1] - n[1] * axis[0],
-        ];
-        let len = (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt();
-        let slide = c.map(|v| v / len);
+        let c = cross(n, axis);
+        let slide = scale(c, 1.0 / norm(c));
         let path = gap::reality::protocol_path(site.point, n, DEPTH_M, RADIUS_M, Some(slide), 0.02);
         let replay = |mu: f64| {
             let v = Variant {

@@ -39,6 +39,14 @@ pub struct Centre {
     /// the candidate is the baseline there; wider while a pair's rounds look for the next
     /// centre ([`crate::centres::SEARCH_REACH`]).
     pub reach: f64,
+    /// The replay's own slopes at the centre, per parameter as [`Centre::slopes`] (the
+    /// re-simulated force's change a step away, per unit, without the interpolation's taken
+    /// off); given with the slopes, empty where they are.
+    pub replay_slopes: Vec<Vec<[f64; 3]>>,
+    /// While a pair's rounds search for their next centre ([`crate::centres`]): the candidate
+    /// is the replay's tangent at the centre, with the re-simulated effects' interpolation
+    /// held there, at every distance ([`crate::effects::predict`]); false once made.
+    pub linear: bool,
 }
 
 #[derive(Debug, Clone)]
@@ -560,6 +568,45 @@ pub fn prepare(
         var_group,
         base_at_t,
     }
+}
+
+/// For unit tests: a trial of `n` samples `dt` apart, at rest at the origin, pressed along z
+/// from its third sample to its third-last (the first and last two free). The replay gives
+/// `replayed` N while it presses and nothing elsewhere; the measurement `measured` N there
+/// and `bias` N where it does not. Its grid is the measurement's own times.
+#[cfg(test)]
+pub(crate) fn pressed_at_rest(
+    region: Option<Region>,
+    n: usize,
+    dt: f64,
+    [replayed, measured, bias]: [f64; 3],
+) -> TrialData {
+    let poses: Vec<Pose> = (0..n)
+        .map(|_| Pose {
+            position: [0.0; 3],
+            orientation: [0.0, 0.0, 0.0, 1.0],
+        })
+        .collect();
+    let pressing = |i: usize| (2..n - 2).contains(&i);
+    let along_z = |inside: f64, outside: f64| -> Vec<[f64; 3]> {
+        (0..n)
+            .map(|i| [0.0, 0.0, if pressing(i) { inside } else { outside }])
+            .collect()
+    };
+    let trial = Trial {
+        name: "press".into(),
+        file: Default::default(),
+        region,
+        t: (0..n).map(|i| i as f64 * dt).collect(),
+        force: along_z(measured, bias),
+        pose: poses.clone(),
+        lead_in: 0.0,
+    };
+    let base = along_z(replayed, 0.0);
+    let path = ProbePath { t0: 0.0, dt, poses };
+    let mut td = prepare(&trial, path, base.clone(), Default::default());
+    td.base_at_t = base;
+    td
 }
 
 #[cfg(test)]

@@ -411,12 +411,30 @@ pub fn predict(
     // the geometric ones (tilt, support, mesh) as replayed: scaling them by the layer's
     // change too fitted the layer at twice its weight beside a tilt, and a held-out region
     // then missed by twice as much (README, "Friction through the contact layer")
-    axpy_resimulated_where(grid, c, theta, td, |e| e != Effect::Friction);
-    if let Some((centre, w, offset)) = centre_for(c, theta, td) {
-        axpy(grid, w, &centre.correction, None);
-        for (slope, d) in centre.slopes.iter().zip(offset) {
-            axpy(grid, w * d, slope, None);
+    match centre_for(c, theta, td) {
+        Some((centre, _, offset)) if searching(centre) => {
+            // the replay's tangent at the centre: the interpolation held there, so the
+            // correction makes it the replay, and the replay's own slopes carry the step
+            let mut at = [0.0; MAX_CANDIDATE_PARAMS];
+            let at = &mut at[..theta.len()];
+            at.copy_from_slice(theta);
+            for (slot, v) in centre_slots(c, centre).zip(&centre.theta) {
+                at[slot] = *v;
+            }
+            axpy_resimulated_where(grid, c, at, td, |e| e != Effect::Friction);
+            axpy(grid, 1.0, &centre.correction, None);
+            for (slope, d) in centre.replay_slopes.iter().zip(offset) {
+                axpy(grid, d, slope, None);
+            }
         }
+        Some((centre, w, offset)) => {
+            axpy_resimulated_where(grid, c, theta, td, |e| e != Effect::Friction);
+            axpy(grid, w, &centre.correction, None);
+            for (slope, d) in centre.slopes.iter().zip(offset) {
+                axpy(grid, w * d, slope, None);
+            }
+        }
+        None => axpy_resimulated_where(grid, c, theta, td, |e| e != Effect::Friction),
     }
     let stiffness = nuisance.stiffness;
     let mut k = 0;
@@ -587,7 +605,13 @@ pub fn centre_for<'a>(
             units.push(centre_unit(*e));
         }
     }
-    let w = centre_weight(&at, &centre.theta, &units, centre.reach);
+    // a searching centre is the replay's tangent everywhere: how far that holds is the
+    // search's step limit ([`crate::centres::MAX_SEARCH_STEP`])
+    let w = if searching(centre) {
+        1.0
+    } else {
+        centre_weight(&at, &centre.theta, &units, centre.reach)
+    };
     let mut offset = [0.0; MAX_CENTRE_PARAMS];
     for ((o, a), k) in offset.iter_mut().zip(&at).zip(&centre.theta) {
         *o = a - k;
@@ -597,6 +621,24 @@ pub fn centre_for<'a>(
 
 /// The most parameters a centre has: the tilt's two and the support's one.
 pub const MAX_CENTRE_PARAMS: usize = 3;
+
+/// The most parameters a candidate has: a pair of the four-parameter effects (viscoelastic,
+/// device).
+pub const MAX_CANDIDATE_PARAMS: usize = 8;
+
+/// Whether `centre` is searched from ([`Centre::linear`]) and has the replay's slopes for it.
+fn searching(centre: &Centre) -> bool {
+    centre.linear && centre.replay_slopes.len() == centre.theta.len()
+}
+
+/// Where each of `centre`'s parameters stands in candidate `c`'s (which holds its effects).
+fn centre_slots<'a>(c: &'a Candidate, centre: &'a Centre) -> impl Iterator<Item = usize> + 'a {
+    c.params()
+        .into_iter()
+        .enumerate()
+        .filter(|(_, (e, _))| centre.effects.contains(e))
+        .map(|(i, _)| i)
+}
 
 /// Weight of a centre's correction at `at` (the centre at `centre`, each coordinate divided by
 /// its `units`): 1 at the centre, falling smoothly (C¹) to 0 at the centre's own distance from
@@ -897,5 +939,69 @@ mod tests {
         assert!((centre_weight(&beyond, &c, &u, 3.0) - neutral).abs() < 1e-12);
         // four times: beyond the reach
         assert_eq!(centre_weight(&[16.0, -8.0, 1.2e-3], &c, &u, 3.0), 0.0);
+    }
+
+    /// A pressing trial with the support's knots replayed (each knot's force a fraction of
+    /// the baseline's) and a centre of the support at `theta` (correction `k` N along z
+    /// wherever it presses, the replay's slope `slope` N per m/N there).
+    fn supported(theta: f64, k: f64, slope: f64, linear: bool) -> TrialData {
+        let n = 12;
+        let mut td = crate::dataset::pressed_at_rest(None, n, 0.02, [10.0, 10.0, 0.0]);
+        let along_z = |v: f64| -> Vec<[f64; 3]> {
+            (0..n)
+                .map(|i| [0.0, 0.0, if (2..n - 2).contains(&i) { v } else { 0.0 }])
+                .collect()
+        };
+        let knots = SUPPORT_KNOTS
+            .iter()
+            .map(|c| along_z(10.0 / (1.0 + 500.0 * c)));
+        td.resims = [(Effect::Support, knots.collect())].into_iter().collect();
+        td.centres.push(Centre {
+            effects: vec![Effect::Support],
+            theta: vec![theta],
+            correction: along_z(k),
+            slopes: vec![along_z(0.0)],
+            reach: 1.0,
+            replay_slopes: vec![along_z(slope)],
+            linear,
+        });
+        td
+    }
+
+    /// The normal force `c` predicts at `theta` on trial `td`, where it presses.
+    fn pressing_force(c: &Candidate, theta: &[f64], td: &TrialData) -> f64 {
+        let (mut grid, mut out) = (Vec::new(), Vec::new());
+        predict(c, theta, td, NuisanceFit::NEUTRAL, &mut grid, &mut out);
+        out[5][2]
+    }
+
+    /// A pair's search fits the replay's tangent at its last centre: what the replay gave
+    /// there plus its own slope times the step, however far the fit goes (it crept ~0.5
+    /// units a round while the interpolation's curvature and the centre's fading weight held
+    /// it). Once made, the same centre fades again and the interpolation is back beyond it.
+    #[test]
+    fn a_searching_centre_is_the_replays_tangent_at_any_distance() {
+        let support = Candidate::single(Effect::Support);
+        let (theta, k, slope) = (5.0e-4, -0.3, -4000.0);
+        let at_centre = 10.0 / (1.0 + 500.0 * theta) + k;
+        let searching = supported(theta, k, slope, true);
+        for step in [0.0, 1.0e-4, 1.0e-3, 1.4e-3] {
+            let f = pressing_force(&support, &[theta + step], &searching);
+            let tangent = at_centre + slope * step;
+            assert!((f - tangent).abs() < 1e-9, "{step}: {f} for {tangent}");
+        }
+        // made: beyond the centre's own distance from the neutral point, the interpolation
+        let made = supported(theta, k, slope, false);
+        let far = pressing_force(&support, &[1.0e-3 + 1.0e-4], &made);
+        let interpolated = pressing_force(&support, &[1.0e-3 + 1.0e-4], &{
+            let mut plain = made.clone();
+            plain.centres.clear();
+            plain
+        });
+        assert!(
+            (far - interpolated).abs() < 1e-12,
+            "{far} for {interpolated}"
+        );
+        assert!((far - (at_centre + slope * 6.0e-4)).abs() > 0.5);
     }
 }

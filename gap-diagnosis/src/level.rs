@@ -165,9 +165,6 @@ impl Beyond {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::dataset::prepare;
-    use crate::experiment::Trial;
-    use crate::model::ProbePath;
 
     /// A trial pressed along z: the replay's force `replayed` N while it presses (the first
     /// and last samples free), the measured force `measured` N there and `bias` N where it
@@ -178,35 +175,7 @@ mod tests {
 
     /// [`pressed`], probed in `region`.
     fn in_region(region: Option<Region>, replayed: f64, measured: f64, bias: f64) -> TrialData {
-        let (n, dt) = (20, 0.02);
-        let t: Vec<f64> = (0..n).map(|i| i as f64 * dt).collect();
-        let poses: Vec<msgs::Pose> = (0..n)
-            .map(|_| msgs::Pose {
-                position: [0.0; 3],
-                orientation: [0.0, 0.0, 0.0, 1.0],
-            })
-            .collect();
-        let pressing = |i: usize| (2..n - 2).contains(&i);
-        let force: Vec<[f64; 3]> = (0..n)
-            .map(|i| [0.0, 0.0, if pressing(i) { measured } else { bias }])
-            .collect();
-        let base: Vec<[f64; 3]> = (0..n)
-            .map(|i| [0.0, 0.0, if pressing(i) { replayed } else { 0.0 }])
-            .collect();
-        let trial = Trial {
-            name: "press".into(),
-            file: Default::default(),
-            region,
-            t,
-            force,
-            pose: poses.clone(),
-            lead_in: 0.0,
-        };
-        let path = ProbePath { t0: 0.0, dt, poses };
-        let mut td = prepare(&trial, path, base.clone(), Default::default());
-        // the grid is the measurement's own times here
-        td.base_at_t = base;
-        td
+        crate::dataset::pressed_at_rest(region, 20, 0.02, [replayed, measured, bias])
     }
 
     #[test]

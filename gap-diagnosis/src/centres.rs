@@ -26,17 +26,21 @@
 //! −1.80°, where a replay is 0.44 N off), so the fit never left it. A pair's centre therefore
 //! also carries the replay's slopes there, from a step along each parameter.
 //!
-//! While a pair's rounds search for the next centre, the candidate is the replay's tangent at
-//! the last one ([`Centre::linear`]): the replay there plus its own slopes times the step, a
-//! Gauss-Newton step limited to [`MAX_SEARCH_STEP`]. Fitted through the interpolation with the
-//! centre's correction fading away from it, the search crept about half a unit a round
-//! towards the pair's fit (the bench case's tilt 1.2° a round) and took all six rounds; on
-//! the tangent the bench's search settles in five, at 216 centre replays for 300 (README,
-//! "The pair's search on the replay's tangent").
+//! While a pair's rounds or the tilt's search for the next centre, the candidate is the
+//! replay's tangent at the last one ([`Centre::linear`]): the replay there plus its own slopes
+//! times the step, a Gauss-Newton step limited to [`MAX_SEARCH_STEP`]. Fitted through the
+//! interpolation with the centre's correction fading away from it, the search crept about
+//! half a unit a round towards the pair's fit (the bench case's tilt 1.2° a round) and took
+//! all six rounds; on the tangent the bench's search settles in five, at 216 centre replays
+//! for 300 (README, "The pair's search on the replay's tangent").
 //!
 //! The tilt's pairs with an effect that is not re-simulated use the single tilt's centre, so
-//! its last one carries the slopes too: a pair whose tilt the tilt alone had taken part of
-//! the other effect for then reaches its own tilt (README, "Slopes at the tilt's centre").
+//! it carries the slopes too: a pair whose tilt the tilt alone had taken part of the other
+//! effect for then reaches its own tilt (README, "Slopes at the tilt's centre"). The tilt
+//! alone crept as the pair did, a degree or so a round short of a 6–8° tilt after its three
+//! rounds (a study-mesh tilt+device proxy's centre at 4.0°, −3.3° for 6.4°, −4.6°), and the
+//! pairs' fits leave the centre only so far; searched on the tangent as a pair is, its centre
+//! stood at 6.2°, −4.2° (README, "The tilt's search on the replay's tangent").
 use super::dataset::{replay_trials_at, Centre, TrialData};
 use super::effects::{axpy_resimulated, Candidate, Effect, SUPPORT_KNOTS, SUPPORT_SPAN};
 use super::fit::{default_free, fit, Nuisance};
@@ -52,15 +56,15 @@ pub const MIN_CENTRE_DEG: f64 = 1.0;
 /// ([`crate::strength::MIN_SUPPORT_COMPLIANCE`]).
 pub const MIN_CENTRE_SUPPORT: f64 = crate::strength::MIN_SUPPORT_COMPLIANCE;
 
-/// At most this many re-simulations per trial and centre: the fit with the first centre moves
-/// towards the true parameters (the interpolation's error shrinks near the centre), and
-/// another centre at the refit is made when it moved by at least [`SETTLED`] (in
-/// [`crate::effects::centre_unit`]s: 0.25° of tilt, 8.3·10⁻⁵ m/N of support compliance).
+/// At most this many re-simulations per trial and centre for the support alone: the fit with
+/// the first centre moves towards the true parameters (the interpolation's error shrinks near
+/// the centre), and another centre at the refit is made when it moved by at least [`SETTLED`]
+/// (in [`crate::effects::centre_unit`]s: 0.25° of tilt, 8.3·10⁻⁵ m/N of support compliance).
 pub const ROUNDS: usize = 3;
-/// At most this many for a pair: each of its centres moves the fit only as far as the
-/// centre's weight reaches (its own distance from the neutral point), and a pair's tilt
-/// beyond the knots (then at ±6°) took five (a coarse-mesh case's −2.6° → −6.1° for a true
-/// −6.9°).
+/// At most this many for a pair or the tilt ([`searched`]): each of its centres moves the fit
+/// only as far as the centre's weight reaches (its own distance from the neutral point), and a
+/// pair's tilt beyond the knots (then at ±6°) took five (a coarse-mesh case's −2.6° → −6.1°
+/// for a true −6.9°).
 /// They are made on the pair's search trials ([`search_trials`]) until the fit there settles;
 /// the other trials then get that centre, and rounds over every trial go on from it within
 /// the same count.
@@ -70,14 +74,15 @@ pub const SETTLED: f64 = 0.5 / 6.0;
 /// Fits the support alone to every trial (with the nuisances `nuisance`) and, when its
 /// compliance is at least [`MIN_CENTRE_SUPPORT`], re-simulates every trial at it and stores
 /// the correction as a [`Centre`]; then once more at the refit if it moved ([`ROUNDS`]). The
-/// same for the tilt alone when it tilts by at least [`MIN_CENTRE_DEG`], its last centre with
-/// its slopes ([`add_slopes`]: two replays per trial); with support knots,
+/// same for the tilt alone when it tilts by at least [`MIN_CENTRE_DEG`], searched as a pair's
+/// are (below); with support knots,
 /// for the tilt+support pair when its fitted support compliance is at least
 /// [`MIN_CENTRE_SUPPORT`], from the tilt's centre whatever tilt the pair fits, or, where the
 /// tilt alone never reached [`MIN_CENTRE_DEG`], from the pair's own fit when that tilts by
 /// at least as much: up to [`PAIR_ROUNDS`] centres, each
 /// with its slopes ([`Centre::slopes`]: one more replay per parameter), searched on a few
-/// trials first ([`search_trials`]). What was made is in
+/// trials first ([`search_trials`]) on the replay's tangent ([`Centre::linear`]). What was
+/// made is in
 /// each trial's [`TrialData::centres`] ([`describe`]), in the order made: a pair with two
 /// centres of one effect each ([`crate::effects::centre_for`]) takes the later, the tilt's,
 /// whose interpolation errs most.
@@ -105,26 +110,7 @@ pub fn add_centres(
     // and read `tilt`, the tilt 59% short. Where nothing relaxes over the hold the centre is
     // the tilt's own fit.
     let placed = Some(Candidate::pair(Effect::Viscoelastic, Effect::Tilt));
-    let angles = match centre_rounds(
-        data,
-        model,
-        nuisance,
-        &tilt,
-        &[],
-        significant,
-        placed.clone(),
-    )? {
-        Some(angles) => Some(settle_with_slopes(
-            data,
-            model,
-            nuisance,
-            &tilt,
-            angles,
-            significant,
-            placed,
-        )?),
-        None => None,
-    };
+    let angles = centre_rounds(data, model, nuisance, &tilt, &[], significant, placed)?;
     if !has(data, Effect::Support) {
         return Ok(());
     }
@@ -174,7 +160,7 @@ fn centre_rounds(
     let every: Vec<usize> = (0..data.len()).collect();
     // a pair searches on a few trials first ([`search_trials`]); a single effect's rounds
     // are cheap enough on all of them
-    let mut search = if c.0.len() > 1 {
+    let mut search = if searched(c) {
         search_trials(data)
     } else {
         every.clone()
@@ -182,7 +168,7 @@ fn centre_rounds(
     // the first fit, before any of the pair's centres stands, sees every trial as before
     let mut mask = trial_mask(data, &every);
     let mut done: Option<Vec<f64>> = None;
-    let rounds = if c.0.len() > 1 { PAIR_ROUNDS } else { ROUNDS };
+    let rounds = if searched(c) { PAIR_ROUNDS } else { ROUNDS };
     let (mut made, mut budget) = (0, rounds);
     // the search settled on its trials
     let mut settled = false;
@@ -210,7 +196,7 @@ fn centre_rounds(
         let mut starts = inits.to_vec();
         starts.extend(done.clone());
         let mut theta = placed_fit(data, &mask, c, &starts, nuisance, placed.as_ref());
-        if let Some(last) = done.as_ref().filter(|_| c.0.len() > 1) {
+        if let Some(last) = done.as_ref().filter(|_| searched(c)) {
             limit_step(c, &mut theta, last);
         }
         if !significant(&theta) {
@@ -228,7 +214,7 @@ fn centre_rounds(
         replay_centre(data, model, c, &theta, &search)?;
         mask = trial_mask(data, &search);
         made += 1;
-        if c.0.len() > 1 {
+        if searched(c) {
             set_reach(data, c, SEARCH_REACH);
             set_search(data, c, true);
         }
@@ -289,7 +275,7 @@ fn moved(c: &Candidate, theta: &[f64], last: &[f64]) -> f64 {
         .sqrt()
 }
 
-/// How far a pair's latest centre reaches while its rounds look for the next one, in
+/// How far a pair's or the tilt's latest centre reaches while its rounds look for the next one, in
 /// multiples of the centre's distance from the neutral point ([`Centre::reach`]).
 ///
 /// A centre's weight falls to 0 at that distance (once made: 1×, so the candidate stays the
@@ -454,6 +440,12 @@ fn units(c: &Candidate) -> Vec<f64> {
         .collect()
 }
 
+/// Whether `c`'s rounds search on the replay's tangent ([`Centre::linear`]): a pair's, and
+/// the tilt's.
+fn searched(c: &Candidate) -> bool {
+    c.0.len() > 1 || c.0 == [Effect::Tilt]
+}
+
 /// The replay variant of candidate `c` (re-simulated effects only) at `theta`.
 fn centre_variant(c: &Candidate, theta: &[f64]) -> Variant {
     let mut v = Variant::default();
@@ -471,7 +463,8 @@ fn centre_variant(c: &Candidate, theta: &[f64]) -> Variant {
 }
 
 /// Re-simulates the trials `which` at `theta` and stores each one's correction (replacing an
-/// earlier centre of the same effects); a pair's with its slopes ([`slope_steps`]).
+/// earlier centre of the same effects); a pair's or the tilt's with its slopes
+/// ([`slope_steps`]).
 fn replay_centre(
     data: &mut [TrialData],
     model: &dyn ForceModel,
@@ -479,7 +472,7 @@ fn replay_centre(
     theta: &[f64],
     which: &[usize],
 ) -> Result<(), GapError> {
-    let steps = if c.0.len() > 1 {
+    let steps = if searched(c) {
         slope_steps(c, theta)
     } else {
         Vec::new()
@@ -514,90 +507,6 @@ fn replay_centre(
             replay_slopes: slopes.replayed,
             linear: false,
         });
-    }
-    Ok(())
-}
-
-/// The single tilt's last centre, at `theta`, with its slopes ([`add_slopes`]); then the tilt
-/// refitted over every trial with them in place (placed by a relaxation beside it as the
-/// rounds are, `placed`), and where that moved by [`SETTLED`] or more, one more centre there
-/// with its slopes. Returns where the last centre stands.
-///
-/// Without slopes the rounds settle where the quadratic's wrong slopes hold the fit; with
-/// them the fit moves on (0.5–1.3° on 13 of the 23 proxy cases with a tilt centre), and the
-/// centre's correction is then exact only at its own angles, not at the fit's. The centre
-/// moved there took the coarse tilt+device proxy (seed 1111) from `tilt` to `tilt+device`
-/// and raised the held-out shrink of two same-mesh tilt cases (seed 704: 52.6% → 61.2%, seed
-/// 904: 67.1% → 72.2%), at 45 more replays where it moves (README, "Slopes at the tilt's
-/// centre").
-fn settle_with_slopes(
-    data: &mut [TrialData],
-    model: &dyn ForceModel,
-    nuisance: Nuisance,
-    tilt: &Candidate,
-    theta: Vec<f64>,
-    significant: impl Fn(&[f64]) -> bool,
-    placed: Option<Candidate>,
-) -> Result<Vec<f64>, GapError> {
-    add_slopes(data, model, tilt, &theta)?;
-    let every: Vec<usize> = (0..data.len()).collect();
-    let mask = trial_mask(data, &every);
-    // placed as the rounds placed it
-    let starts = std::slice::from_ref(&theta);
-    let refit = placed_fit(data, &mask, tilt, starts, nuisance, placed.as_ref());
-    if moved(tilt, &refit, &theta) < SETTLED || !significant(&refit) {
-        return Ok(theta);
-    }
-    replay_centre(data, model, tilt, &refit, &every)?;
-    add_slopes(data, model, tilt, &refit)?;
-    Ok(refit)
-}
-
-/// Adds slopes ([`Centre::slopes`]) to the single tilt's last centre, at `theta`, on every
-/// trial that has it: one replay a step along each angle.
-///
-/// The pairs of a tilt with an effect that is not re-simulated (modulus, hardening, device,
-/// sensor, viscoelastic) use the tilt's own centre ([`crate::effects::centre_for`]), which
-/// stands where the tilt fits alone: the tilt takes some of the other effect for itself. A
-/// pair's fit then leaves the centre along the quadratic's slopes, which the knots (then at
-/// ±6°) set wrongly near an onset, and it stayed near the centre: of eighteen proxy pairs
-/// outside the hidden sets' list, tilt+device on both meshes and modulus+tilt on the coarse
-/// one read `tilt`. With the replay's slopes the pairs reach their own tilt (README, "Slopes
-/// at the tilt's centre"). Made once, after the rounds settle: in every round they cost three
-/// times the replays for the same verdicts.
-fn add_slopes(
-    data: &mut [TrialData],
-    model: &dyn ForceModel,
-    c: &Candidate,
-    theta: &[f64],
-) -> Result<(), GapError> {
-    // each trial with the centre, and where it stands among the trial's centres
-    let which: Vec<(usize, usize)> = data
-        .iter()
-        .enumerate()
-        .filter_map(|(i, d)| {
-            d.centres
-                .iter()
-                .position(|k| k.effects == c.0)
-                .map(|k| (i, k))
-        })
-        .collect();
-    let steps = slope_steps(c, theta);
-    let variants: Vec<Variant> = steps.iter().map(|(at, _)| centre_variant(c, at)).collect();
-    let trials: Vec<&TrialData> = which.iter().map(|&(i, _)| &data[i]).collect();
-    let stepped = per_trial(replay_trials_at(&trials, model, &variants), which.len())?;
-    for (&(i, k), steps_here) in which.iter().zip(stepped) {
-        let slopes = slopes_at(
-            &data[i],
-            c,
-            theta,
-            &steps,
-            &steps_here,
-            &data[i].centres[k].correction,
-        );
-        let centre = &mut data[i].centres[k];
-        centre.slopes = slopes.relative;
-        centre.replay_slopes = slopes.replayed;
     }
     Ok(())
 }

@@ -28,15 +28,14 @@ pub struct Centre {
     /// force's slope there minus the interpolation's, on the grid (N per parameter unit),
     /// from one more replay a step away ([`crate::centres`]): the interpolation of a pair
     /// adds each effect's delta as replayed without the other, so its slopes at the centre
-    /// are the wrong ones. The single tilt's last centre has them too: the pairs of a tilt
-    /// with an effect that is not re-simulated leave it along them
-    /// ([`crate::centres`]' `add_slopes`). Empty for the support's centre (given slopes, it
-    /// moved the device+support case's support from 3% to 19% off), the tilt's earlier ones,
-    /// or where a step's replay diverged.
+    /// are the wrong ones. The single tilt's centre has them too: its rounds search on them,
+    /// and the pairs of a tilt with an effect that is not re-simulated leave it along them.
+    /// Empty for the support's centre (given slopes, it moved the device+support case's
+    /// support from 3% to 19% off), or where a step's replay diverged.
     pub slopes: Vec<Vec<[f64; 3]>>,
     /// The distance from the centre at which its weight falls to 0, in multiples of its own
     /// distance from the neutral point ([`crate::effects::centre_weight`]): 1 once made, so
-    /// the candidate is the baseline there; wider while a pair's rounds look for the next
+    /// the candidate is the baseline there; wider while a pair's or the tilt's rounds look for the next
     /// centre ([`crate::centres::SEARCH_REACH`]).
     pub reach: f64,
     /// The replay's own slopes at the centre, per parameter as [`Centre::slopes`] (the

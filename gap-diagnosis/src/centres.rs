@@ -26,7 +26,7 @@
 //! −1.80°, where a replay is 0.44 N off), so the fit never left it. A pair's centre therefore
 //! also carries the replay's slopes there, from a step along each parameter.
 //!
-//! While a pair's rounds or the tilt's search for the next centre, the candidate is the
+//! While a pair's or the tilt's rounds search for the next centre, the candidate is the
 //! replay's tangent at the last one ([`Centre::linear`]): the replay there plus its own slopes
 //! times the step, a Gauss-Newton step limited to [`MAX_SEARCH_STEP`]. Fitted through the
 //! interpolation with the centre's correction fading away from it, the search crept about
@@ -158,8 +158,9 @@ fn centre_rounds(
     placed: Option<Candidate>,
 ) -> Result<Option<Vec<f64>>, GapError> {
     let every: Vec<usize> = (0..data.len()).collect();
-    // a pair searches on a few trials first ([`search_trials`]); a single effect's rounds
-    // are cheap enough on all of them
+    // a pair and the tilt search on a few trials first ([`search_trials`]): each of their
+    // rounds replays a step along every parameter too; the support's rounds are cheap enough
+    // on all of them
     let mut search = if searched(c) {
         search_trials(data)
     } else {

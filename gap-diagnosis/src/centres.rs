@@ -44,6 +44,7 @@
 use super::dataset::{replay_trials_at, Centre, TrialData};
 use super::effects::{axpy_resimulated, Candidate, Effect, SUPPORT_KNOTS, SUPPORT_SPAN};
 use super::fit::{default_free, fit, Nuisance};
+use super::metrics::depth_series;
 use super::model::{ForceModel, Replayed, Variant};
 use super::GapError;
 
@@ -499,6 +500,12 @@ fn replay_centre(
         axpy_resimulated(&mut interpolated, c, theta, d);
         let correction: Vec<[f64; 3]> = difference(&r.forces, &interpolated);
         let slopes = slopes_at(d, c, theta, &steps, &steps_here, &correction);
+        let depth_grid = if c.0.contains(&Effect::Tilt) {
+            let pos: Vec<[f64; 3]> = d.path.poses.iter().map(|p| p.position).collect();
+            depth_series(&pos, &r.forces, d.normal)
+        } else {
+            Vec::new()
+        };
         d.centres.push(Centre {
             effects: c.0.clone(),
             theta: theta.to_vec(),
@@ -507,6 +514,7 @@ fn replay_centre(
             reach: 1.0,
             replay_slopes: slopes.replayed,
             linear: false,
+            depth_grid,
         });
     }
     Ok(())

@@ -46,6 +46,11 @@ pub struct Centre {
     /// is the replay's tangent at the centre, with the re-simulated effects' interpolation
     /// held there, at every distance ([`crate::effects::predict`]); false once made.
     pub linear: bool,
+    /// For a tilted centre, the probe's depth (mm) from the touch of the replay there, as
+    /// [`TrialData::depth_grid`] is from the baseline's: a tilt moves where the probe first
+    /// touches, and a hardening beside it stiffens with the depth pressed at the tilt
+    /// ([`crate::effects::predict`]). Empty for an untilted centre.
+    pub depth_grid: Vec<f64>,
 }
 
 #[derive(Debug, Clone)]

@@ -411,8 +411,12 @@ pub fn predict(
     // the geometric ones (tilt, support, mesh) as replayed: scaling them by the layer's
     // change too fitted the layer at twice its weight beside a tilt, and a held-out region
     // then missed by twice as much (README, "Friction through the contact layer")
+    // the depth a hardening stiffens with: the tilted centre's own where the candidate uses
+    // one, by its weight (the baseline's beyond it)
+    let mut tilted_depth: Option<(&[f64], f64)> = None;
     match centre_for(c, theta, td) {
         Some((centre, _, offset)) if searching(centre) => {
+            tilted_depth = own_depth(centre, 1.0);
             // the replay's tangent at the centre: the interpolation held there, so the
             // correction makes it the replay, and the replay's own slopes carry the step
             let mut at = [0.0; MAX_CANDIDATE_PARAMS];
@@ -428,6 +432,7 @@ pub fn predict(
             }
         }
         Some((centre, w, offset)) => {
+            tilted_depth = own_depth(centre, w);
             axpy_resimulated_where(grid, c, theta, td, |e| e != Effect::Friction);
             axpy(grid, w, &centre.correction, None);
             for (slope, d) in centre.slopes.iter().zip(offset) {
@@ -453,7 +458,11 @@ pub fn predict(
             Effect::Friction | Effect::Support | Effect::Tilt | Effect::Mesh => {}
             Effect::Modulus => grid.iter_mut().for_each(|g| *g = g.map(|v| v * th[0])),
             Effect::Hardening => {
-                for (g, d) in grid.iter_mut().zip(&td.depth_grid) {
+                for (i, (g, d)) in grid.iter_mut().zip(&td.depth_grid).enumerate() {
+                    let d = match tilted_depth {
+                        Some((own, w)) => w * own[i] + (1.0 - w) * d,
+                        None => *d,
+                    };
                     let f = th[0] * (th[1] * d.max(0.0)).exp();
                     *g = g.map(|v| v * f);
                 }
@@ -625,6 +634,11 @@ pub const MAX_CENTRE_PARAMS: usize = 3;
 /// The most parameters a candidate has: a pair of the four-parameter effects (viscoelastic,
 /// device).
 pub const MAX_CANDIDATE_PARAMS: usize = 8;
+
+/// A tilted centre's own depth ([`Centre::depth_grid`]) and its weight `w`, where it has one.
+fn own_depth(centre: &Centre, w: f64) -> Option<(&[f64], f64)> {
+    (!centre.depth_grid.is_empty()).then_some((centre.depth_grid.as_slice(), w))
+}
 
 /// Whether `centre` is searched from ([`Centre::linear`]) and has the replay's slopes for it.
 fn searching(centre: &Centre) -> bool {
@@ -941,6 +955,49 @@ mod tests {
         assert_eq!(centre_weight(&[16.0, -8.0, 1.2e-3], &c, &u, 3.0), 0.0);
     }
 
+    /// A hardening beside a tilt stiffens with the depth pressed at the tilt, from where the
+    /// tilted replay first touches. With the baseline's depth, a study-mesh hardening+tilt
+    /// proxy (rate 0.34 /mm, tilt 6.5°; seed 1203) put the rate on presses the tilt made
+    /// deeper or missed: the pair left 20.1 N held out where the tilt alone left 15.4 N
+    /// (15.8 N with the centre's own depth).
+    #[test]
+    fn a_hardening_beside_a_tilt_stiffens_with_the_depth_at_the_tilt() {
+        let n = 12;
+        let mut td = crate::dataset::pressed_at_rest(None, n, 0.02, [10.0, 10.0, 0.0]);
+        // the tilt's knots as the baseline: its interpolation adds nothing anywhere
+        td.resims = [(Effect::Tilt, vec![td.base.clone(); 4])]
+            .into_iter()
+            .collect();
+        assert!(td.depth_grid.iter().all(|d| *d == 0.0));
+        let own: Vec<f64> = (0..n).map(|i| 0.5 * i as f64).collect();
+        let zero = vec![[0.0; 3]; n];
+        td.centres.push(Centre {
+            effects: vec![Effect::Tilt],
+            theta: vec![4.0, -2.0],
+            correction: zero.clone(),
+            slopes: vec![zero.clone(); 2],
+            reach: 1.0,
+            replay_slopes: vec![zero; 2],
+            linear: false,
+            depth_grid: own.clone(),
+        });
+        let pair = Candidate::pair(Effect::Hardening, Effect::Tilt);
+        // in application order: the tilt's angles, then the hardening's scale and rate
+        let rate = 0.3;
+        // at the centre: its own depth
+        let at_centre = pressing_force(&pair, &[4.0, -2.0, 1.0, rate], &td);
+        let want = 10.0 * (rate * own[5]).exp();
+        assert!((at_centre - want).abs() < 1e-9, "{at_centre} for {want}");
+        // halfway to it from the neutral point: the centre's weight (1 - 1/4)² blends the two
+        let w = 0.75_f64.powi(2);
+        let halfway = pressing_force(&pair, &[2.0, -1.0, 1.0, rate], &td);
+        let want = 10.0 * (rate * w * own[5]).exp();
+        assert!((halfway - want).abs() < 1e-9, "{halfway} for {want}");
+        // untilted, or without a centre: the baseline's depth (no stiffening at 0 mm)
+        let untilted = pressing_force(&pair, &[0.0, 0.0, 1.0, rate], &td);
+        assert!((untilted - 10.0).abs() < 1e-9, "{untilted}");
+    }
+
     /// A pressing trial with the support's knots replayed (each knot's force a fraction of
     /// the baseline's) and a centre of the support at `theta` (correction `k` N along z
     /// wherever it presses, the replay's slope `slope` N per m/N there).
@@ -964,6 +1021,7 @@ mod tests {
             reach: 1.0,
             replay_slopes: vec![along_z(slope)],
             linear,
+            depth_grid: Vec::new(),
         });
         td
     }

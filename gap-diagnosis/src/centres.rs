@@ -501,8 +501,7 @@ fn replay_centre(
         let correction: Vec<[f64; 3]> = difference(&r.forces, &interpolated);
         let slopes = slopes_at(d, c, theta, &steps, &steps_here, &correction);
         let depth_grid = if c.0.contains(&Effect::Tilt) {
-            let pos: Vec<[f64; 3]> = d.path.poses.iter().map(|p| p.position).collect();
-            depth_series(&pos, &r.forces, d.normal)
+            depth_series(&d.path.positions(), &r.forces, d.normal)
         } else {
             Vec::new()
         };

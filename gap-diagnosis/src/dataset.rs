@@ -478,7 +478,7 @@ pub fn prepare(
     base: Vec<[f64; 3]>,
     resims: HashMap<Effect, Vec<Vec<[f64; 3]>>>,
 ) -> TrialData {
-    let pos: Vec<[f64; 3]> = path.poses.iter().map(|p| p.position).collect();
+    let pos = path.positions();
     let normal = trial_normal(&base, &trial.force);
     let depth_grid = depth_series(&pos, &base, normal);
     let peak = base.iter().map(|f| norm(*f)).fold(0.0, f64::max);

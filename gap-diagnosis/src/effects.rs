@@ -408,12 +408,12 @@ pub fn predict(
         }
         axpy_resimulated_where(grid, c, theta, td, |e| e == Effect::Friction);
     }
-    // the geometric ones (tilt, support, mesh) as replayed: scaling them by the layer's
-    // change too fitted the layer at twice its weight beside a tilt, and a held-out region
-    // then missed by twice as much (README, "Friction through the contact layer")
     // the depth a hardening stiffens with: the tilted centre's own where the candidate uses
     // one, by its weight (the baseline's beyond it)
     let mut tilted_depth: Option<(&[f64], f64)> = None;
+    // the geometric ones (tilt, support, mesh) as replayed: scaling them by the layer's
+    // change too fitted the layer at twice its weight beside a tilt, and a held-out region
+    // then missed by twice as much (README, "Friction through the contact layer")
     match centre_for(c, theta, td) {
         Some((centre, _, offset)) if searching(centre) => {
             tilted_depth = own_depth(centre, 1.0);

@@ -1119,7 +1119,8 @@ fn decide(
             );
         }
         // (g) a response level beyond the nuisances' reach, read trial by trial: a modulus
-        // there needs only to gain on the floor, in every other respect as identified. The
+        // there needs only to gain on the floor, in every other respect as identified; trial
+        // by trial too, unless the level lies [`LEVEL_ALONE_SE`] beyond the band. The
         // grade-2 case of the P2 code (×0.59) measures ×0.580 ± 0.065, 1.8 SE under ×0.696:
         // the trials disagree too much for it, and it still reads `none`.
         // Only a modulus: the other candidates' levels are the nuisances', inside the band.

@@ -14,6 +14,13 @@ pub struct ProbePath {
     pub poses: Vec<Pose>,
 }
 
+impl ProbePath {
+    /// The probe's position at each grid step.
+    pub fn positions(&self) -> Vec<[f64; 3]> {
+        self.poses.iter().map(|p| p.position).collect()
+    }
+}
+
 /// The model variations that need a re-simulation (everything else is post-processing).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Variant {

@@ -210,6 +210,12 @@ pub struct GapArgs {
     /// level (README, "A level beyond the nuisances' reach").
     #[arg(long, value_name = "LO,HI")]
     pub level_band: Option<String>,
+    /// Replay the probe's balls spread over their Hertz contact patch instead of holding the
+    /// closest points, the tissue scaled to the closest points' level on the specimen's
+    /// protocol probings: the shape of an outside code's distributed contact (README, "The
+    /// Hertz patch in the replay").
+    #[arg(long)]
+    pub hertz_patch: bool,
     /// Also write a launch file whose scene carries the verdict as physics (modulus →
     /// modulus_scale, support → support_stiffness, friction → friction, …; see the README).
     /// A force–displacement table is then fitted in the base scene (press at `--site`,

@@ -378,6 +378,7 @@ fn gap_command(args: GapArgs) -> Result<i32> {
             Some(text) => gap::Options::parse_level_band(text).context("--level-band")?,
             None => gap::Options::default().level_band,
         },
+        hertz_patch: args.hertz_patch,
         ..gap::Options::default()
     };
     // checked before anything is read: a bad flag fails before minutes of replays

@@ -7,6 +7,7 @@
 //! `GAP_BENCH_MESH`, default `default:lateral:40x6x4` with 1,435 nodes, the specimen: issue 15
 //! asks for ≤ 60 s on a ~1,400-node one. `GAP_BENCH_MESH=default:lateral:coarse` is the
 //! 276-node specimen of the earlier figures, with the `mesh` candidate on its refinement;
+//! `GAP_BENCH_HERTZ_PATCH=1` replays with the anchored Hertz patch (`Options::hertz_patch`);
 //! `GAP_BENCH_NO_CONTACT=1` fits the stiffness nuisance alone, without the contact nuisance;
 //! `GAP_BENCH_SEED`, default 5, draws other strengths: the effects' order in
 //! `GAP_BENCH_EFFECT` is the draw's order too).
@@ -28,6 +29,8 @@ fn diagnose_15_trials() -> anyhow::Result<()> {
         material_nuisance: std::env::var_os("GAP_BENCH_NO_MATERIAL").is_none(),
         // GAP_BENCH_NO_CENTRES=1: without the second stage (re-simulations at fitted tilt and support)
         centres: std::env::var_os("GAP_BENCH_NO_CENTRES").is_none(),
+        // GAP_BENCH_HERTZ_PATCH=1: the replay's balls spread over their Hertz patch, anchored
+        hertz_patch: std::env::var_os("GAP_BENCH_HERTZ_PATCH").is_some(),
         ..gap_diagnosis::Options::default()
     };
     // GAP_BENCH_SEED: another draw of the effect's strengths (default 5)

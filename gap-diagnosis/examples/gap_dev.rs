@@ -132,8 +132,36 @@ impl Case {
                 .with_context(|| format!("reading {}", truth_file.display()))?,
         )?;
         let exp = gap::load_experiment(dir, data)?;
-        let sim = SimForceModel::for_experiment(&exp, data)?;
-        let cache_file = root.join(format!("{name}_cache.json"));
+        let mut sim = SimForceModel::for_experiment(&exp, data)?;
+        // GAP_DEV_HERTZ_PATCH=S: the replay's probe balls spread over their Hertz patch
+        // (`[scene.contact] hertz_patch`), the tissue's modulus scaled by S (1: as it is); its
+        // replays are cached apart
+        // (`anchor`: scaled by `patch_anchor::anchor`)
+        let patch: Option<f64> = match std::env::var("GAP_DEV_HERTZ_PATCH").as_deref() {
+            Ok("anchor") => {
+                let a = gap::patch_anchor::anchored_patch(&sim)?;
+                eprintln!("{name}: Hertz patch anchored at x{:.4}", a.scale);
+                sim = a.model;
+                Some(0.0)
+            }
+            Ok(s) => Some(s.parse().context("GAP_DEV_HERTZ_PATCH: a modulus scale")?),
+            Err(_) => None,
+        };
+        if let Some(scale) = patch.filter(|s| *s > 0.0) {
+            sim.scene.contact.hertz_patch = true;
+            sim.scene.material.modulus_scale *= scale;
+        }
+        let cache_file = root.join(if let Some(scale) = patch {
+            if scale == 0.0 {
+                format!("{name}_patch_anchored_cache.json")
+            } else if scale == 1.0 {
+                format!("{name}_patch_cache.json")
+            } else {
+                format!("{name}_patch{scale}_cache.json")
+            }
+        } else {
+            format!("{name}_cache.json")
+        });
         Ok(Case {
             name,
             truth,

@@ -51,6 +51,7 @@ pub mod html;
 pub mod level;
 pub mod metrics;
 pub mod model;
+pub mod patch_anchor;
 pub mod reality;
 pub mod recovery;
 pub mod replay;
@@ -151,6 +152,10 @@ pub struct Options {
     /// The nuisances' level band, [lo, hi] ([`fit::LEVEL_MIN`], [`fit::LEVEL_MAX`], the
     /// default).
     pub level_band: (f64, f64),
+    /// Replay an experiment's probe balls spread over their Hertz patch, the tissue held at
+    /// the closest points' level ([`patch_anchor`]; README, "The Hertz patch in the
+    /// replay"). Off by default: the closest points.
+    pub hertz_patch: bool,
 }
 
 impl Options {
@@ -241,6 +246,7 @@ impl Default for Options {
             material_nuisance: true,
             centres: true,
             level_band: (fit::LEVEL_MIN, fit::LEVEL_MAX),
+            hertz_patch: false,
         }
     }
 }
@@ -488,7 +494,10 @@ pub fn diagnose_dir(dir: &Path, opts: &Options) -> Result<Report, GapError> {
     }
     let data = data_dir();
     let exp = load_experiment(dir, &data)?;
-    let model = sim_model::SimForceModel::for_experiment(&exp, &data)?;
+    let mut model = sim_model::SimForceModel::for_experiment(&exp, &data)?;
+    if opts.hertz_patch {
+        model = patch_anchor::anchored_patch(&model)?.model;
+    }
     diagnose(&exp, &model, opts)
 }
 

@@ -466,6 +466,7 @@ pub fn bench(
         "threads": rayon::current_num_threads(),
         "specimen": spec.mesh,
         "specimen_nodes": nodes,
+        "hertz_patch": opts.hertz_patch,
         "generate_s": generate_s,
         "diagnose_s": diagnose_s,
         "replays_s": report.stages.map(|s| s.replays_s),

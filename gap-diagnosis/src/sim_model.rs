@@ -386,8 +386,15 @@ impl ForceModel for SimForceModel {
     }
     fn describe(&self) -> String {
         format!(
-            "physics_node::sim::Simulation, kinematic probe, mesh {}, {} E scale {}",
-            self.scene.meniscus.mesh, self.scene.material.model, self.scene.material.modulus_scale
+            "physics_node::sim::Simulation, kinematic probe{}, mesh {}, {} E scale {}",
+            if self.scene.contact.hertz_patch {
+                " spread over its Hertz patch"
+            } else {
+                ""
+            },
+            self.scene.meniscus.mesh,
+            self.scene.material.model,
+            self.scene.material.modulus_scale
         )
     }
     fn has_refinement(&self) -> bool {

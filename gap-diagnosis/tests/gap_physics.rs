@@ -236,3 +236,27 @@ fn a_replay_of_the_wrong_specimen_is_reported_as_unexplained() {
         wrong.verdict.reason
     );
 }
+
+/// The patch replay is scaled by the closest points' force over its own on the protocol
+/// probings, assuming the force scales with E (above): anchored, it presses those probings as
+/// hard as the closest points do, and on the built-in specimen's 3 mm facets it is softer
+/// before (what the anchor is for).
+#[test]
+fn the_anchored_hertz_patch_presses_at_the_closest_points_level() {
+    let points = SimForceModel::from_scene(launch_config::SceneConfig::default(), &gap::data_dir());
+    let anchored = gap::patch_anchor::anchored_patch(&points).unwrap();
+    assert!(anchored.model.scene.contact.hertz_patch);
+    assert!(
+        anchored.scale > 1.02 && anchored.scale < 2.0,
+        "anchor x{:.4}",
+        anchored.scale
+    );
+    let by_points = gap::patch_anchor::protocol_normal_force(&points).unwrap();
+    let by_anchored = gap::patch_anchor::protocol_normal_force(&anchored.model).unwrap();
+    let ratio = by_anchored / by_points;
+    assert!(
+        (ratio - 1.0).abs() < 0.03,
+        "the anchored patch presses x{ratio:.4} of the closest points (anchor x{:.4})",
+        anchored.scale
+    );
+}

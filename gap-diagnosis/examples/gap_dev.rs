@@ -14,6 +14,9 @@
 //! writes those cases instead (a strength after `=`, as `arthrosim reality --effect`).
 //! `gap_dev DIR eval CANDIDATE θ…` scores one candidate at given parameters on the kept
 //! cases (see [`eval_at`]); `GAP_DEV_TOP=N` prints N ranked candidates in `rediagnose`.
+//! `GAP_DEV_TRUTH_PATCH=1` spreads `contact-layer-cases`' truth's balls over their anchored
+//! Hertz patch (`patch_anchor`); `GAP_DEV_HERTZ_PATCH=anchor` (or a modulus scale) replays
+//! `rediagnose`'s cases with the patch, cached apart.
 //! `gap_dev DIR export-specimen [MESH [refined]]` writes MESH (default `study:lateral`) in the
 //! diagnosis' specimen frame as `specimen.msh` and `specimen_fixed.txt`, for an outside code
 //! (`tools/independent_fe`) to model the same specimen.
@@ -461,12 +464,30 @@ fn write_contact_layer_cases(root: &Path, seed0: u64, mesh: &str) -> anyhow::Res
         spec.mesh = mesh.to_string();
         let name = format!("case{i:03}");
         let t0 = std::time::Instant::now();
-        gap::reality::write_experiment_with_contact_layer(
-            &spec,
-            4e-6,
-            &root.join(&name),
-            &root.join(format!("{name}_truth.json")),
-        )?;
+        if std::env::var_os("GAP_DEV_TRUTH_PATCH").is_some() {
+            // GAP_DEV_TRUTH_PATCH=1: the truth's balls spread over their Hertz patch, anchored
+            // at the closest points' level (`patch_anchor`), beside the same 4 µm/N layer
+            let data = gap::data_dir();
+            let mut scene = launch_config::SceneConfig::default();
+            scene.meniscus.mesh = spec.mesh.clone();
+            let replay = SimForceModel::from_scene(scene, &data);
+            let mut truth = gap::patch_anchor::anchored_patch(&replay)?.model;
+            truth.scene.contact.interface_compliance = 4e-6;
+            gap::reality::write_experiment_with(
+                &spec,
+                &truth,
+                &replay.sites()?,
+                &root.join(&name),
+                &root.join(format!("{name}_truth.json")),
+            )?;
+        } else {
+            gap::reality::write_experiment_with_contact_layer(
+                &spec,
+                4e-6,
+                &root.join(&name),
+                &root.join(format!("{name}_truth.json")),
+            )?;
+        }
         eprintln!(
             "{name} {} (×{:.3}) written in {:.1} s",
             spec.label(),

@@ -543,11 +543,7 @@ pub fn calibrate_input(
         },
     };
     // the scene written then carries the patch and the anchored tissue the diagnosis replayed
-    let model = if opts.hertz_patch {
-        super::patch_anchor::anchored_patch(&model)?.model
-    } else {
-        model
-    };
+    let model = opts.replay_model(model)?;
     let start = std::time::Instant::now();
     let effects = super::candidate_effects(&exp, &model, opts);
     let mut data = super::prepare_dataset(&exp, &model, &effects, opts)?;

@@ -222,6 +222,16 @@ impl Options {
             ..Nuisance::STIFFNESS
         }
     }
+    /// The model an input is replayed with: `points` (the closest-point replay of its scene)
+    /// as it is, or with [`Options::hertz_patch`] its balls spread over their Hertz patch and
+    /// its tissue anchored ([`patch_anchor::anchored_patch`]).
+    pub fn replay_model(&self, points: SimForceModel) -> Result<SimForceModel, GapError> {
+        if self.hertz_patch {
+            Ok(patch_anchor::anchored_patch(&points)?.model)
+        } else {
+            Ok(points)
+        }
+    }
     /// The replays the dataset needs for these options' nuisances.
     pub fn build_options(&self) -> BuildOptions {
         BuildOptions {
@@ -494,10 +504,7 @@ pub fn diagnose_dir(dir: &Path, opts: &Options) -> Result<Report, GapError> {
     }
     let data = data_dir();
     let exp = load_experiment(dir, &data)?;
-    let mut model = sim_model::SimForceModel::for_experiment(&exp, &data)?;
-    if opts.hertz_patch {
-        model = patch_anchor::anchored_patch(&model)?.model;
-    }
+    let model = opts.replay_model(sim_model::SimForceModel::for_experiment(&exp, &data)?)?;
     diagnose(&exp, &model, opts)
 }
 
@@ -524,7 +531,7 @@ pub fn diagnose_recording(
     } else {
         Some(session::rendering_gap(rec)?)
     };
-    let model = SimForceModel::for_session(rec, &data_dir())?;
+    let model = opts.replay_model(SimForceModel::for_session(rec, &data_dir())?)?;
     let mut report = diagnose(&exp, &model, opts)?;
     report.rendering_gap = rendering;
     Ok(report)

@@ -276,8 +276,11 @@ pub fn selftest(
     scene.meniscus.mesh = "default:lateral:coarse".into();
     let model = SimForceModel::from_scene(scene, &data);
     let sites = model.sites()?;
+    // the diagnosis replays with its own options' contact (`Options::replay_model`)
     let model_for = |exp: &super::Experiment| {
-        SimForceModel::for_experiment(exp, &data).map(|m| Box::new(m) as Box<dyn ForceModel>)
+        opts.diagnose
+            .replay_model(SimForceModel::for_experiment(exp, &data)?)
+            .map(|m| Box::new(m) as Box<dyn ForceModel>)
     };
     let truth = opts.truth_mesh.model(&model)?;
     selftest_with(cases, seed, opts, truth.as_ref(), &sites, &model_for)

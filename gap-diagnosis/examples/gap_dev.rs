@@ -137,34 +137,28 @@ impl Case {
         let exp = gap::load_experiment(dir, data)?;
         let mut sim = SimForceModel::for_experiment(&exp, data)?;
         // GAP_DEV_HERTZ_PATCH=S: the replay's probe balls spread over their Hertz patch
-        // (`[scene.contact] hertz_patch`), the tissue's modulus scaled by S (1: as it is); its
-        // replays are cached apart
-        // (`anchor`: scaled by `patch_anchor::anchor`)
-        let patch: Option<f64> = match std::env::var("GAP_DEV_HERTZ_PATCH").as_deref() {
+        // (`[scene.contact] hertz_patch`), the tissue's modulus scaled by S (1: as it is;
+        // `anchor`: by `patch_anchor::anchor`); its replays are cached apart
+        let patch = match std::env::var("GAP_DEV_HERTZ_PATCH").as_deref() {
             Ok("anchor") => {
                 let a = gap::patch_anchor::anchored_patch(&sim)?;
                 eprintln!("{name}: Hertz patch anchored at x{:.4}", a.scale);
                 sim = a.model;
-                Some(0.0)
+                "_patch_anchored".to_string()
             }
-            Ok(s) => Some(s.parse().context("GAP_DEV_HERTZ_PATCH: a modulus scale")?),
-            Err(_) => None,
+            Ok(s) => {
+                let scale: f64 = s.parse().context("GAP_DEV_HERTZ_PATCH: a modulus scale")?;
+                sim.scene.contact.hertz_patch = true;
+                sim.scene.material.modulus_scale *= scale;
+                if scale == 1.0 {
+                    "_patch".to_string()
+                } else {
+                    format!("_patch{scale}")
+                }
+            }
+            Err(_) => String::new(),
         };
-        if let Some(scale) = patch.filter(|s| *s > 0.0) {
-            sim.scene.contact.hertz_patch = true;
-            sim.scene.material.modulus_scale *= scale;
-        }
-        let cache_file = root.join(if let Some(scale) = patch {
-            if scale == 0.0 {
-                format!("{name}_patch_anchored_cache.json")
-            } else if scale == 1.0 {
-                format!("{name}_patch_cache.json")
-            } else {
-                format!("{name}_patch{scale}_cache.json")
-            }
-        } else {
-            format!("{name}_cache.json")
-        });
+        let cache_file = root.join(format!("{name}{patch}_cache.json"));
         Ok(Case {
             name,
             truth,
@@ -467,10 +461,8 @@ fn write_contact_layer_cases(root: &Path, seed0: u64, mesh: &str) -> anyhow::Res
         if std::env::var_os("GAP_DEV_TRUTH_PATCH").is_some() {
             // GAP_DEV_TRUTH_PATCH=1: the truth's balls spread over their Hertz patch, anchored
             // at the closest points' level (`patch_anchor`), beside the same 4 µm/N layer
-            let data = gap::data_dir();
-            let mut scene = launch_config::SceneConfig::default();
-            scene.meniscus.mesh = spec.mesh.clone();
-            let replay = SimForceModel::from_scene(scene, &data);
+            let scene = gap::reality::specimen_scene(&spec);
+            let replay = SimForceModel::from_scene(scene, &gap::data_dir());
             let mut truth = gap::patch_anchor::anchored_patch(&replay)?.model;
             truth.scene.contact.interface_compliance = 4e-6;
             gap::reality::write_experiment_with(

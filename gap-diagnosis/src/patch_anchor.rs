@@ -21,6 +21,7 @@
 use crate::experiment::Region;
 use crate::model::{ForceModel, Variant};
 use crate::reality::{protocol_path, STUDY_PRESS_DEPTHS};
+use crate::signal::{dot, tangent_across};
 use crate::{GapError, SimForceModel};
 use rayon::prelude::*;
 
@@ -70,7 +71,8 @@ pub fn protocol_normal_force(model: &SimForceModel) -> Result<f64, GapError> {
                 s.normal,
                 0.5 * (lo + hi),
                 model.scene.probe.tip_radius,
-                Some(slide_across(s.normal)),
+                // any tangent slides the ball over facets
+                Some(tangent_across(s.normal, 0)),
                 ANCHOR_DT,
             );
             (s.normal, path)
@@ -87,7 +89,7 @@ pub fn protocol_normal_force(model: &SimForceModel) -> Result<f64, GapError> {
             Ok(model
                 .replay_untilted(&Variant::default(), path)?
                 .iter()
-                .map(|f| (f[0] * n[0] + f[1] * n[1] + f[2] * n[2]).max(0.0))
+                .map(|&f| dot(f, *n).max(0.0))
                 .sum())
         })
         .collect::<Result<_, GapError>>()?;
@@ -102,40 +104,4 @@ pub fn anchored_patch(points: &SimForceModel) -> Result<AnchoredPatch, GapError>
     model.scene.contact.hertz_patch = true;
     model.scene.material.modulus_scale *= scale;
     Ok(AnchoredPatch { model, scale })
-}
-
-/// A unit direction across `normal`: the slide of an anchoring probing (any tangent slides
-/// the ball over facets).
-fn slide_across(normal: [f64; 3]) -> [f64; 3] {
-    let axis = if normal[0].abs() < 0.9 {
-        [1.0, 0.0, 0.0]
-    } else {
-        [0.0, 1.0, 0.0]
-    };
-    let d = axis[0] * normal[0] + axis[1] * normal[1] + axis[2] * normal[2];
-    let t = [
-        axis[0] - d * normal[0],
-        axis[1] - d * normal[1],
-        axis[2] - d * normal[2],
-    ];
-    let len = (t[0] * t[0] + t[1] * t[1] + t[2] * t[2]).sqrt();
-    [t[0] / len, t[1] / len, t[2] / len]
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn the_slide_is_a_unit_tangent() {
-        for n in [[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.6, 0.0, 0.8]] {
-            let t = slide_across(n);
-            let dot = t[0] * n[0] + t[1] * n[1] + t[2] * n[2];
-            let len = (t[0] * t[0] + t[1] * t[1] + t[2] * t[2]).sqrt();
-            assert!(
-                dot.abs() < 1e-12 && (len - 1.0).abs() < 1e-12,
-                "{n:?} → {t:?}"
-            );
-        }
-    }
 }

@@ -504,7 +504,7 @@ pub fn write_experiment_with_contact_layer(
 }
 
 /// The scene the diagnosis replays `spec`'s specimen in: the default scene with its mesh.
-fn specimen_scene(spec: &RealitySpec) -> SceneConfig {
+pub fn specimen_scene(spec: &RealitySpec) -> SceneConfig {
     let mut scene = SceneConfig::default();
     scene.meniscus.mesh = spec.mesh.clone();
     scene
@@ -542,15 +542,7 @@ fn probing_path(
     let (n, p) = (site.normal, site.point);
     let [lo, hi] = STUDY_PRESS_DEPTHS;
     let depth = lo + (hi - lo) * (PRESS_STRATUM[j % 5] as f64 + depth_u) / 5.0;
-    let slide = slides(j).then(|| {
-        let a = if n[2].abs() < 0.9 {
-            [0.0, 0.0, 1.0]
-        } else {
-            [1.0, 0.0, 0.0]
-        };
-        let t = sub(a, scale(n, super::signal::dot(a, n)));
-        scale(t, slide_sign / norm(t))
-    });
+    let slide = slides(j).then(|| scale(super::signal::tangent_across(n, 2), slide_sign));
     protocol_path(p, n, depth, standoff, slide, spec.truth_dt)
 }
 

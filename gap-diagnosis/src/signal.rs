@@ -188,6 +188,24 @@ pub fn scale(a: [f64; 3], s: f64) -> [f64; 3] {
     [a[0] * s, a[1] * s, a[2] * s]
 }
 
+/// A unit direction across the unit `normal`: the world axis `axis` (0, 1, 2) with its
+/// component along `normal` taken out, or the next axis where `normal` lies within ~25° of it
+/// (a probing's slide over the surface).
+pub fn tangent_across(normal: [f64; 3], axis: usize) -> [f64; 3] {
+    let unit = |k: usize| {
+        let mut e = [0.0; 3];
+        e[k % 3] = 1.0;
+        e
+    };
+    let a = if normal[axis].abs() < 0.9 {
+        unit(axis)
+    } else {
+        unit(axis + 1)
+    };
+    let t = sub(a, scale(normal, dot(a, normal)));
+    scale(t, 1.0 / norm(t))
+}
+
 /// Rotate a vector by a unit quaternion (x, y, z, w).
 pub fn quat_rotate(q: [f64; 4], v: [f64; 3]) -> [f64; 3] {
     let (qx, qy, qz, qw) = (q[0], q[1], q[2], q[3]);
@@ -239,6 +257,21 @@ pub fn nlerp(a: [f64; 4], b: [f64; 4], w: f64) -> [f64; 4] {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_tangent_across_a_normal_is_a_unit_tangent() {
+        let n = [0.6, 0.0, 0.8];
+        for (normal, axis) in [([0.0, 0.0, 1.0], 0), ([1.0, 0.0, 0.0], 0), (n, 0), (n, 2)] {
+            let t = tangent_across(normal, axis);
+            assert!(
+                dot(t, normal).abs() < 1e-12 && (norm(t) - 1.0).abs() < 1e-12,
+                "{normal:?} about axis {axis} → {t:?}"
+            );
+        }
+        // along its axis the normal takes the next one: the x normal slides along y
+        assert_eq!(tangent_across([1.0, 0.0, 0.0], 0), [0.0, 1.0, 0.0]);
+        assert_eq!(tangent_across([0.0, 0.0, 1.0], 2), [1.0, 0.0, 0.0]);
+    }
 
     #[test]
     fn lag_of_shifted_pulse() {

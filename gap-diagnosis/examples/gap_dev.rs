@@ -298,7 +298,7 @@ fn rediagnose_kept_cases(root: &Path) -> anyhow::Result<()> {
             eprintln!("    recovery {g}");
         }
         eprintln!(
-            "    verdict params: {} (level {})",
+            "    verdict params: {} (level {}; stiffness {:?}, contact {:?} m/N, material {:?})",
             r.verdict
                 .params
                 .iter()
@@ -312,7 +312,10 @@ fn rediagnose_kept_cases(root: &Path) -> anyhow::Result<()> {
                     .measured_level
                     .zip(r.heldout.measured_level_se)
                     .map(|(l, se)| format!(", measured {l:.4} ± {se:.4}"))
-                    .unwrap_or_default()
+                    .unwrap_or_default(),
+            r.verdict.nuisance_scale,
+            r.verdict.contact_compliance,
+            r.verdict.material_weight,
         );
         // GAP_DEV_TOP=N: how many ranked candidates to print (10)
         let top = std::env::var("GAP_DEV_TOP")
@@ -342,7 +345,8 @@ fn rediagnose_kept_cases(root: &Path) -> anyhow::Result<()> {
                     + &c.contact_compliance
                         .map(|w| format!(" cc {:.1}", 1e6 * w))
                         .unwrap_or_default()
-                    + &c.level.map(|l| format!(" lvl {l:.3}")).unwrap_or_default(),
+                    + &c.level.map(|l| format!(" lvl {l:.3}")).unwrap_or_default()
+                    + &format!(" fs {:.1}%", 100.0 * c.floor_shrink),
                 c.params
                     .iter()
                     .map(|p| format!("{}={:.4e}", p.name, p.value))

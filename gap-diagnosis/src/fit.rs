@@ -1312,8 +1312,10 @@ pub struct CandidateScore {
     /// BIC-style parameter penalty (each nuisance counts as a parameter where fitted).
     pub score: f64,
     /// The stiffness nuisance fitted with the candidate on all trials ([`Nuisance`]); absent
-    /// where the candidate's own scale is the total (`modulus`, `hardening`) or the nuisance
-    /// is off.
+    /// where the candidate's own scale is the total (`hardening`) or the nuisance is off.
+    /// For `modulus`, once reported ([`CandidateScore::report_modulus_as_level`]): the
+    /// tissue's scale in the replay over the modulus's level, what the contact and material
+    /// terms beside it need of the tissue to reach that level.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub nuisance_scale: Option<f64>,
     /// The contact nuisance fitted with the candidate on all trials, as a compliance in series
@@ -1515,6 +1517,47 @@ pub fn score_candidate(
         sensor_gain_z: None,
         theta,
         heldout_pred: held_pred,
+    }
+}
+
+impl CandidateScore {
+    /// A `modulus`'s strength as its response level ([`CandidateScore::level`]), the rest of
+    /// its tissue scale as the stiffness it carries for the contact and material terms
+    /// ([`CandidateScore::nuisance_scale`]). For the report, after the verdict is decided on
+    /// the fit's own scale ([`crate::strength::negligible`] weighs both); the prediction
+    /// (`theta`) and what calibration writes (the two multiplied) are unchanged.
+    ///
+    /// Why: the level is what the trials measure of a modulus, the split between the tissue
+    /// and a contact layer in series is not. Both nuisance terms only lower the level, so the
+    /// fit's scale lies above it by whatever part of an outside code's shape they take, and
+    /// that part is model error, present with no effect at all. On the independent code's
+    /// linear elements (no-effect level ×1.078, its scale ×1.244) the fit's scale read
+    /// ×0.694, ×1.711 and ×2.098 for a modulus ×0.59, ×1.42 and ×1.7, 18–23% high, where the
+    /// level read ×0.637, ×1.517 and ×1.782, 5–8% high; on its P2 elements (levelled to the
+    /// replay, the layer at its knot) the scale read ×0.890 and ×2.129 for ×0.59 and ×1.42,
+    /// the level ×0.578 and ×1.323 (README, "A modulus reported at its level").
+    pub fn report_modulus_as_level(&mut self) {
+        if self.nuisance_scale.is_some() {
+            return;
+        }
+        let Some(level) = self.level.filter(|l| l.is_finite() && *l > 0.0) else {
+            return;
+        };
+        let modulus = Effect::Modulus.name();
+        let Some(p) = self
+            .params
+            .iter_mut()
+            .find(|p| p.effect == modulus && p.name == "modulus_scale")
+        else {
+            return;
+        };
+        let tissue = p.value;
+        if !(tissue.is_finite() && tissue > 0.0) || tissue == level {
+            return;
+        }
+        p.value = level;
+        p.std *= level / tissue;
+        self.nuisance_scale = Some(tissue / level);
     }
 }
 

@@ -366,6 +366,8 @@ pub struct Verdict {
     pub effect: String,
     /// Held-out RMSE shrink of the winner, fraction.
     pub heldout_shrink: f64,
+    /// The winner's fitted strengths; a `modulus`'s scale at its response level
+    /// ([`fit::CandidateScore::report_modulus_as_level`]).
     pub params: Vec<fit::FittedParam>,
     pub reason: String,
     /// Candidates the held-out data cannot tell apart from `effect` within its between-trial
@@ -377,8 +379,10 @@ pub struct Verdict {
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub separate_by: Vec<String>,
     /// The stiffness nuisance fitted with `effect` (for `none`: with the baseline). Absent
-    /// where the effect's own scale is the total (`modulus`, `hardening`) or the nuisance is
-    /// off. Calibration writes it as a scale of the whole tissue (modulus and support).
+    /// where the effect's own scale is the total (`hardening`) or the nuisance is off; for
+    /// `modulus`, the tissue scale its contact and material terms need over its level (the
+    /// modulus's reported scale). Calibration writes it as a scale of the whole tissue
+    /// (modulus and support).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub nuisance_scale: Option<f64>,
     /// The contact nuisance fitted with `effect` (for `none`: with the baseline), m/N per
@@ -795,7 +799,13 @@ pub fn diagnose_data(
         verdict.indistinguishable = set.candidates;
         verdict.separate_by = set.separate_by;
     }
+    ranking
+        .iter_mut()
+        .for_each(CandidateScore::report_modulus_as_level);
     let winner = ranking.iter().find(|c| c.effect == verdict.effect);
+    if let Some(w) = winner {
+        verdict.params = w.params.clone();
+    }
     let fitted_with = winner.unwrap_or(&floor);
     verdict.nuisance_scale = fitted_with.nuisance_scale;
     verdict.contact_compliance = fitted_with.contact_compliance;
@@ -1236,15 +1246,14 @@ fn decide(
             reason = format!(
                 "{reason}; its stiffness nuisance sits at the band's bound ×{:.3}, and {} \
                  removes {:.0}% more ({:.4} → {:.4} N plain), {:.1} SE trial by trial, with a \
-                 modulus ×{:.3} beyond the band",
+                 modulus ×{:.3} in level beyond the band",
                 best.nuisance_scale.unwrap_or(1.0),
                 pair.effect,
                 100.0 * gain_over(pair, best),
                 best.heldout_rmse,
                 pair.heldout_rmse,
                 pair.stiffness_gain_z.unwrap_or(0.0),
-                recovery::fitted_strength(&pair.params, Effect::Modulus.name(), "modulus_scale")
-                    .unwrap_or(1.0)
+                pair.level.unwrap_or(f64::NAN)
             );
             win = pair;
         }
@@ -1985,6 +1994,54 @@ mod tests {
             .map(|&(e, n, v)| fit::FittedParam::given(e, n, v))
             .collect();
         c
+    }
+
+    /// Regression: the independent P2 code's grade-2 case (modulus ×0.59) was named right
+    /// with `modulus_scale` 0.890 in the report, 51% off: the contact layer beside it (at its
+    /// knot) took the level to ×0.578, and the scale sat above it by what the layer took.
+    /// The report carries the level; calibration still writes the fit's tissue and layer.
+    #[test]
+    fn a_modulus_beside_a_contact_layer_reports_its_level() {
+        let mut c = fitted(
+            scored("modulus", 1.98, 0.25, 2000.0),
+            &[("modulus", "modulus_scale", 0.8896)],
+        );
+        c.params[0].std = 0.01;
+        c.level = Some(0.5775);
+        c.contact_compliance = Some(1e-5);
+        c.report_modulus_as_level();
+        let scale = recovery::fitted_strength(&c.params, "modulus", "modulus_scale").unwrap();
+        assert!((scale - 0.5775).abs() < 1e-12, "{:?}", c.params);
+        assert!((c.params[0].std - 0.01 * 0.5775 / 0.8896).abs() < 1e-12);
+        let carried = c
+            .nuisance_scale
+            .expect("the tissue's part beside the layer");
+        let mut scene = launch_config::SceneConfig::default();
+        calibrate::apply_effect(&mut scene, Effect::Modulus, &c.params);
+        calibrate::apply_nuisance(&mut scene, carried);
+        assert!((scene.material.modulus_scale - 0.8896).abs() < 1e-12);
+        // reported once: a second pass changes nothing
+        let values = |c: &CandidateScore| c.params.iter().map(|p| p.value).collect::<Vec<_>>();
+        let once = c.clone();
+        c.report_modulus_as_level();
+        assert_eq!(values(&c), values(&once));
+        assert_eq!(c.nuisance_scale, once.nuisance_scale);
+        // a candidate with a stiffness nuisance of its own, or without a level, is as fitted
+        let mut friction = fitted(
+            scored("modulus+friction", 2.0, 0.3, 1900.0),
+            &[("modulus", "modulus_scale", 1.4), ("friction", "mu", 0.2)],
+        );
+        friction.nuisance_scale = Some(1.1);
+        friction.level = Some(1.2);
+        let before = values(&friction);
+        friction.report_modulus_as_level();
+        assert_eq!(values(&friction), before);
+        let mut hardening = fitted(
+            scored("hardening", 2.0, 0.3, 1900.0),
+            &[("hardening", "small_strain_scale", 1.3)],
+        );
+        hardening.report_modulus_as_level();
+        assert_eq!(hardening.nuisance_scale, None);
     }
 
     /// Regression: a coarse-mesh proxy case of modulus ×1.62 with friction μ 0.24 (seed 213)
